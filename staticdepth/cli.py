@@ -18,6 +18,7 @@ from staticdepth.errors import InputError
 COMMAND_MODULES = [
     "staticdepth.dataset.cli",       # synth, inspect, verify, ...
     "staticdepth.demo",              # demo
+    "staticdepth.evaluate",          # metrics, evaluate
 ]
 
 

@@ -1,0 +1,225 @@
+"""Evaluation stage: metrics of stored predictions per protocol, split and region.
+
+Commands: ``staticdepth evaluate SEQ.h5`` (predictions stored in a sequence file) and
+``staticdepth metrics --pred P --gt G`` (maps made elsewhere, as ``.npy`` files or folders).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+from staticdepth.dataset import schema
+from staticdepth.errors import InputError
+from staticdepth.metrics import (METRIC_KEYS, PROTOCOLS, apply_protocol, average, depth_metrics,
+                                 evaluate, valid_mask)
+from staticdepth.progress import progress
+
+DISTANCE_BANDS_M = ((0.0, 10.0), (10.0, 20.0), (20.0, 40.0), (40.0, 80.0))
+GROUND_TOLERANCE_M = 0.10
+
+
+def default_protocol(name: str) -> str:
+    """Metric predictions (``*-metric``, the stereo baseline) are evaluated without rescaling."""
+    return "metric" if name.endswith("-metric") or name.startswith("stereo-baseline") else "median"
+
+
+def region_masks(gt: np.ndarray, instances: np.ndarray | None, agents: np.ndarray | None,
+                 K: np.ndarray | None, plane: tuple[np.ndarray, float] | None,
+                 max_depth: float) -> dict[str, np.ndarray]:
+    """Boolean masks: ``all``, ``agents`` (agent and accessory instances), ``ground`` (pixels whose
+    ground-truth point lies within 10 cm of the true ground plane), and distance bands."""
+    out = {"all": np.ones(gt.shape, bool)}
+    if instances is not None and agents is not None and len(agents):
+        ids = agents["instance_id"][np.isin(agents["class_id"], list(schema.AGENT_CLASSES
+                                                                      | schema.ACCESSORY_CLASSES))]
+        out["agents"] = np.isin(instances, ids) & (instances > 0)
+    if plane is not None and K is not None:
+        from staticdepth.geometry.projection import points_from_depth
+
+        n, d = plane
+        P = points_from_depth(np.nan_to_num(gt, nan=0.0), K)
+        with np.errstate(invalid="ignore"):
+            on = np.abs(P @ n - d) < GROUND_TOLERANCE_M
+        if instances is not None:
+            on &= instances == 0
+        out["ground"] = on
+    for lo, hi in DISTANCE_BANDS_M:
+        if lo < max_depth:
+            with np.errstate(invalid="ignore"):
+                out[f"{lo:g}-{min(hi, max_depth):g}m"] = (gt >= lo) & (gt < hi)
+    return out
+
+
+def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = None, *,
+                      split: str = "eval", protocols: Iterable[str] | None = None,
+                      max_depth: float = 80.0, min_depth: float = 1e-3,
+                      regions: bool = True) -> dict[str, Any]:
+    """Per prediction and protocol: averages over the split's frames, per region.
+
+    Returns ``{"sequence": ..., "split": ..., "frames": n, "results": {name: {protocol:
+    {region: averages}}}}``. ``protocols=None`` uses :func:`default_protocol` per prediction.
+    """
+    from staticdepth.dataset.h5 import SequenceReader
+
+    with SequenceReader(path) as r:
+        if not r.has("depth"):
+            raise InputError("sequence has no ground-truth depth to evaluate against", r.path)
+        names = list(names) if names else r.predictions()
+        missing = [n for n in names if n not in r.predictions()]
+        if missing:
+            raise InputError(f"no prediction(s) {missing} (has {r.predictions()})", r.path)
+        if not names:
+            raise InputError("sequence has no predictions to evaluate", r.path)
+        frames = r.split(split)
+        if len(frames) == 0:
+            raise InputError(f"split {split!r} has no frames", r.path)
+        K = r.camera.K
+        plane = None
+        if r.meta.mounting is not None:
+            plane = (r.meta.mounting.normal, r.meta.mounting.height_m)
+        per: dict[tuple[str, str, str], list[dict]] = {}
+        prot_of = {n: list(protocols) if protocols else [default_protocol(n)] for n in names}
+        for i in progress(frames, desc="evaluate", unit="frame"):
+            gt = r.depth(i)
+            inst = r.instances(i) if r.has("instances") else None
+            masks = region_masks(gt, inst, r.agents(i), K, plane, max_depth) if regions \
+                else {"all": np.ones(gt.shape, bool)}
+            vm = valid_mask(gt, min_depth, max_depth)
+            if not vm.any():
+                continue
+            for name in names:
+                pred = r.prediction(name, i)
+                for prot in prot_of[name]:
+                    # one scale per image from all valid pixels; regions are evaluated with it
+                    scaled, s = apply_protocol(pred, gt, prot, vm)
+                    for reg, m in masks.items():
+                        if not (vm & m).any():
+                            continue
+                        res = depth_metrics(scaled, gt, min_depth=min_depth, max_depth=max_depth,
+                                            mask=m)
+                        res["scale"] = s
+                        per.setdefault((name, prot, reg), []).append(res)
+        name_seq = r.meta.name
+    results: dict[str, Any] = {}
+    for (name, prot, reg), rows in per.items():
+        avg = average(rows)
+        avg["scale_median"] = float(np.median([x["scale"] for x in rows]))
+        results.setdefault(name, {}).setdefault(prot, {})[reg] = avg
+    return {"sequence": name_seq, "path": os.fspath(path), "split": split,
+            "frames": len(frames), "results": results}
+
+
+# --------------------------------------------------------------------------------------------
+# .npy inputs for `staticdepth metrics`
+
+def load_maps(path: str | os.PathLike) -> list[np.ndarray]:
+    """One ``.npy`` (H x W or N x H x W) or a folder of them in sorted order -> list of H x W."""
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        files = sorted(f for f in os.listdir(path) if f.endswith(".npy"))
+        if not files:
+            raise InputError("folder holds no .npy files", path)
+        out = []
+        for f in files:
+            out.extend(load_maps(os.path.join(path, f)))
+        return out
+    if not os.path.exists(path):
+        raise InputError("file not found", path)
+    try:
+        a = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as e:
+        raise InputError(f"not a readable .npy file ({e})", path) from None
+    if a.ndim == 2:
+        return [a.astype(np.float64)]
+    if a.ndim == 3:
+        return [x.astype(np.float64) for x in a]
+    raise InputError(f"expected an H x W or N x H x W array, got shape {a.shape}", path)
+
+
+def metrics_on_maps(preds: list[np.ndarray], gts: list[np.ndarray], protocol: str,
+                    max_depth: float, pred_src: str = "", gt_src: str = "") -> dict[str, Any]:
+    if len(preds) != len(gts):
+        raise InputError(f"{len(preds)} predictions ({pred_src}) but {len(gts)} ground-truth "
+                         f"maps ({gt_src})")
+    per = []
+    for i, (p, g) in enumerate(zip(preds, gts)):
+        if p.shape != g.shape:
+            raise InputError(f"image {i}: prediction {p.shape} vs ground truth {g.shape}", pred_src)
+        g = np.where(g > 0, g, np.nan)  # 0 = unknown in ground truth
+        try:
+            per.append(evaluate(p, g, protocol, max_depth=max_depth))
+        except InputError as e:
+            raise InputError(f"image {i}: {e.problem}", gt_src) from None
+    out = average(per)
+    out["per_image"] = per
+    out["protocol"] = protocol
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# CLI
+
+def register(sub) -> None:
+    p = sub.add_parser("metrics", help="depth metrics of .npy predictions against ground truth",
+                       description="SiLog, AbsRel, SqRel, RMSE, RMSE log, delta thresholds as in "
+                                   "the paper (METHOD.md section 6).")
+    p.add_argument("--pred", required=True, help=".npy (H x W or N x H x W) or folder of them")
+    p.add_argument("--gt", required=True, help="same layout; metres, NaN or 0 = unknown")
+    p.add_argument("--protocol", choices=PROTOCOLS, default="median")
+    p.add_argument("--max-depth", type=float, default=80.0)
+    p.add_argument("--json", help="write averages and per-image values here")
+    p.set_defaults(func=_metrics_cmd)
+
+    p = sub.add_parser("evaluate", help="evaluate the predictions stored in a sequence file",
+                       description="Metrics of pred/<name>/depth against the ground truth, per "
+                                   "protocol and region (all, agents, ground, distance bands).")
+    p.add_argument("sequence")
+    p.add_argument("--pred", nargs="*", help="prediction names (default: all stored)")
+    p.add_argument("--split", default="eval", choices=("eval", "adapt", "all"))
+    p.add_argument("--protocol", nargs="*", choices=PROTOCOLS,
+                   help="default: metric for *-metric and stereo-baseline, median otherwise")
+    p.add_argument("--max-depth", type=float, default=80.0)
+    p.add_argument("--json", help="write the full results here")
+    p.set_defaults(func=_evaluate_cmd)
+
+
+def _write_json(path: str, obj: Any) -> None:
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w") as f:
+        json.dump(obj, f, indent=2)
+    os.replace(tmp, path)
+
+
+def format_row(name: str, m: dict[str, float]) -> str:
+    return f"{name:24s} " + " ".join(f"{m[k]:8.4f}" for k in METRIC_KEYS)
+
+
+def header() -> str:
+    return f"{'':24s} " + " ".join(f"{k:>8s}" for k in METRIC_KEYS)
+
+
+def _metrics_cmd(args: argparse.Namespace) -> int:
+    out = metrics_on_maps(load_maps(args.pred), load_maps(args.gt), args.protocol,
+                          args.max_depth, args.pred, args.gt)
+    print(header())
+    print(format_row(f"{args.protocol} ({out['n_images']} img)", out))
+    if args.json:
+        _write_json(args.json, out)
+    return 0
+
+
+def _evaluate_cmd(args: argparse.Namespace) -> int:
+    res = evaluate_sequence(args.sequence, args.pred, split=args.split,
+                            protocols=args.protocol, max_depth=args.max_depth)
+    print(f"{res['sequence']}: split {res['split']} ({res['frames']} frames)")
+    print(header())
+    for name, by_prot in res["results"].items():
+        for prot, regs in by_prot.items():
+            print(format_row(f"{name} [{prot}]", regs["all"]))
+    if args.json:
+        _write_json(args.json, res)
+    return 0
