@@ -19,6 +19,7 @@ COMMAND_MODULES = [
     "staticdepth.dataset.cli",       # synth, inspect, verify, ...
     "staticdepth.demo",              # demo
     "staticdepth.evaluate",          # metrics, evaluate
+    "staticdepth.report",            # report
 ]
 
 
