@@ -1,0 +1,164 @@
+"""``staticdepth run RECIPE.yaml``: a scene's whole pipeline as a declarative list of stages.
+
+A recipe is YAML::
+
+    name: K1
+    out_dir: runs/K1                    # relative to the current directory
+    vars: {root: /data/kitti_raw}       # placeholders, overridable with --var root=...
+    stages:                             # run in this order
+      import:
+        command: import-kitti           # any staticdepth subcommand
+        args: {root: "{root}", drives: [2011_09_28_drive_0016], out: "{out_dir}/K1.h5"}
+        outputs: ["{out_dir}/K1.h5"]    # what the stage produces (checked before skipping)
+      adapt: {command: adapt, args: {_: ["{out_dir}/K1.h5"], epochs: 30}}
+
+``args`` become the command's options (``key: value`` -> ``--key value``, lists -> several values,
+``true`` -> a bare flag, ``false``/null -> omitted, ``_`` -> positionals). A stage is skipped when
+its outputs exist and the state file records the same hash of its settings and of every earlier
+stage's; ``--force`` reruns everything.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import time
+from typing import Any, Mapping
+
+from staticdepth.config import config_hash, load_yaml
+from staticdepth.errors import InputError
+
+RECIPE_KEYS = {"name", "out_dir", "vars", "stages", "description", "paper"}
+STAGE_KEYS = {"command", "args", "outputs", "description"}
+STATE_FILE = "recipe_state.json"
+
+
+def _subst(value: Any, env: Mapping[str, str], where: str) -> Any:
+    if isinstance(value, str):
+        def rep(m: re.Match) -> str:
+            k = m.group(1)
+            if k not in env:
+                raise InputError(f"{where}: unknown placeholder {{{k}}} (known: {sorted(env)})")
+            return str(env[k])
+        return re.sub(r"\{([A-Za-z_][A-Za-z0-9_]*)\}", rep, value)
+    if isinstance(value, list):
+        return [_subst(v, env, where) for v in value]
+    if isinstance(value, dict):
+        return {k: _subst(v, env, where) for k, v in value.items()}
+    return value
+
+
+def argv_from_args(command: str, args: Mapping[str, Any]) -> list[str]:
+    """``{key: value}`` -> the command line of ``staticdepth COMMAND``."""
+    argv = command.split()
+    positional = args.get("_", [])
+    argv += [str(p) for p in (positional if isinstance(positional, list) else [positional])]
+    for k, v in args.items():
+        if k == "_" or v is None or v is False:
+            continue
+        flag = "--" + k.replace("_", "-")
+        if v is True:
+            argv.append(flag)
+        elif isinstance(v, list):
+            argv += [flag] + [str(x) for x in v]
+        elif isinstance(v, dict):  # e.g. set: {epochs: 3} -> --set epochs=3 ...
+            for kk, vv in v.items():
+                argv += [flag, f"{kk}={vv}"]
+        else:
+            argv += [flag, str(v)]
+    return argv
+
+
+def load_recipe(path: str | os.PathLike, variables: Mapping[str, str] | None = None
+                ) -> dict[str, Any]:
+    r = load_yaml(path)
+    src = os.fspath(path)
+    unknown = set(r) - RECIPE_KEYS
+    if unknown:
+        raise InputError(f"unknown recipe key(s) {sorted(unknown)} (known: {sorted(RECIPE_KEYS)})",
+                         src)
+    for k in ("name", "stages"):
+        if k not in r:
+            raise InputError(f"recipe is missing {k!r}", src)
+    if not isinstance(r["stages"], dict) or not r["stages"]:
+        raise InputError("'stages' must be a non-empty mapping", src)
+    env = {"name": str(r["name"]), "data": os.environ.get("STATICDEPTH_DATA", "../shared/data")}
+    env.update({k: str(v) for k, v in (r.get("vars") or {}).items()})
+    env.update({k: str(v) for k, v in (variables or {}).items()})
+    env["out_dir"] = str(_subst(r.get("out_dir", f"runs/{r['name']}"), env, src))
+    stages = {}
+    for name, st in r["stages"].items():
+        if not isinstance(st, dict) or "command" not in st:
+            raise InputError(f"stage {name!r} needs a 'command'", src)
+        bad = set(st) - STAGE_KEYS
+        if bad:
+            raise InputError(f"stage {name!r}: unknown key(s) {sorted(bad)}", src)
+        stages[name] = {"command": st["command"],
+                        "args": _subst(st.get("args") or {}, env, f"{src} stage {name}"),
+                        "outputs": _subst(st.get("outputs") or [], env, f"{src} stage {name}")}
+    return {"name": r["name"], "out_dir": env["out_dir"], "stages": stages, "path": src}
+
+
+def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str] | None = None,
+               dry_run: bool = False, log=print) -> dict[str, str]:
+    """Run the stages in order; returns {stage: "ran" | "skipped"}."""
+    from staticdepth.cli import main as cli_main
+
+    out_dir = recipe["out_dir"]
+    os.makedirs(out_dir, exist_ok=True)
+    state_path = os.path.join(out_dir, STATE_FILE)
+    state = json.load(open(state_path)) if os.path.exists(state_path) else {}
+    chain = ""
+    status: dict[str, str] = {}
+    for name, st in recipe["stages"].items():
+        chain = config_hash({"prev": chain, "command": st["command"], "args": st["args"]})
+        argv = argv_from_args(st["command"], st["args"])
+        done = (state.get(name) == chain and st["outputs"]
+                and all(os.path.exists(p) for p in st["outputs"]))
+        if (only and name not in only) or (done and not force):
+            status[name] = "skipped"
+            log(f"[{recipe['name']}] {name}: up to date, skipped" if done else
+                f"[{recipe['name']}] {name}: not selected, skipped")
+            continue
+        log(f"[{recipe['name']}] {name}: staticdepth {' '.join(argv)}")
+        if dry_run:
+            status[name] = "dry-run"
+            continue
+        t0 = time.perf_counter()
+        rc = cli_main(argv)
+        if rc != 0:
+            raise InputError(f"stage {name!r} failed (exit {rc}): staticdepth {' '.join(argv)}",
+                             recipe["path"])
+        missing = [p for p in st["outputs"] if not os.path.exists(p)]
+        if missing:
+            raise InputError(f"stage {name!r} did not produce {missing}", recipe["path"])
+        state[name] = chain
+        tmp = state_path + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(state, f, indent=2)
+        os.replace(tmp, state_path)
+        status[name] = "ran"
+        log(f"[{recipe['name']}] {name}: done in {time.perf_counter() - t0:.1f} s")
+    return status
+
+
+def register(sub) -> None:
+    p = sub.add_parser("run", help="run a scene recipe (import, adapt, baseline, evaluation)",
+                       description="Run the stages of a recipe YAML in order, skipping stages "
+                                   "whose outputs are present with the same settings.")
+    p.add_argument("recipe")
+    p.add_argument("--var", action="append", default=[], metavar="KEY=VALUE",
+                   help="set a recipe placeholder, e.g. --var root=/data/kitti_raw")
+    p.add_argument("--only", nargs="*", help="run only these stages")
+    p.add_argument("--force", action="store_true", help="rerun stages even when up to date")
+    p.add_argument("--dry-run", action="store_true", help="print the commands only")
+    p.set_defaults(func=_run_cmd)
+
+
+def _run_cmd(args: argparse.Namespace) -> int:
+    from staticdepth.cli import parse_overrides
+
+    recipe = load_recipe(args.recipe, parse_overrides(args.var))
+    run_recipe(recipe, force=args.force, only=args.only, dry_run=args.dry_run)
+    return 0

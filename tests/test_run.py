@@ -1,0 +1,66 @@
+"""Recipe runner: placeholders, argv building, skipping up-to-date stages, errors."""
+import json
+
+import numpy as np
+import pytest
+
+from staticdepth.cli import main
+from staticdepth.errors import InputError
+from staticdepth.run import argv_from_args, load_recipe, run_recipe
+
+RECIPE = """
+name: T
+out_dir: "{base}/out"
+vars: {factor: "2"}
+stages:
+  first:
+    command: metrics
+    args: {pred: "{base}/pred.npy", gt: "{base}/gt.npy", protocol: metric, json: "{out_dir}/a.json"}
+    outputs: ["{out_dir}/a.json"]
+  second:
+    command: metrics
+    args: {pred: "{base}/pred.npy", gt: "{base}/gt.npy", json: "{out_dir}/b.json"}
+    outputs: ["{out_dir}/b.json"]
+"""
+
+
+def test_argv_from_args():
+    argv = argv_from_args("baseline train", {"_": ["s.h5"], "epochs": 3, "fill": True,
+                                              "skip": False, "drives": ["a", "b"],
+                                              "set": {"lr": 0.1}, "max_depth": 80})
+    assert argv == ["baseline", "train", "s.h5", "--epochs", "3", "--fill", "--drives", "a", "b",
+                    "--set", "lr=0.1", "--max-depth", "80"]
+
+
+def test_recipe_runs_then_skips_then_reruns_changed_stage(tmp_path):
+    gt = np.random.default_rng(0).uniform(1, 30, (2, 8, 8))
+    np.save(tmp_path / "gt.npy", gt)
+    np.save(tmp_path / "pred.npy", gt * 2)
+    rp = tmp_path / "r.yaml"
+    rp.write_text(RECIPE)
+    logs = []
+    r = load_recipe(rp, {"base": str(tmp_path)})
+    assert run_recipe(r, log=logs.append) == {"first": "ran", "second": "ran"}
+    assert json.loads((tmp_path / "out" / "a.json").read_text())["abs_rel"] == pytest.approx(1.0)
+    assert run_recipe(r, log=logs.append) == {"first": "skipped", "second": "skipped"}
+    # a change in the first stage's settings reruns it and everything after it
+    rp.write_text(RECIPE.replace("protocol: metric", "protocol: median"))
+    r2 = load_recipe(rp, {"base": str(tmp_path)})
+    assert run_recipe(r2, log=logs.append) == {"first": "ran", "second": "ran"}
+    (tmp_path / "out" / "b.json").unlink()  # a missing output reruns its stage
+    assert run_recipe(r2, log=logs.append)["second"] == "ran"
+    assert main(["run", str(rp), "--var", f"base={tmp_path}", "--dry-run"]) == 0
+
+
+def test_recipe_errors(tmp_path, capsys):
+    rp = tmp_path / "r.yaml"
+    rp.write_text("name: T\nstages: {a: {command: metrics, args: {pred: '{nope}'}}}\n")
+    with pytest.raises(InputError, match=r"unknown placeholder \{nope\}"):
+        load_recipe(rp)
+    rp.write_text("name: T\nstagez: {}\n")
+    assert main(["run", str(rp)]) == 2
+    assert "unknown recipe key(s) ['stagez']" in capsys.readouterr().err
+    rp.write_text("name: T\nout_dir: " + str(tmp_path / "o") +
+                  "\nstages: {a: {command: metrics, args: {pred: x.npy, gt: y.npy}}}\n")
+    assert main(["run", str(rp)]) == 2
+    assert "stage 'a' failed" in capsys.readouterr().err
