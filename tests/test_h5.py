@@ -214,3 +214,28 @@ def test_writer_rejects_bad_frames(tmp_path):
         SequenceMeta(name="t", camera=CAM, adapt_frames=-1)
     with pytest.raises(InputError, match="gt_kind"):
         SequenceMeta(name="t", camera=CAM, gt_kind="magic")
+
+
+def test_aux_maps_and_attributes_round_trip_and_resume(tmp_path):
+    p = tmp_path / "a.h5"
+    masks = [np.random.default_rng(i).random((32, 64)) > 0.5 for i in range(4)]
+    w = SequenceWriter(p, _meta(adapt=1), streams=("left",), aux={"ground": bool})
+    w.append(left=np.zeros((32, 64, 3), np.uint8), aux={"ground": masks[0]})
+    w.append(left=np.zeros((32, 64, 3), np.uint8), aux={"ground": masks[1]})
+    w.set_attr("skipped", "[1]")
+    with pytest.raises(InputError, match="expected aux maps"):
+        w.append(left=np.zeros((32, 64, 3), np.uint8))
+    w.abort()
+    with pytest.raises(InputError, match="cannot resume"):
+        SequenceWriter(p, _meta(adapt=1), streams=("left",), resume=True)
+    with SequenceWriter(p, _meta(adapt=1), streams=("left",), aux={"ground": bool},
+                        resume=True) as w:
+        assert len(w) == 2 and w.get_attr("skipped") == "[1]"
+        for m in masks[2:]:
+            w.append(left=np.zeros((32, 64, 3), np.uint8), aux={"ground": m})
+    with SequenceReader(p) as r:
+        assert r.aux_names() == ["ground"]
+        for i, m in enumerate(masks):
+            np.testing.assert_array_equal(r.aux("ground", i), m)
+        with pytest.raises(InputError, match="no aux map 'sky'"):
+            r.aux("sky", 0)

@@ -1,0 +1,160 @@
+"""Commands ``pack``, ``import-kitti``, ``import-carla``, ``export`` and ``publish`` (thin shells)."""
+from __future__ import annotations
+
+import argparse
+
+from staticdepth.errors import InputError
+
+
+def _writer_options(p: argparse.ArgumentParser, executors: bool = True) -> None:
+    p.add_argument("--out", required=True, help="output sequence file (.h5)")
+    p.add_argument("--adapt-frames", type=int, default=0,
+                   help="the first N frames form the adaptation split, the rest the evaluation")
+    p.add_argument("--skip-bad", action="store_true",
+                   help="skip unreadable frames (listed and counted) instead of stopping")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted run (<out>.partial)")
+    p.add_argument("--overwrite", action="store_true")
+    if executors:
+        p.add_argument("--workers", type=int, default=1, help="local worker processes")
+        p.add_argument("--executor", default="serial", choices=("serial", "process", "ray"))
+        p.add_argument("--address", default=None,
+                       help="Ray cluster address (with --executor ray; default: a local Ray)")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("pack", help="pack a stereo recording into a sequence file with stereo depth",
+                       description="Run the stereo pipeline on every pair of a recording and store "
+                                   "images, depth (NaN where the stereo check failed), timestamps, "
+                                   "rig, camera height, splits and provenance.")
+    p.add_argument("--recording", required=True,
+                   help="recording folder (DIR/left/*.png, DIR/right/*.png, optional timestamps.csv)")
+    p.add_argument("--rig", default=None, help="stereo rig JSON (default: the recording's own rig)")
+    p.add_argument("--camera-height", type=float, default=None, help="camera height over the ground (m)")
+    p.add_argument("--matcher", default="sgbm", help="stereo matcher (sgbm, onnx, ...)")
+    p.add_argument("--model", default=None, help="matcher model file (e.g. a CREStereo ONNX export)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="stereo setting override")
+    p.add_argument("--no-right", action="store_true", help="do not store the right image")
+    p.add_argument("--name", default=None, help="sequence name (default: the recording's folder)")
+    _writer_options(p)
+    p.set_defaults(func=_pack)
+
+    p = sub.add_parser("import-kitti", help="import KITTI raw drives with LiDAR ground truth",
+                       description="Concatenate KITTI raw drives (left colour camera) into one "
+                                   "sequence file; depth from the LiDAR scans projected into "
+                                   "camera 2, or from the official depth-completion maps.")
+    p.add_argument("--root", required=True, help="KITTI raw root (holding <date>/ folders)")
+    p.add_argument("--drives", nargs="+", required=True, help="e.g. 2011_09_28_drive_0016")
+    p.add_argument("--name", default=None)
+    p.add_argument("--right", action="store_true", help="also import image_03 as the right view")
+    p.add_argument("--depth-maps", default=None,
+                   help="root of the official depth-completion maps (used instead of the scans)")
+    p.add_argument("--camera-height", type=float, default=1.65)
+    _writer_options(p)
+    p.set_defaults(func=_import_kitti)
+
+    p = sub.add_parser("import-carla", help="import frames saved from CARLA's sensors",
+                       description="Import rgb/, depth/, instance/ (and right/) PNGs and sensor.json "
+                                   "saved from CARLA's Python API into a sequence file.")
+    p.add_argument("dir", help="CARLA export folder")
+    p.add_argument("--name", default=None)
+    p.add_argument("--legacy-tags", action="store_true",
+                   help="semantic tags use CARLA's pre-0.9.14 numbering (Pedestrian 4, Vehicle 10)")
+    _writer_options(p)
+    p.set_defaults(func=_import_carla)
+
+    p = sub.add_parser("export", help="export a sequence file to KITTI-style folders",
+                       description="Write PNG images, uint16 depth x256 (0 = unknown), timestamps, "
+                                   "calibration and split lists, one file per frame in frame order.")
+    p.add_argument("file", help="sequence file (.h5)")
+    p.add_argument("--format", default="kitti", choices=("kitti",))
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=_export)
+
+    p = sub.add_parser("publish", help="make a release folder: sequences, export, card, manifest",
+                       description="Copy sequence files into a release folder with their "
+                                   "KITTI-style export, a dataset card (Markdown + JSON) and a "
+                                   "SHA-256 manifest that `staticdepth verify DIR` checks.")
+    p.add_argument("files", nargs="+", help="sequence files (.h5)")
+    p.add_argument("--out", required=True, help="release folder")
+    p.add_argument("--title", default=None)
+    p.add_argument("--licence", default="unspecified", help="licence of the data (e.g. CC-BY-4.0)")
+    p.add_argument("--citation", default=None, help="citation text or BibTeX")
+    p.add_argument("--no-export", action="store_true", help="leave out the KITTI-style export")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=_publish)
+
+
+def _executor(args: argparse.Namespace):
+    from staticdepth.dataset.executors import make_executor
+
+    return make_executor(args.executor, args.workers, args.address)
+
+
+def _import_kitti(args: argparse.Namespace) -> int:
+    from staticdepth.dataset.kitti import import_kitti
+    from staticdepth.dataset.pack import format_report
+
+    ex = _executor(args)
+    try:
+        rep = import_kitti(args.root, args.drives, args.out, name=args.name,
+                           adapt_frames=args.adapt_frames, right=args.right,
+                           depth_maps=args.depth_maps, camera_height_m=args.camera_height,
+                           skip_bad=args.skip_bad, resume=args.resume, overwrite=args.overwrite,
+                           executor=ex)
+    finally:
+        ex.close()
+    print(format_report(rep))
+    return 0
+
+
+def _import_carla(args: argparse.Namespace) -> int:
+    from staticdepth.dataset.carla import import_carla
+    from staticdepth.dataset.pack import format_report
+
+    ex = _executor(args)
+    try:
+        rep = import_carla(args.dir, args.out, name=args.name, adapt_frames=args.adapt_frames,
+                           legacy_tags=args.legacy_tags, skip_bad=args.skip_bad,
+                           resume=args.resume, overwrite=args.overwrite, executor=ex)
+    finally:
+        ex.close()
+    print(format_report(rep))
+    return 0
+
+
+def _pack(args: argparse.Namespace) -> int:
+    from staticdepth.cli import parse_overrides
+    from staticdepth.dataset.pack import format_report, pack_recording
+
+    ex = _executor(args)
+    try:
+        rep = pack_recording(args.recording, args.rig, args.out, camera_height_m=args.camera_height,
+                             adapt_frames=args.adapt_frames, matcher=args.matcher,
+                             model=args.model, overrides=parse_overrides(args.set),
+                             store_right=not args.no_right, name=args.name,
+                             skip_bad=args.skip_bad, resume=args.resume,
+                             overwrite=args.overwrite, executor=ex)
+    finally:
+        ex.close()
+    print(format_report(rep))
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from staticdepth.dataset.export import export_kitti
+
+    info = export_kitti(args.file, args.out, overwrite=args.overwrite)
+    print(f"exported {info['frames']} frames to {info['path']}")
+    return 0
+
+
+def _publish(args: argparse.Namespace) -> int:
+    from staticdepth.dataset.publish import publish
+
+    if args.out in args.files:
+        raise InputError("--out must be a folder, not one of the input files", args.out)
+    info = publish(args.files, args.out, title=args.title, licence=args.licence,
+                   citation=args.citation, export=not args.no_export, overwrite=args.overwrite)
+    print(f"published {len(info['sequences'])} sequence(s), {info['files']} files, to {info['path']}")
+    return 0

@@ -1,0 +1,137 @@
+"""Run a pure per-frame function over many frames: serially, in local processes, or on Ray.
+
+Every executor has ``map(fn, items) -> iterator`` yielding ``fn(item)`` **in the order of items**,
+keeping at most a bounded number of results in flight (memory stays flat over thousands of
+frames). ``fn`` and the items must be picklable for the process and Ray executors (a module-level
+function or a frozen dataclass instance with ``__call__``). The sequence file is assembled by one
+writer in the calling process, so the output is identical whichever executor computed it.
+"""
+from __future__ import annotations
+
+import collections
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any, Callable, Iterator, Sequence
+
+from staticdepth.errors import InputError
+
+EXECUTORS = ("serial", "process", "ray")
+
+
+def _apply(fn: Callable[[Any], Any], x: Any) -> Any:
+    return fn(x)
+
+
+class SerialExecutor:
+    """In this process, one item after another."""
+
+    name = "serial"
+
+    def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[Any]:
+        for x in items:
+            yield fn(x)
+
+    def close(self) -> None:
+        pass
+
+
+class ProcessExecutor:
+    """A pool of ``workers`` local processes (spawned, so no state leaks from the parent)."""
+
+    name = "process"
+
+    def __init__(self, workers: int, window: int | None = None):
+        if workers < 1:
+            raise InputError(f"--workers must be >= 1, got {workers}")
+        self.workers = workers
+        self.window = window or 2 * workers
+        self._pool: ProcessPoolExecutor | None = None
+
+    def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[Any]:
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(self.workers,
+                                             mp_context=multiprocessing.get_context("spawn"))
+        pending: collections.deque = collections.deque()
+        it = iter(items)
+        for x in it:
+            pending.append(self._pool.submit(fn, x))
+            if len(pending) >= self.window:
+                break
+        while pending:
+            res = pending.popleft().result()
+            for x in it:
+                pending.append(self._pool.submit(fn, x))
+                break
+            yield res
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+            self._pool = None
+
+
+class RayExecutor:
+    """Ray tasks on an existing cluster (``address``) or a local Ray instance (``address=None``).
+
+    Ray is an optional extra (``pip install ray``). One remote task per frame; results are fetched
+    in frame order with at most ``window`` tasks in flight.
+    """
+
+    name = "ray"
+
+    def __init__(self, address: str | None = None, workers: int | None = None,
+                 window: int | None = None):
+        try:
+            import ray
+        except ImportError:
+            raise InputError("--executor ray needs Ray: pip install ray") from None
+        self._ray = ray
+        self.address = address
+        self._owns = False
+        if not ray.is_initialized():
+            kw: dict[str, Any] = {"address": address, "include_dashboard": False,
+                                  "log_to_driver": False}
+            if address is None:
+                kw["num_cpus"] = workers or os.cpu_count() or 1
+            try:
+                ray.init(**kw)
+            except ConnectionError as e:
+                raise InputError(f"cannot connect to the Ray cluster at {address!r}: {e}") from None
+            self._owns = True
+        self.window = window or 2 * max(1, int(ray.available_resources().get("CPU", 1)))
+
+    def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[Any]:
+        ray = self._ray
+        remote = ray.remote(_apply)
+        fn_ref = ray.put(fn)  # shipped once, not with every task
+        pending: collections.deque = collections.deque()
+        it = iter(items)
+        for x in it:
+            pending.append(remote.remote(fn_ref, x))
+            if len(pending) >= self.window:
+                break
+        while pending:
+            res = ray.get(pending.popleft())
+            for x in it:
+                pending.append(remote.remote(fn_ref, x))
+                break
+            yield res
+
+    def close(self) -> None:
+        if self._owns and self._ray.is_initialized():
+            self._ray.shutdown()
+            self._owns = False
+
+
+def make_executor(kind: str = "serial", workers: int = 1, address: str | None = None):
+    """The executor named ``kind`` (serial, process, ray); ``workers > 1`` with serial means process."""
+    if kind not in EXECUTORS:
+        raise InputError(f"unknown executor {kind!r} (choose from {', '.join(EXECUTORS)})")
+    if kind == "ray":
+        return RayExecutor(address, workers=workers if workers > 1 else None)
+    if address is not None:
+        raise InputError("--address is only used with --executor ray")
+    if kind == "process" or workers > 1:
+        return ProcessExecutor(workers)
+    return SerialExecutor()

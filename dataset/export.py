@@ -1,0 +1,127 @@
+"""Export a sequence file to KITTI-style folders for other tools.
+
+Layout written (one file per frame, in frame order, numbered ``0000000000``):
+``image_02/data/*.png`` (left, RGB PNG), ``image_03/data/*.png`` (right, when stored),
+``proj_depth/groundtruth/image_02/*.png`` (uint16 = round(depth * 256), 0 = unknown, as KITTI's
+depth benchmark), ``instances/*.png`` (uint16 instance ids, when stored), ``timestamps.txt``
+(seconds, one per line), ``calib_cam_to_cam.txt`` (``S_rect_02``, ``P_rect_02``, ``R_rect_00`` and,
+with a rig, ``P_rect_03``), ``calib.json`` (camera, rig, mounting, camera height) and
+``splits/{adapt,eval}.txt`` (frame numbers). The folder appears atomically (built beside it, then
+renamed).
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from typing import Any
+
+import cv2
+import numpy as np
+
+from staticdepth.dataset.h5 import SequenceReader
+from staticdepth.errors import InputError
+from staticdepth.progress import progress
+
+DEPTH_SCALE = 256.0
+MAX_DEPTH_M = 65535 / DEPTH_SCALE
+
+
+def kitti_png_from_depth(depth: np.ndarray) -> tuple[np.ndarray, int]:
+    """Depth (H, W) metres, NaN unknown -> uint16 ``round(d * 256)``, 0 unknown; also returns how
+    many pixels were beyond the format's 255.996 m and were therefore written as unknown."""
+    d = np.asarray(depth, dtype=np.float64)
+    ok = np.isfinite(d) & (d > 0)
+    code = np.zeros(d.shape, np.float64)
+    code[ok] = np.round(d[ok] * DEPTH_SCALE)
+    code[ok & (code == 0)] = 1  # a tiny positive depth stays known
+    far = code > 65535
+    code[far] = 0
+    return code.astype(np.uint16), int(np.count_nonzero(far))
+
+
+def _write(path: str, img: np.ndarray) -> None:
+    if not cv2.imwrite(path, img):
+        raise InputError("cannot write image", path)
+
+
+def replace_dir(tmp: str, out: str, overwrite: bool) -> None:
+    """Move the finished folder ``tmp`` onto ``out`` (an existing ``out`` only with ``overwrite``)."""
+    if os.path.exists(out):
+        if not overwrite:
+            raise InputError("output exists (use --overwrite to replace it)", out)
+        old = f"{out}.old{os.getpid()}"
+        os.replace(out, old)
+        os.replace(tmp, out)
+        shutil.rmtree(old)
+    else:
+        os.replace(tmp, out)
+
+
+def _calib_txt(reader: SequenceReader) -> str:
+    cam = reader.camera
+    P2 = np.c_[cam.K, np.zeros(3)]
+    lines = [f"S_rect_02: {cam.width:e} {cam.height:e}",
+             "R_rect_00: " + " ".join(f"{x:e}" for x in np.eye(3).ravel()),
+             "P_rect_02: " + " ".join(f"{x:e}" for x in P2.ravel())]
+    rig = reader.meta.rig
+    if rig is not None:
+        P3 = P2.copy()
+        P3[0, 3] = -cam.fx * rig.baseline_m
+        lines.append("P_rect_03: " + " ".join(f"{x:e}" for x in P3.ravel()))
+    return "\n".join(lines) + "\n"
+
+
+def export_kitti(seq: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool = False
+                 ) -> dict[str, Any]:
+    """Write ``seq`` as KITTI-style folders under ``out``; returns a summary dict."""
+    out = os.fspath(out)
+    parent = os.path.dirname(os.path.abspath(out))
+    if not os.path.isdir(parent):
+        raise InputError("output folder's parent does not exist", parent)
+    if os.path.exists(out) and not overwrite:
+        raise InputError("output exists (use --overwrite to replace it)", out)
+    tmp = f"{out}.partial{os.getpid()}"
+    if os.path.exists(tmp):
+        shutil.rmtree(tmp)
+    far_total = 0
+    try:
+        with SequenceReader(seq) as r:
+            dirs = {"left": "image_02/data", "right": "image_03/data",
+                    "depth": "proj_depth/groundtruth/image_02", "instances": "instances"}
+            streams = [s for s in dirs if r.has(s)]
+            for s in streams:
+                os.makedirs(os.path.join(tmp, dirs[s]))
+            for i in progress(range(len(r)), total=len(r), desc="export", unit="frame"):
+                name = f"{i:010d}.png"
+                for s in streams:
+                    a = r.read(s, i)
+                    if s in ("left", "right"):
+                        a = np.ascontiguousarray(a[..., ::-1])
+                    elif s == "depth":
+                        a, far = kitti_png_from_depth(a)
+                        far_total += far
+                    _write(os.path.join(tmp, dirs[s], name), a)
+            with open(os.path.join(tmp, "timestamps.txt"), "w") as f:
+                f.writelines(f"{t:.9f}\n" for t in r.timestamps())
+            with open(os.path.join(tmp, "calib_cam_to_cam.txt"), "w") as f:
+                f.write(_calib_txt(r))
+            m = r.meta
+            calib = {"name": m.name, "camera": m.camera.to_dict(),
+                     "rig": None if m.rig is None else m.rig.to_dict(),
+                     "mounting": None if m.mounting is None else m.mounting.to_dict(),
+                     "camera_height_m": m.camera_height_m, "depth_png_scale": DEPTH_SCALE,
+                     "frames": len(r), "adapt_frames": m.adapt_frames, "gt_kind": m.gt_kind,
+                     "source_file": os.path.basename(os.fspath(seq))}
+            with open(os.path.join(tmp, "calib.json"), "w") as f:
+                json.dump(calib, f, indent=2)
+            os.makedirs(os.path.join(tmp, "splits"))
+            for split in ("adapt", "eval"):
+                with open(os.path.join(tmp, "splits", f"{split}.txt"), "w") as f:
+                    f.writelines(f"{i:010d}\n" for i in r.split(split))
+            n = len(r)
+        replace_dir(tmp, out, overwrite)
+    finally:
+        if os.path.exists(tmp):
+            shutil.rmtree(tmp)
+    return {"path": out, "frames": n, "streams": streams, "depth_beyond_range_px": far_total}

@@ -1,0 +1,345 @@
+"""KITTI raw: calibration as a frozen record, LiDAR to camera-2 depth, and the sequence importer.
+
+Layout read (KITTI raw, synced):
+``<root>/<date>/calib_cam_to_cam.txt``, ``calib_velo_to_cam.txt``,
+``<root>/<date>/<drive>_sync/image_02/data/NNNNNNNNNN.png`` (+ ``image_02/timestamps.txt``),
+``velodyne_points/data/NNNNNNNNNN.bin`` (float32 x, y, z, reflectance), optional ``image_03``.
+Depth (METHOD.md section 8): ``P = P_rect_02 . R_rect_00 (4x4) . [R|T]_cam0_from_velo``; keep points
+with x_velo > 0 (and a positive camera depth); ``u, v = round(.) - 1``; in bounds; nearest point per
+pixel; NaN = unknown. The official depth-completion maps (uint16 PNG / 256, 0 = unknown) replace the
+projection when given (``depth_maps`` root holding ``**/<drive>_sync/proj_depth/groundtruth/image_02``).
+"""
+from __future__ import annotations
+
+import glob
+import os
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+
+from staticdepth.dataset.h5 import SequenceMeta
+from staticdepth.dataset.pack import LoadedFrame, list_frames, match_streams, read_image, read_rgb
+from staticdepth.errors import InputError
+from staticdepth.geometry.camera import Camera, StereoRig
+
+KITTI_CAMERA_HEIGHT_M = 1.65
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=np.float64)
+    a.setflags(write=False)
+    return a
+
+
+def read_calib_file(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """``key: v1 v2 ...`` lines into arrays; non-numeric values (``calib_time``) are skipped."""
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError("calibration file not found", path)
+    out: dict[str, np.ndarray] = {}
+    with open(path) as f:
+        for line in f:
+            key, sep, value = line.partition(":")
+            if not sep:
+                continue
+            try:
+                out[key.strip()] = np.array([float(x) for x in value.split()])
+            except ValueError:
+                continue
+    return out
+
+
+def _need(d: dict[str, np.ndarray], key: str, size: int, path: str) -> np.ndarray:
+    if key not in d:
+        raise InputError(f"calibration has no {key!r}", path)
+    if d[key].size != size:
+        raise InputError(f"{key!r} has {d[key].size} values, expected {size}", path)
+    return d[key]
+
+
+@dataclass(frozen=True, eq=False)
+class KittiCalib:
+    """One recording day's calibration (pykitti's idea: frame-named, immutable).
+
+    ``P_rect_02``/``P_rect_03``: 3x4 projections of the rectified colour cameras (from rectified
+    camera 0 coordinates); ``R_rect_00``: 3x3 rectifying rotation of camera 0; ``cam0_from_velo``:
+    4x4 pose of the LiDAR in (unrectified) camera 0; ``size_rect``: (width, height) of rectified images.
+    """
+
+    P_rect_02: np.ndarray
+    P_rect_03: np.ndarray
+    R_rect_00: np.ndarray
+    cam0_from_velo: np.ndarray
+    size_rect: tuple[int, int]
+    source: str = ""
+
+    @classmethod
+    def load(cls, date_dir: str | os.PathLike) -> "KittiCalib":
+        date_dir = os.fspath(date_dir)
+        p_cam = os.path.join(date_dir, "calib_cam_to_cam.txt")
+        p_velo = os.path.join(date_dir, "calib_velo_to_cam.txt")
+        cam, velo = read_calib_file(p_cam), read_calib_file(p_velo)
+        T = np.eye(4)
+        T[:3, :3] = _need(velo, "R", 9, p_velo).reshape(3, 3)
+        T[:3, 3] = _need(velo, "T", 3, p_velo)
+        size = _need(cam, "S_rect_02", 2, p_cam)
+        return cls(P_rect_02=_readonly(_need(cam, "P_rect_02", 12, p_cam).reshape(3, 4)),
+                   P_rect_03=_readonly(_need(cam, "P_rect_03", 12, p_cam).reshape(3, 4)),
+                   R_rect_00=_readonly(_need(cam, "R_rect_00", 9, p_cam).reshape(3, 3)),
+                   cam0_from_velo=_readonly(T), size_rect=(int(size[0]), int(size[1])),
+                   source=date_dir)
+
+    @property
+    def img2_from_velo(self) -> np.ndarray:
+        """3x4 projection of LiDAR points into rectified image 2 (third row: camera-2 depth)."""
+        R4 = np.eye(4)
+        R4[:3, :3] = self.R_rect_00
+        return self.P_rect_02 @ R4 @ self.cam0_from_velo
+
+    def camera(self, width: int | None = None, height: int | None = None) -> Camera:
+        """Rectified camera 2 (intrinsics from ``P_rect_02``)."""
+        w, h = self.size_rect
+        return Camera(self.P_rect_02[:, :3], width or w, height or h)
+
+    @property
+    def baseline_m(self) -> float:
+        """Distance between rectified cameras 2 and 3: ``(P02[0,3] - P03[0,3]) / fx``."""
+        return float((self.P_rect_02[0, 3] - self.P_rect_03[0, 3]) / self.P_rect_02[0, 0])
+
+    def rig(self, width: int | None = None, height: int | None = None) -> StereoRig:
+        """The rectified colour pair (image_02 left, image_03 right)."""
+        return StereoRig.rectified(self.camera(width, height), self.baseline_m,
+                                   extra={"source": "KITTI P_rect_02/P_rect_03"})
+
+
+def read_velodyne(path: str | os.PathLike) -> np.ndarray:
+    """A scan as (N, 4) float32 (x, y, z, reflectance); a truncated file is an :class:`InputError`."""
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError("file not found", path)
+    size = os.path.getsize(path)
+    if size == 0 or size % 16:
+        raise InputError(f"truncated scan: {size} bytes is not a whole number of 16-byte points",
+                         path)
+    return np.fromfile(path, dtype=np.float32).reshape(-1, 4)
+
+
+def depth_from_lidar(points_velo: np.ndarray, img_from_velo: np.ndarray, width: int,
+                     height: int) -> np.ndarray:
+    """Sparse depth (height, width) float32 metres, NaN = no point, from LiDAR points (N, >=3).
+
+    KITTI's convention: x_velo > 0, ``u, v = round(P X) - 1``, nearest point wins per pixel.
+    """
+    pts = np.asarray(points_velo, dtype=np.float64)
+    pts = pts[pts[:, 0] > 0]
+    X = np.c_[pts[:, :3], np.ones(len(pts))]
+    p = X @ np.asarray(img_from_velo, dtype=np.float64).T
+    z = p[:, 2]
+    front = z > 0
+    p, z = p[front], z[front]
+    u = np.round(p[:, 0] / z).astype(np.int64) - 1
+    v = np.round(p[:, 1] / z).astype(np.int64) - 1
+    ok = (u >= 0) & (v >= 0) & (u < width) & (v < height)
+    u, v, z = u[ok], v[ok], z[ok]
+    lin = v * width + u
+    order = np.lexsort((z, lin))  # by pixel, nearest first within a pixel
+    lin, z = lin[order], z[order]
+    first = np.ones(len(lin), bool)
+    first[1:] = lin[1:] != lin[:-1]
+    depth = np.full(height * width, np.nan, np.float32)
+    depth[lin[first]] = z[first]
+    return depth.reshape(height, width)
+
+
+def read_depth_png(path: str | os.PathLike) -> np.ndarray:
+    """KITTI depth-completion map (uint16 PNG, depth * 256, 0 = unknown) as float32 metres, NaN unknown."""
+    a = read_image(path, flags=cv2.IMREAD_ANYDEPTH)
+    if a.dtype != np.uint16:
+        raise InputError(f"expected a 16-bit depth PNG, got {a.dtype}", path)
+    d = a.astype(np.float32) / 256.0
+    d[a == 0] = np.nan
+    return d
+
+
+def read_timestamps(path: str | os.PathLike) -> np.ndarray:
+    """KITTI ``timestamps.txt`` (``YYYY-MM-DD hh:mm:ss.fffffffff`` per line) as float64 seconds."""
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError("timestamps file not found", path)
+    out = []
+    with open(path) as f:
+        for k, line in enumerate(f, 1):
+            s = line.strip()
+            if not s:
+                continue
+            try:
+                out.append(np.datetime64(s.replace(" ", "T"), "ns").astype(np.int64) / 1e9)
+            except ValueError:
+                raise InputError(f"line {k}: not a timestamp: {s!r}", path) from None
+    return np.array(out, dtype=np.float64)
+
+
+# -- drives and the importer ---------------------------------------------------------------------
+@dataclass(frozen=True)
+class KittiTask:
+    """Everything needed to load one frame (picklable; the loader is a pure function of it)."""
+
+    image: str
+    scan: str | None
+    depth_png: str | None
+    right: str | None
+    timestamp: float
+    img2_from_velo: np.ndarray
+    size: tuple[int, int]
+
+
+def drive_dir(root: str | os.PathLike, drive: str) -> str:
+    """``<root>/<date>/<drive>_sync`` for a drive named ``2011_09_28_drive_0016`` (``_sync`` optional)."""
+    name = drive if drive.endswith("_sync") else drive + "_sync"
+    d = os.path.join(os.fspath(root), name[:10], name)
+    if not os.path.isdir(d):
+        raise InputError("drive folder not found", d)
+    return d
+
+
+def _depth_map_dir(depth_root: str, drive_folder: str) -> str:
+    name = os.path.basename(drive_folder)
+    hits = sorted(glob.glob(os.path.join(depth_root, "**", name, "proj_depth", "groundtruth",
+                                         "image_02"), recursive=True))
+    if not hits:
+        raise InputError(f"no depth-completion maps for {name} "
+                         f"(expected **/{name}/proj_depth/groundtruth/image_02)", depth_root)
+    return hits[0]
+
+
+def drive_tasks(root: str | os.PathLike, drive: str, *, right: bool = False,
+                depth_maps: str | None = None) -> tuple[list[KittiTask], list[str], KittiCalib]:
+    """Tasks and labels (``<drive>/<frame>``) for every frame of one drive, in frame order."""
+    d = drive_dir(root, drive)
+    calib = KittiCalib.load(os.path.dirname(d))
+    streams = {os.path.join(d, "image_02", "data"): list_frames(os.path.join(d, "image_02", "data"))}
+    if depth_maps is None:
+        scan_dir = os.path.join(d, "velodyne_points", "data")
+        if not os.path.isdir(scan_dir) or not list_frames(scan_dir, ".bin"):
+            raise InputError("drive has no LiDAR scans (velodyne_points/data/*.bin)", d)
+        streams[scan_dir] = list_frames(scan_dir, ".bin")
+    if right:
+        streams[os.path.join(d, "image_03", "data")] = list_frames(os.path.join(d, "image_03", "data"))
+    stems = match_streams(streams, d)
+    if not stems:
+        raise InputError("drive has no frames", d)
+    ts_all = read_timestamps(os.path.join(d, "image_02", "timestamps.txt"))
+    all_stems = [os.path.splitext(n)[0] for n in list_frames(os.path.join(d, "image_02", "data"))]
+    if len(ts_all) != len(all_stems):
+        raise InputError(f"{len(ts_all)} timestamps for {len(all_stems)} images",
+                         os.path.join(d, "image_02", "timestamps.txt"))
+    ts = dict(zip(all_stems, ts_all))
+    dm = None if depth_maps is None else _depth_map_dir(depth_maps, d)
+    # The image size comes from the first frame; every frame is checked against it when loaded.
+    first = read_rgb(os.path.join(d, "image_02", "data", stems[0] + ".png"))
+    size = (first.shape[1], first.shape[0])
+    P = calib.img2_from_velo
+    tasks = [KittiTask(image=os.path.join(d, "image_02", "data", s + ".png"),
+                       scan=None if dm else os.path.join(d, "velodyne_points", "data", s + ".bin"),
+                       depth_png=None if dm is None else os.path.join(dm, s + ".png"),
+                       right=os.path.join(d, "image_03", "data", s + ".png") if right else None,
+                       timestamp=float(ts[s]), img2_from_velo=P, size=size) for s in stems]
+    return tasks, [f"{os.path.basename(d)}/{s}" for s in stems], calib
+
+
+def load_frame(task: KittiTask) -> LoadedFrame:
+    """Image(s) and ground-truth depth of one frame (a pure function of the task)."""
+    w, h = task.size
+    left = read_rgb(task.image)
+    if left.shape[:2] != (h, w):
+        raise InputError(f"image is {left.shape[1]}x{left.shape[0]}, the drive's first is {w}x{h}",
+                         task.image)
+    arrays = {"left": left}
+    if task.right is not None:
+        r = read_rgb(task.right)
+        if r.shape != left.shape:
+            raise InputError(f"right image is {r.shape[1]}x{r.shape[0]}, left is {w}x{h}", task.right)
+        arrays["right"] = r
+    if task.depth_png is not None:
+        if os.path.exists(task.depth_png):
+            depth = read_depth_png(task.depth_png)
+            if depth.shape != (h, w):
+                raise InputError(f"depth map is {depth.shape[1]}x{depth.shape[0]}, image {w}x{h}",
+                                 task.depth_png)
+        else:  # the official maps omit a few frames at each end of a drive: depth unknown there
+            depth = np.full((h, w), np.nan, np.float32)
+    else:
+        depth = depth_from_lidar(read_velodyne(task.scan), task.img2_from_velo, w, h)
+    arrays["depth"] = depth
+    return LoadedFrame(arrays=arrays, timestamp=task.timestamp)
+
+
+def pose_difference(images_a: Sequence[np.ndarray], images_b: Sequence[np.ndarray]) -> dict[str, Any]:
+    """How far apart two drives' views are: median images' mean absolute difference (grey levels,
+    0-255) and their shift (px) by phase correlation. Moving objects vanish in the medians."""
+    def med(imgs):
+        g = [cv2.cvtColor(np.asarray(i), cv2.COLOR_RGB2GRAY) for i in imgs]
+        return np.median(np.stack(g), axis=0).astype(np.float32)
+
+    a, b = med(images_a), med(images_b)
+    if a.shape != b.shape:
+        return {"mean_abs_diff": float("inf"), "shift_px": None, "same_size": False}
+    (dx, dy), _ = cv2.phaseCorrelate(a.astype(np.float64), b.astype(np.float64))
+    return {"mean_abs_diff": float(np.mean(np.abs(a - b))), "shift_px": [float(dx), float(dy)],
+            "same_size": True}
+
+
+def import_kitti(root: str | os.PathLike, drives: Sequence[str], out: str | os.PathLike, *,
+                 name: str | None = None, adapt_frames: int = 0, right: bool = False,
+                 depth_maps: str | None = None, camera_height_m: float = KITTI_CAMERA_HEIGHT_M,
+                 skip_bad: bool = False, resume: bool = False, overwrite: bool = False,
+                 max_diff: float = 12.0, max_shift_px: float = 2.0, executor=None,
+                 warn=print):
+    """Concatenate ``drives`` (in order) into one sequence file; returns the write report.
+
+    Grouped drives must share one camera pose: their median images are compared and ``warn``
+    receives the measured difference when it exceeds ``max_diff`` grey levels or ``max_shift_px``.
+    """
+    from staticdepth.dataset.pack import write_frames
+
+    if not drives:
+        raise InputError("--drives needs at least one drive")
+    tasks, labels, checks, calib, per_drive = [], [], [], None, {}
+    samples = {}
+    for dv in drives:
+        t, lab, calib_d = drive_tasks(root, dv, right=right, depth_maps=depth_maps)
+        if calib is not None and not np.allclose(calib_d.P_rect_02, calib.P_rect_02):
+            raise InputError(f"drive {dv} has a different camera calibration from {drives[0]}",
+                             calib_d.source)
+        calib = calib or calib_d
+        tasks += t
+        labels += lab
+        per_drive[dv] = len(t)
+        idx = np.unique(np.linspace(0, len(t) - 1, min(5, len(t))).astype(int))
+        samples[dv] = [read_rgb(t[i].image) for i in idx]
+    for a, b in zip(drives[:-1], drives[1:]):
+        diff = pose_difference(samples[a], samples[b])
+        moved = (not diff["same_size"] or diff["mean_abs_diff"] > max_diff
+                 or np.hypot(*diff["shift_px"]) > max_shift_px)
+        checks.append({"drives": [a, b], **diff, "same_pose": not moved})
+        if moved:
+            warn(f"warning: drives {a} and {b} may not share one camera pose: median images differ "
+                 f"by {diff['mean_abs_diff']:.1f} grey levels, shift {diff['shift_px']} px")
+    w, h = tasks[0].size
+    if any(t.size != (w, h) for t in tasks):
+        raise InputError("drives have different image sizes", root)
+    meta = SequenceMeta(
+        name=name or "+".join(drives), camera=calib.camera(w, h),
+        gt_kind="lidar", source=f"KITTI raw: {', '.join(drives)}", adapt_frames=adapt_frames,
+        rig=calib.rig(w, h) if right else None, camera_height_m=camera_height_m,
+        provenance={"dataset": "KITTI raw", "root": os.fspath(root), "drives": list(drives),
+                    "frames_per_drive": per_drive,
+                    "ground_truth": "depth-completion maps" if depth_maps else
+                    "LiDAR projected into camera 2 (nearest point per pixel)",
+                    "depth_maps": depth_maps, "pose_check": checks,
+                    "licence": "CC BY-NC-SA 3.0 (KITTI)"})
+    streams = ("left", "right", "depth") if right else ("left", "depth")
+    return write_frames(out, meta, streams, tasks, load_frame, labels=labels, skip_bad=skip_bad,
+                        resume=resume, overwrite=overwrite, executor=executor, desc="import-kitti")

@@ -1,0 +1,199 @@
+"""Release folders: sequence files, their KITTI-style export, a dataset card and a SHA-256 manifest.
+
+Layout: ``sequences/<name>.h5``, ``kitti/<name>/...`` (see :mod:`staticdepth.dataset.export`),
+``README.md`` (the dataset card), ``dataset_card.json`` (the same facts, machine-readable) and
+``MANIFEST.sha256`` (``sha256sum`` format: ``<hex>  <relative path>``, every other file listed).
+:func:`verify_release` (used by ``staticdepth verify DIR``) re-hashes every file, reports files that
+are missing or not listed, and re-checks every sequence's frame checksums.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import time
+from typing import Any, Sequence
+
+import numpy as np
+
+from staticdepth import __version__
+from staticdepth.dataset.export import export_kitti, replace_dir
+from staticdepth.dataset.h5 import SequenceReader
+from staticdepth.errors import InputError
+from staticdepth.progress import progress
+
+MANIFEST = "MANIFEST.sha256"
+CARD_JSON = "dataset_card.json"
+CARD_MD = "README.md"
+
+
+def sha256_file(path: str | os.PathLike, block: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(block):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _files(root: str) -> list[str]:
+    out = []
+    for d, _, names in os.walk(root):
+        out += [os.path.relpath(os.path.join(d, n), root).replace(os.sep, "/") for n in names]
+    return sorted(out)
+
+
+def sequence_card(reader: SequenceReader) -> dict[str, Any]:
+    """Card entry for one sequence: camera and rig, height, splits, ground truth and its statistics."""
+    m = reader.meta
+    dens, lo, hi, meds = [], np.inf, -np.inf, []
+    if reader.has("depth"):
+        for i in range(len(reader)):
+            d = reader.depth(i)
+            ok = np.isfinite(d) & (d > 0)
+            dens.append(float(ok.mean()))
+            if ok.any():
+                v = d[ok]
+                lo, hi = min(lo, float(v.min())), max(hi, float(v.max()))
+                meds.append(float(np.median(v)))
+    prov = dict(m.provenance)
+    stereo = {k: prov[k] for k in ("matcher", "stereo_config", "model") if k in prov}
+    return {
+        "name": m.name, "frames": len(reader), "width": reader.width, "height": reader.height,
+        "streams": reader.streams(),
+        "splits": {"adapt": [0, m.adapt_frames], "eval": [m.adapt_frames, len(reader)]},
+        "camera": {k: v for k, v in m.camera.to_dict().items() if k in ("fx", "fy", "cx", "cy")},
+        "rig": None if m.rig is None else {"baseline_m": m.rig.baseline_m},
+        "camera_height_m": m.camera_height_m,
+        "mounting": None if m.mounting is None else {"pitch_deg": m.mounting.pitch_deg,
+                                                     "roll_deg": m.mounting.roll_deg},
+        "ground_truth": {"kind": m.gt_kind, "source": m.source,
+                         "method": prov.get("ground_truth", m.gt_kind), **stereo},
+        "statistics": None if not dens else {
+            "density_mean": float(np.mean(dens)), "density_min": float(np.min(dens)),
+            "depth_min_m": lo if np.isfinite(lo) else None,
+            "depth_max_m": hi if np.isfinite(hi) else None,
+            "depth_median_of_frame_medians_m": float(np.median(meds)) if meds else None},
+        "skipped_input_frames": len(prov.get("skipped", [])),
+        "toolkit_version": str(reader.attrs.get("toolkit_version", "")),
+    }
+
+
+def card_markdown(card: dict[str, Any]) -> str:
+    lines = [f"# {card['title']}", "", f"Released {card['created']} with staticdepth "
+             f"{card['toolkit_version']}.", "", f"**Licence:** {card['licence']}", "",
+             "| sequence | frames | size | adapt / eval | camera height (m) | baseline (m) | "
+             "ground truth | density | depth range (m) |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for s in card["sequences"]:
+        st = s["statistics"] or {}
+        rng = (f"{st['depth_min_m']:.2f} - {st['depth_max_m']:.2f}"
+               if st.get("depth_min_m") is not None else "-")
+        lines.append(
+            f"| {s['name']} | {s['frames']} | {s['width']}x{s['height']} | "
+            f"{s['splits']['adapt'][1]} / {s['frames'] - s['splits']['adapt'][1]} | "
+            f"{s['camera_height_m'] if s['camera_height_m'] is not None else '-'} | "
+            f"{'-' if s['rig'] is None else round(s['rig']['baseline_m'], 4)} | "
+            f"{s['ground_truth']['kind']} | "
+            f"{'-' if not st else format(st['density_mean'], '.3f')} | {rng} |")
+    lines += ["", "Splits: the first N frames of each sequence are the adaptation split, the rest "
+              "the evaluation split. Depth is in metres; in the KITTI-style export it is stored "
+              "as uint16 PNG = depth x 256, 0 = unknown.", "",
+              "## Sequences", ""]
+    for s in card["sequences"]:
+        lines += [f"### {s['name']}", "", "```json", json.dumps(s, indent=2), "```", ""]
+    lines += ["## Files", "", "- `sequences/*.h5`: sequence files (read with `staticdepth inspect`)",
+              "- `kitti/<name>/`: KITTI-style export", f"- `{MANIFEST}`: SHA-256 of every file; "
+              "check with `staticdepth verify <this folder>`", "", "## Citation", "",
+              card["citation"] or "(none given)", ""]
+    return "\n".join(lines)
+
+
+def publish(files: Sequence[str | os.PathLike], out: str | os.PathLike, *,
+            title: str | None = None, licence: str = "unspecified", citation: str | None = None,
+            export: bool = True, overwrite: bool = False) -> dict[str, Any]:
+    """Build the release folder ``out`` (atomically: beside it, then renamed)."""
+    out = os.fspath(out)
+    if os.path.exists(out) and not overwrite:
+        raise InputError("output exists (use --overwrite to replace it)", out)
+    if not files:
+        raise InputError("publish needs at least one sequence file")
+    stems = [os.path.splitext(os.path.basename(os.fspath(f)))[0] for f in files]
+    dup = sorted({s for s in stems if stems.count(s) > 1})
+    if dup:
+        raise InputError(f"two input files share the name {dup[0]!r}")
+    tmp = f"{out}.partial{os.getpid()}"
+    if os.path.exists(tmp):
+        shutil.rmtree(tmp)
+    try:
+        os.makedirs(os.path.join(tmp, "sequences"))
+        cards = []
+        for f, stem in zip(files, stems):
+            with SequenceReader(f) as r:
+                problems = r.checksum_errors()
+                if problems:
+                    raise InputError(f"sequence fails verification: {problems[0]}", f)
+                cards.append(sequence_card(r))
+            shutil.copyfile(f, os.path.join(tmp, "sequences", stem + ".h5"))
+            if export:
+                os.makedirs(os.path.join(tmp, "kitti"), exist_ok=True)
+                export_kitti(os.path.join(tmp, "sequences", stem + ".h5"),
+                             os.path.join(tmp, "kitti", stem))
+        card = {"title": title or "staticdepth release: " + ", ".join(c["name"] for c in cards),
+                "created": time.strftime("%Y-%m-%d"), "licence": licence, "citation": citation,
+                "toolkit_version": __version__, "sequences": cards,
+                "files": {"sequences": [f"sequences/{s}.h5" for s in stems],
+                          "kitti": [f"kitti/{s}" for s in stems] if export else []}}
+        with open(os.path.join(tmp, CARD_JSON), "w") as fh:
+            json.dump(card, fh, indent=2)
+        with open(os.path.join(tmp, CARD_MD), "w") as fh:
+            fh.write(card_markdown(card))
+        listed = _files(tmp)
+        with open(os.path.join(tmp, MANIFEST), "w") as fh:
+            for rel in progress(listed, total=len(listed), desc="sha256", unit="file"):
+                fh.write(f"{sha256_file(os.path.join(tmp, rel))}  {rel}\n")
+        replace_dir(tmp, out, overwrite)
+    finally:
+        if os.path.exists(tmp):
+            shutil.rmtree(tmp)
+    return {"path": out, "sequences": [c["name"] for c in cards], "files": len(listed) + 1}
+
+
+def verify_release(folder: str | os.PathLike) -> list[str]:
+    """Problems with a release folder (empty when intact): manifest, hashes, card, sequences."""
+    folder = os.fspath(folder)
+    mpath = os.path.join(folder, MANIFEST)
+    if not os.path.isfile(mpath):
+        return [f"no {MANIFEST} (not a release folder)"]
+    problems: list[str] = []
+    listed: dict[str, str] = {}
+    with open(mpath) as f:
+        for k, line in enumerate(f, 1):
+            digest, sep, rel = line.rstrip("\n").partition("  ")
+            if not sep or len(digest) != 64 or not rel:
+                problems.append(f"{MANIFEST} line {k}: malformed")
+                continue
+            listed[rel] = digest
+    present = set(_files(folder)) - {MANIFEST}
+    for rel in sorted(set(listed) - present):
+        problems.append(f"{rel}: listed in the manifest but missing")
+    for rel in sorted(present - set(listed)):
+        problems.append(f"{rel}: not in the manifest")
+    for rel in progress(sorted(set(listed) & present), desc="sha256", unit="file"):
+        if sha256_file(os.path.join(folder, rel)) != listed[rel]:
+            problems.append(f"{rel}: SHA-256 mismatch")
+    try:
+        with open(os.path.join(folder, CARD_JSON)) as f:
+            card = json.load(f)
+        for rel in card["files"]["sequences"]:
+            if not os.path.isfile(os.path.join(folder, rel)):
+                problems.append(f"{CARD_JSON}: lists {rel}, which is missing")
+    except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
+        problems.append(f"{CARD_JSON}: unreadable ({e})")
+    for rel in sorted(r for r in present if r.startswith("sequences/") and r.endswith(".h5")):
+        try:
+            with SequenceReader(os.path.join(folder, rel)) as r:
+                problems += [f"{rel}: {p}" for p in r.checksum_errors()]
+        except InputError as e:
+            problems.append(f"{rel}: {e.problem}")
+    return problems

@@ -1,0 +1,212 @@
+"""Commands ``calibrate``, ``stereo`` and ``mount`` (thin shells over the library)."""
+from __future__ import annotations
+
+import argparse
+import os
+
+import numpy as np
+
+from staticdepth.errors import InputError
+from staticdepth.geometry.camera import Camera, StereoRig
+
+
+def register(sub) -> None:
+    p = sub.add_parser("calibrate", help="stereo calibration from board image pairs",
+                       description="Calibrate a stereo rig from image pairs of a chessboard or "
+                                   "ChArUco board; writes the rig JSON every other command reads.")
+    p.add_argument("--pattern", choices=("chessboard", "charuco"), default="chessboard")
+    p.add_argument("--board", required=True, help="inner corners (chessboard) or squares "
+                                                  "(ChArUco), COLSxROWS, e.g. 9x6")
+    p.add_argument("--square", type=float, required=True, help="square side in metres")
+    p.add_argument("--marker", type=float, default=0.0, help="ChArUco marker side in metres")
+    p.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco ArUco dictionary")
+    p.add_argument("--left", required=True, help="left images: folder or glob")
+    p.add_argument("--right", required=True, help="right images: folder or glob")
+    p.add_argument("--min-pairs", type=int, default=5)
+    p.add_argument("--out", required=True, help="rig JSON to write")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("stereo", help="depth from stereo pairs (SGBM or an ONNX network)",
+                       description="Rectify, match and triangulate a recorded stereo sequence into a "
+                                   "sequence file, or match one rectified pair (--rectified).")
+    p.add_argument("--rig", help="rig JSON (from calibrate or an import)")
+    p.add_argument("--left", required=True, help="left frames: folder, glob, video or one image")
+    p.add_argument("--right", required=True, help="right frames: folder, glob, video or one image")
+    p.add_argument("--out", help="sequence file to write (.h5); resumes a killed run")
+    p.add_argument("--name", help="sequence name (default: the output's stem)")
+    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--rectified", action="store_true", help="one already rectified pair, no rig")
+    p.add_argument("--max-disparity", type=int, help="disparity range (rounded up to 16)")
+    p.add_argument("--disparity-out", help="left disparity file (.pfm, .png x256 or .npy)")
+    p.add_argument("--ply", help="point cloud of the first frame (PLY)")
+    p.add_argument("--matcher", default="sgbm", help="sgbm (default) or onnx")
+    p.add_argument("--model", help="ONNX file (--matcher onnx)")
+    p.add_argument("--contract", help="ONNX contract name (crestereo, hitnet, raft-stereo)")
+    p.add_argument("--fill", action="store_true", help="dense mode: fill every pixel")
+    p.add_argument("--min-depth", type=float, help="nearest depth (m): sets the disparity range")
+    p.add_argument("--max-depth", type=float, default=80.0, help="depth cap (m)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="matcher option, e.g. --set uniqueness=20")
+    p.set_defaults(func=cmd_stereo)
+
+    p = sub.add_parser("mount", help="camera height and ground plane from a board on the ground",
+                       description="Estimate the left camera's pose over the ground from views of "
+                                   "a board lying flat on it, and store it in the rig.")
+    p.add_argument("--rig", required=True)
+    p.add_argument("--images", required=True, help="raw left images of the board: folder or glob")
+    p.add_argument("--pattern", choices=("chessboard", "charuco"), default="chessboard")
+    p.add_argument("--board", required=True, help="COLSxROWS")
+    p.add_argument("--square", type=float, required=True, help="square side in metres")
+    p.add_argument("--marker", type=float, default=0.0)
+    p.add_argument("--dictionary", default="DICT_4X4_50")
+    p.add_argument("--thickness", type=float, default=0.0, help="board thickness in metres")
+    p.add_argument("--out", required=True, help="rig JSON to write (may be --rig itself)")
+    p.set_defaults(func=cmd_mount)
+
+
+def _board(args):
+    from staticdepth.stereo.calibrate import Board
+
+    kw = {"marker_m": args.marker, "dictionary": args.dictionary}
+    return Board.parse(args.pattern, args.board, args.square, **kw)
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from staticdepth.stereo.calibrate import calibrate_stereo
+    from staticdepth.stereo.io import expand_images
+
+    cal = calibrate_stereo(expand_images(args.left), expand_images(args.right), _board(args),
+                           min_pairs=args.min_pairs)
+    for f in cal.not_found:
+        print(f"board not found: {f}")
+    for f, e in cal.dropped.items():
+        print(f"dropped outlier view: {f} (RMS {e:.3f} px)")
+    for f, e in cal.per_view_rms.items():
+        print(f"  {os.path.basename(f)}: {e:.3f} px")
+    cal.rig.save(args.out)
+    print(f"stereo RMS reprojection error {cal.rig.rms_reprojection_px:.4f} px over "
+          f"{len(cal.used)} pairs, baseline {cal.rig.baseline_m:.4f} m -> {args.out}")
+    return 0
+
+
+def cmd_mount(args: argparse.Namespace) -> int:
+    from staticdepth.stereo.io import expand_images
+    from staticdepth.stereo.mount import mount_from_board
+
+    rig = StereoRig.load(args.rig)
+    est = mount_from_board(rig, expand_images(args.images), _board(args),
+                           thickness_m=args.thickness)
+    for f in est.skipped:
+        print(f"board not found: {f}")
+    for f, (h, a) in est.per_view.items():
+        print(f"  {os.path.basename(f)}: height {h:.4f} m, normal {a:.3f} deg from the mean")
+    m = est.mounting
+    rig.with_mounting(m).save(args.out)
+    print(f"camera height {m.height_m:.4f} m, pitch {m.pitch_deg:.3f} deg, roll {m.roll_deg:.3f} "
+          f"deg ({est.method}; OpenCV cross-check {est.crosscheck_deg:.3f} deg) -> {args.out}")
+    return 0
+
+
+def _config(args, **extra):
+    from staticdepth.cli import parse_overrides
+    from staticdepth.stereo.pipeline import StereoConfig
+
+    options = dict(parse_overrides(args.set))
+    if args.matcher == "onnx":
+        if not args.model:
+            raise InputError("--matcher onnx needs --model FILE.onnx")
+        options.update(model=args.model, contract=args.contract or "crestereo")
+    return StereoConfig(matcher=args.matcher, max_depth_m=args.max_depth,
+                        min_depth_m=args.min_depth, fill=args.fill, options=options, **extra)
+
+
+def cmd_stereo(args: argparse.Namespace) -> int:
+    if args.rectified:
+        return _stereo_pair(args)
+    if not args.rig or not args.out:
+        raise InputError("stereo needs --rig and --out (or --rectified for one rectified pair)")
+    return _stereo_sequence(args)
+
+
+def _stereo_pair(args) -> int:
+    from staticdepth.stereo.io import read_rgb, write_disparity, write_ply
+    from staticdepth.stereo.pipeline import StereoPipeline
+    from staticdepth.stereo.rectify import check_rectified
+
+    if not args.max_disparity or args.max_disparity <= 0:
+        raise InputError("--rectified needs --max-disparity N (a positive number of pixels)")
+    if not args.disparity_out:
+        raise InputError("--rectified needs --disparity-out FILE (.pfm, .png or .npy)")
+    left, right = read_rgb(args.left), read_rgb(args.right)
+    if left.shape != right.shape:
+        raise InputError(f"left is {left.shape[1]}x{left.shape[0]} but right is "
+                         f"{right.shape[1]}x{right.shape[0]}", args.right)
+    check_rectified(left, right, source=args.left)
+    h, w = left.shape[:2]
+    rig = (StereoRig.load(args.rig) if args.rig else
+           StereoRig.rectified(Camera.from_intrinsics(1.0, 1.0, (w - 1) / 2, (h - 1) / 2, w, h), 1.0))
+    n = int(16 * np.ceil(args.max_disparity / 16))
+    pipe = StereoPipeline(rig, _config(args, num_disparities=n))
+    res = pipe.process(left, right)
+    write_disparity(args.disparity_out, res.disparity)
+    if args.ply and args.rig:
+        write_ply(args.ply, pipe.points(res), res.left_rect)
+    print(f"disparity: {100 * res.valid.mean():.1f}% measured"
+          f"{', filled to 100%' if args.fill else ''} -> {args.disparity_out}")
+    return 0
+
+
+def _frames(spec: str):
+    """(count, iterator factory(start)) for a folder/glob of images or a video."""
+    from staticdepth.stereo.io import expand_images, is_video, iter_video, read_rgb, \
+        video_frame_count
+
+    if is_video(spec):
+        return video_frame_count(spec), lambda start: iter_video(spec, start), spec
+    files = expand_images(spec)
+    return len(files), lambda start: (read_rgb(f) for f in files[start:]), files[0]
+
+
+def _stereo_sequence(args) -> int:
+    from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
+    from staticdepth.progress import progress
+    from staticdepth.stereo.io import write_ply
+    from staticdepth.stereo.pipeline import StereoPipeline
+    from staticdepth.stereo.rectify import check_rectified
+
+    rig = StereoRig.load(args.rig)
+    n_left, left_iter, left_src = _frames(args.left)
+    n_right, right_iter, _ = _frames(args.right)
+    if n_left != n_right:
+        raise InputError(f"{n_left} left frames but {n_right} right frames", args.right)
+    pipe = StereoPipeline(rig, _config(args))
+    first_l, first_r = next(left_iter(0)), next(right_iter(0))
+    pipe.check_frame(first_l, first_r, left_src)
+    rl, rr = pipe.rectifier.rectify(first_l, first_r)
+    check_rectified(rl, rr, source=f"{args.rig} (after rectifying {left_src})")
+    name = args.name or os.path.splitext(os.path.basename(args.out))[0]
+    meta = SequenceMeta(name=name, camera=pipe.camera, gt_kind="stereo",
+                        source=f"stereo {args.left} {args.right}", rig=rig,
+                        mounting=_rectified_mounting(rig), provenance=pipe.provenance())
+    writer = SequenceWriter(args.out, meta, streams=("left", "right", "depth"), resume=True,
+                            overwrite=args.overwrite)
+    start = len(writer)
+    try:
+        pairs = zip(left_iter(start), right_iter(start))
+        for i, (L, R) in enumerate(progress(pairs, total=n_left - start, desc="stereo"), start):
+            pipe.check_frame(L, R, f"frame {i}")
+            res = pipe.process(L, R)
+            writer.append(left=res.left_rect, right=res.right_rect, depth=res.depth)
+            if i == 0 and args.ply:
+                write_ply(args.ply, pipe.points(res), res.left_rect)
+    except BaseException:
+        writer.abort()
+        raise
+    out = writer.close()
+    print(f"{n_left} frames ({start} resumed) -> {out}")
+    return 0
+
+
+def _rectified_mounting(rig: StereoRig):
+    """The rig's mounting is stored in the rectified left frame already (see ``mount``)."""
+    return rig.mounting

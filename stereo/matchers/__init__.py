@@ -1,0 +1,1 @@
+"""Matcher backends (see ``staticdepth.stereo.match``)."""

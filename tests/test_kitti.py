@@ -1,0 +1,250 @@
+"""KITTI raw import on the real calibration and scans in ../shared/data/kitti_raw."""
+import os
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from staticdepth.cli import main
+from staticdepth.dataset.h5 import SequenceReader
+from staticdepth.dataset.kitti import (KittiCalib, depth_from_lidar, drive_tasks, import_kitti,
+                                       load_frame, read_calib_file, read_depth_png,
+                                       read_timestamps, read_velodyne)
+from staticdepth.errors import InputError
+
+DATE = "2011_09_26"
+DRIVE = "2011_09_26_drive_sample"
+
+
+@pytest.fixture(scope="module")
+def kitti_root(request):
+    from conftest import shared_data_dir
+
+    d = shared_data_dir() / "kitti_raw"
+    if not (d / DATE).is_dir():
+        pytest.skip(f"KITTI sample not found at {d} (set STATICDEPTH_DATA)")
+    return d
+
+
+def _copy_tree(src_root, dst_root, drives=(DRIVE,)):
+    """A writable copy of the sample (symlinked files), the drive possibly under other names."""
+    src = os.path.join(src_root, DATE)
+    dst = os.path.join(dst_root, DATE)
+    os.makedirs(dst)
+    for n in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt"):
+        os.symlink(os.path.join(src, n), os.path.join(dst, n))
+    for name in drives:
+        shutil.copytree(os.path.join(src, DRIVE + "_sync"), os.path.join(dst, name + "_sync"),
+                        copy_function=os.symlink)
+    return dst_root
+
+
+def _independent_depth(scan, calib_cam, calib_velo, w, h):
+    """Step by step, point by point: velo -> cam0 -> rectified cam0 -> image 2, nearest per pixel."""
+    R = calib_velo["R"].reshape(3, 3)
+    T = calib_velo["T"]
+    R0 = calib_cam["R_rect_00"].reshape(3, 3)
+    P2 = calib_cam["P_rect_02"].reshape(3, 4)
+    best = {}
+    for x, y, z, _ in scan:
+        if not x > 0:
+            continue
+        c0 = R @ np.array([x, y, z], np.float64) + T
+        r0 = R0 @ c0
+        pu = P2[0, 0] * r0[0] + P2[0, 1] * r0[1] + P2[0, 2] * r0[2] + P2[0, 3]
+        pv = P2[1, 0] * r0[0] + P2[1, 1] * r0[1] + P2[1, 2] * r0[2] + P2[1, 3]
+        pz = P2[2, 0] * r0[0] + P2[2, 1] * r0[1] + P2[2, 2] * r0[2] + P2[2, 3]
+        if pz <= 0:
+            continue
+        u, v = int(np.round(pu / pz)) - 1, int(np.round(pv / pz)) - 1
+        if 0 <= u < w and 0 <= v < h and pz < best.get((v, u), np.inf):
+            best[(v, u)] = pz
+    out = np.full((h, w), np.nan, np.float32)
+    for (v, u), z in best.items():
+        out[v, u] = z
+    return out
+
+
+def test_calibration_record_matches_the_files(kitti_root):
+    calib = KittiCalib.load(kitti_root / DATE)
+    cam = calib.camera()
+    assert (cam.width, cam.height) == (1242, 375)
+    assert cam.fx == pytest.approx(721.5377) and cam.cx == pytest.approx(609.5593)
+    assert cam.cy == pytest.approx(172.854)
+    # KITTI's colour cameras are about 0.54 m apart: (44.85728 + 339.5242) / 721.5377
+    assert calib.baseline_m == pytest.approx((44.85728 + 339.5242) / 721.5377, rel=1e-6)
+    with pytest.raises(ValueError):
+        calib.P_rect_02[0, 0] = 1.0  # frozen record
+
+
+def test_projection_agrees_with_an_independent_loop(kitti_root):
+    d = kitti_root / DATE
+    scan = read_velodyne(d / f"{DRIVE}_sync" / "velodyne_points" / "data" / "0000000000.bin")
+    calib = KittiCalib.load(d)
+    depth = depth_from_lidar(scan, calib.img2_from_velo, 1242, 375)
+    ref = _independent_depth(scan, read_calib_file(d / "calib_cam_to_cam.txt"),
+                             read_calib_file(d / "calib_velo_to_cam.txt"), 1242, 375)
+    np.testing.assert_array_equal(np.isfinite(depth), np.isfinite(ref))
+    np.testing.assert_allclose(depth[np.isfinite(ref)], ref[np.isfinite(ref)], rtol=1e-5)
+    ok = np.isfinite(depth)
+    assert 10_000 < ok.sum() < 30_000  # a 64-beam scan covers a few percent of the image
+    # Every depth lies within the scan's range: positive and no farther than the farthest point.
+    rng = np.linalg.norm(scan[:, :3], axis=1)
+    assert depth[ok].min() > 0 and depth[ok].max() <= rng.max() + 0.5
+    # A level 64-beam LiDAR (+2 to -25 degrees) sees mostly below the horizon row (c_y = 172.9).
+    rows = np.nonzero(ok)[0]
+    assert np.mean(rows > 172.9) > 0.6 and rows.max() >= 370
+
+
+def test_a_point_lands_where_expected(kitti_root):
+    calib = KittiCalib.load(kitti_root / DATE)
+    P = calib.img2_from_velo
+    # Solve for the velodyne point that projects to pixel position (501, 201) at depth 12 m.
+    A = np.vstack([P[:, :3]])
+    target = np.array([501.0 * 12, 201.0 * 12, 12.0]) - P[:, 3]
+    X = np.linalg.solve(A, target)
+    near = np.r_[X, 0.0][None]
+    far = np.r_[X * 2, 0.0][None]  # a farther point on roughly the same ray must lose
+    depth = depth_from_lidar(np.vstack([far, near]), P, 1242, 375)
+    assert depth[200, 500] == pytest.approx(12.0, rel=1e-6)  # KITTI: u, v = round(.) - 1
+    assert np.count_nonzero(np.isfinite(depth)) <= 2
+    behind = np.r_[-X[0], X[1], X[2], 0.0][None]  # x_velo < 0: dropped
+    assert not np.isfinite(depth_from_lidar(behind, P, 1242, 375)).any()
+
+
+def test_timestamps_parse_to_seconds(kitti_root):
+    ts = read_timestamps(kitti_root / DATE / f"{DRIVE}_sync" / "image_02" / "timestamps.txt")
+    assert len(ts) == 3
+    np.testing.assert_allclose(np.diff(ts), [0.103123456, 0.103138304], atol=1e-6)
+
+
+def test_import_two_drives_cli(kitti_root, tmp_path, capsys):
+    root = _copy_tree(kitti_root, tmp_path / "raw", drives=("2011_09_26_drive_0001",
+                                                           "2011_09_26_drive_0002"))
+    out = tmp_path / "K.h5"
+    rc = main(["import-kitti", "--root", str(root), "--drives", "2011_09_26_drive_0001",
+               "2011_09_26_drive_0002", "--name", "K0", "--adapt-frames", "4", "--out", str(out)])
+    assert rc == 0
+    assert "wrote 6 frames" in capsys.readouterr().out
+    with SequenceReader(out) as r:
+        assert len(r) == 6 and r.meta.name == "K0" and r.meta.gt_kind == "lidar"
+        assert r.meta.camera_height_m == 1.65 and r.camera.fx == pytest.approx(721.5377)
+        assert r.split("adapt") == range(4)
+        t = drive_tasks(root, "2011_09_26_drive_0002")[0][1]
+        np.testing.assert_array_equal(r.depth(4), load_frame(t).arrays["depth"])
+        np.testing.assert_array_equal(r.left(4), cv2.imread(t.image)[..., ::-1])
+        ts = r.timestamps()
+        assert ts[3] == pytest.approx(ts[0])  # the second drive is the same recording here
+        prov = r.meta.provenance
+        assert prov["pose_check"][0]["same_pose"] and prov["pose_check"][0]["mean_abs_diff"] < 1e-6
+
+
+def test_pose_check_warns_with_the_measured_shift(kitti_root, tmp_path):
+    root = _copy_tree(kitti_root, tmp_path / "raw", drives=("2011_09_26_drive_0001",
+                                                           "2011_09_26_drive_0002"))
+    data = root / DATE / "2011_09_26_drive_0002_sync" / "image_02" / "data"
+    for p in sorted(data.iterdir()):
+        img = cv2.imread(str(p))
+        p.unlink()
+        cv2.imwrite(str(p), np.roll(img, 8, axis=1))  # the camera "moved" 8 px
+    warnings = []
+    rep = import_kitti(root, ["2011_09_26_drive_0001", "2011_09_26_drive_0002"],
+                       tmp_path / "K.h5", warn=warnings.append)
+    assert rep.frames == 6 and len(warnings) == 1 and "may not share one camera pose" in warnings[0]
+    with SequenceReader(tmp_path / "K.h5") as r:
+        chk = r.meta.provenance["pose_check"][0]
+    assert not chk["same_pose"] and abs(chk["shift_px"][0]) == pytest.approx(8, abs=0.5)
+
+
+def test_depth_completion_maps_replace_the_projection(kitti_root, tmp_path):
+    root = _copy_tree(kitti_root, tmp_path / "raw")
+    gt = tmp_path / "depth" / "train" / f"{DRIVE}_sync" / "proj_depth" / "groundtruth" / "image_02"
+    gt.mkdir(parents=True)
+    m = np.zeros((375, 1242), np.uint16)
+    m[300, 600] = 256 * 7 + 128  # 7.5 m
+    cv2.imwrite(str(gt / "0000000001.png"), m)  # frames 0 and 2 have no map (as at drive ends)
+    np.testing.assert_array_equal(np.isfinite(read_depth_png(gt / "0000000001.png")), m > 0)
+    out = tmp_path / "K.h5"
+    assert main(["import-kitti", "--root", str(root), "--drives", DRIVE, "--depth-maps",
+                 str(tmp_path / "depth"), "--out", str(out)]) == 0
+    with SequenceReader(out) as r:
+        assert r.depth(1)[300, 600] == 7.5 and np.count_nonzero(np.isfinite(r.depth(1))) == 1
+        assert not np.isfinite(r.depth(0)).any()
+    with pytest.raises(InputError, match="no depth-completion maps"):
+        import_kitti(root, [DRIVE], tmp_path / "x.h5", depth_maps=str(tmp_path / "raw"))
+
+
+def test_bad_input_is_named(kitti_root, tmp_path, capsys):
+    root = _copy_tree(kitti_root, tmp_path / "raw")
+    drive = root / DATE / f"{DRIVE}_sync"
+    out = tmp_path / "K.h5"
+    # missing drive
+    with pytest.raises(InputError, match="drive folder not found"):
+        import_kitti(root, ["2011_09_26_drive_0099"], out)
+    # truncated scan: error naming the file; with --skip-bad a listed, counted skip
+    scan = drive / "velodyne_points" / "data" / "0000000001.bin"
+    raw = scan.read_bytes()
+    scan.unlink()
+    scan.write_bytes(raw[:1001])
+    with pytest.raises(InputError, match="truncated scan") as e:
+        import_kitti(root, [DRIVE], out)
+    assert e.value.path == str(scan)
+    assert not out.exists()
+    rc = main(["import-kitti", "--root", str(root), "--drives", DRIVE, "--out", str(out),
+               "--skip-bad"])
+    text = capsys.readouterr().out
+    assert rc == 0 and "wrote 2 frames" in text and "skipped 1 bad frame" in text
+    assert "0000000001" in text
+    with SequenceReader(out) as r:
+        assert len(r) == 2 and r.meta.provenance["skipped"][0]["frame"].endswith("0000000001")
+    # corrupt PNG
+    img = drive / "image_02" / "data" / "0000000002.png"
+    img.unlink()
+    img.write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    assert main(["import-kitti", "--root", str(root), "--drives", DRIVE, "--out", str(out),
+                 "--overwrite"]) == 2
+    assert "0000000002.png: corrupt or unreadable image" in capsys.readouterr().err
+    # mismatched frame counts between streams
+    img.unlink()
+    with pytest.raises(InputError, match="mismatched frame counts"):
+        import_kitti(root, [DRIVE], out, overwrite=True)
+    # --right without image_03
+    with pytest.raises(InputError, match="folder not found") as e:
+        import_kitti(root, [DRIVE], out, right=True)
+    assert e.value.path.endswith("image_03/data")
+    # a drive without scans
+    shutil.rmtree(drive / "velodyne_points" / "data")
+    (drive / "velodyne_points" / "data").mkdir()
+    with pytest.raises(InputError, match="no LiDAR scans"):
+        import_kitti(root, [DRIVE], out, overwrite=True)
+
+
+def test_missing_calibration_and_bad_timestamps(kitti_root, tmp_path):
+    root = _copy_tree(kitti_root, tmp_path / "raw")
+    ts = root / DATE / f"{DRIVE}_sync" / "image_02" / "timestamps.txt"
+    ts.unlink()
+    ts.write_text("2011-09-26 13:02:25.9\nyesterday\n2011-09-26 13:02:26.1\n")
+    with pytest.raises(InputError, match="line 2: not a timestamp") as e:
+        import_kitti(root, [DRIVE], tmp_path / "K.h5")
+    assert e.value.path == str(ts)
+    (root / DATE / "calib_velo_to_cam.txt").unlink()
+    with pytest.raises(InputError, match="calibration file not found") as e:
+        import_kitti(root, [DRIVE], tmp_path / "K.h5")
+    assert e.value.path.endswith("calib_velo_to_cam.txt")
+    (root / DATE / "calib_velo_to_cam.txt").write_text("R: 1 0 0\n")
+    with pytest.raises(InputError, match="'R' has 3 values"):
+        KittiCalib.load(root / DATE)
+
+
+def test_right_view_and_rig(kitti_root, tmp_path):
+    root = _copy_tree(kitti_root, tmp_path / "raw")
+    drive = root / DATE / f"{DRIVE}_sync"
+    shutil.copytree(drive / "image_02", drive / "image_03", copy_function=os.symlink)
+    out = tmp_path / "K.h5"
+    rep = import_kitti(root, [DRIVE], out, right=True, adapt_frames=1)
+    assert rep.frames == 3
+    with SequenceReader(out) as r:
+        assert r.streams() == ["left", "right", "depth"]
+        assert r.meta.rig.baseline_m == pytest.approx(0.5327, abs=1e-4)
+        assert r.meta.rig.is_rectified()

@@ -1,0 +1,102 @@
+"""Release folders: card contents, manifest, and verification of tampered releases."""
+import json
+import os
+
+import h5py
+import numpy as np
+import pytest
+
+from staticdepth.cli import main
+from staticdepth.dataset.h5 import SequenceReader
+from staticdepth.dataset.publish import publish, sha256_file, verify_release
+from staticdepth.errors import InputError
+from test_export import make_sequence
+
+
+@pytest.fixture
+def release(tmp_path):
+    frames_a = make_sequence(tmp_path / "A.h5", n=4, adapt=1, seed=1)
+    make_sequence(tmp_path / "B.h5", n=3, adapt=2, seed=2, right=False)
+    out = tmp_path / "rel"
+    rc = main(["publish", str(tmp_path / "A.h5"), str(tmp_path / "B.h5"), "--out", str(out),
+               "--licence", "CC-BY-4.0", "--citation", "Doe et al., 2025"])
+    assert rc == 0
+    return out, frames_a
+
+
+def test_release_contents_and_card(release, capsys):
+    out, frames = release
+    assert sorted(os.listdir(out)) == ["MANIFEST.sha256", "README.md", "dataset_card.json",
+                                       "kitti", "sequences"]
+    card = json.loads((out / "dataset_card.json").read_text())
+    assert card["licence"] == "CC-BY-4.0" and card["citation"] == "Doe et al., 2025"
+    a, b = card["sequences"]
+    assert a["name"] == "A" and a["frames"] == 4 and a["splits"] == {"adapt": [0, 1], "eval": [1, 4]}
+    assert a["rig"]["baseline_m"] == pytest.approx(0.27) and a["camera_height_m"] == 5.0
+    assert a["ground_truth"]["matcher"] == "sgbm" and b["rig"] is None
+    dens = np.mean([np.isfinite(f["depth"]).mean() for f in frames])
+    assert a["statistics"]["density_mean"] == pytest.approx(dens)
+    assert a["statistics"]["depth_min_m"] == pytest.approx(min(np.nanmin(f["depth"]) for f in frames))
+    assert a["statistics"]["depth_max_m"] == pytest.approx(max(np.nanmax(f["depth"]) for f in frames))
+    md = (out / "README.md").read_text()
+    assert "CC-BY-4.0" in md and "| A | 4 | 64x32 | 1 / 3 |" in md and "Doe et al." in md
+    # every file is in the manifest with its SHA-256
+    lines = (out / "MANIFEST.sha256").read_text().splitlines()
+    listed = dict(reversed(l.split("  ", 1)) for l in lines)
+    assert listed["sequences/A.h5"] == sha256_file(out / "sequences/A.h5")
+    assert "kitti/B/proj_depth/groundtruth/image_02/0000000002.png" in listed
+    with SequenceReader(out / "sequences/A.h5") as r:
+        np.testing.assert_array_equal(r.left(3), frames[3]["left"])
+    assert verify_release(out) == []
+    assert main(["verify", str(out)]) == 0
+    assert f"{out}: OK" in capsys.readouterr().out
+
+
+def test_tampering_is_found(release, capsys):
+    out, _ = release
+    png = out / "kitti/A/image_02/data/0000000001.png"
+    png.write_bytes(png.read_bytes()[:-10] + b"0123456789")
+    (out / "extra.txt").write_text("hello")
+    (out / "kitti/B/timestamps.txt").unlink()
+    problems = verify_release(out)
+    assert "kitti/A/image_02/data/0000000001.png: SHA-256 mismatch" in problems
+    assert "extra.txt: not in the manifest" in problems
+    assert "kitti/B/timestamps.txt: listed in the manifest but missing" in problems
+    assert main(["verify", str(out)]) == 2
+    assert "SHA-256 mismatch" in capsys.readouterr().out
+
+
+def test_corrupted_sequence_and_manifest(release):
+    out, _ = release
+    # flip bytes inside a sequence file and re-hash it, so only the frame checksums can tell
+    p = out / "sequences/B.h5"
+    with h5py.File(p) as f:  # the stored bytes of frame 1's depth
+        info = f["depth"].id.get_chunk_info(1)
+    data = bytearray(p.read_bytes())
+    off = info.byte_offset + info.size // 2
+    data[off:off + 16] = bytes(16)
+    p.write_bytes(bytes(data))
+    lines = (out / "MANIFEST.sha256").read_text().splitlines()
+    lines = [f"{sha256_file(p)}  sequences/B.h5" if l.endswith("sequences/B.h5") else l
+             for l in lines] + ["garbage line"]
+    (out / "MANIFEST.sha256").write_text("\n".join(lines) + "\n")
+    problems = verify_release(out)
+    assert any(l.startswith("sequences/B.h5: ") for l in problems), problems
+    assert f"MANIFEST.sha256 line {len(lines)}: malformed" in problems
+    (out / "MANIFEST.sha256").unlink()
+    assert verify_release(out) == ["no MANIFEST.sha256 (not a release folder)"]
+
+
+def test_publish_bad_input(tmp_path):
+    make_sequence(tmp_path / "A.h5", n=2, adapt=1)
+    (tmp_path / "x").mkdir()
+    make_sequence(tmp_path / "x" / "A.h5", n=2, adapt=1)
+    with pytest.raises(InputError, match="share the name 'A'"):
+        publish([tmp_path / "A.h5", tmp_path / "x" / "A.h5"], tmp_path / "rel")
+    with pytest.raises(InputError, match="output exists"):
+        publish([tmp_path / "A.h5"], tmp_path / "x")
+    (tmp_path / "bad.h5").write_bytes(b"nope")
+    with pytest.raises(InputError, match="not a readable HDF5 file"):
+        publish([tmp_path / "bad.h5"], tmp_path / "rel")
+    assert not (tmp_path / "rel").exists()
+    assert not [n for n in os.listdir(tmp_path) if "partial" in n]
