@@ -1,0 +1,73 @@
+"""Commands ``baseline train`` and ``baseline predict``."""
+from __future__ import annotations
+
+import argparse
+
+from staticdepth.baseline.config import PRESETS
+
+
+def register(sub) -> None:
+    p = sub.add_parser("baseline", help="stereo self-supervised baseline (MonoDepth2 S)",
+                       description="A monocular network trained on the scene's own stereo pairs "
+                                   "with the real baseline, so its depth is metric: the upper "
+                                   "bound the paper compares with.")
+    bsub = p.add_subparsers(dest="baseline_command", metavar="ACTION", required=True)
+
+    from staticdepth.cli import add_device_argument
+
+    t = bsub.add_parser("train", help="train on the adaptation split's stereo pairs",
+                        description="Train on the adaptation split's rectified stereo pairs. "
+                                    "Resumes an unfinished checkpoint with the same settings.")
+    t.add_argument("sequence", help="sequence file (.h5) with left and right images")
+    t.add_argument("--preset", default="default", choices=sorted(PRESETS))
+    t.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a setting, e.g. --set epochs=5 (repeatable)")
+    t.add_argument("--weights", help="ImageNet ResNet18 weights: a local torchvision .pth")
+    t.add_argument("--checkpoint", help="checkpoint file (default: SEQ.baseline.pt)")
+    t.add_argument("--checkpoint-every", type=int, default=200, metavar="STEPS")
+    t.add_argument("--overwrite", action="store_true", help="start again, replacing the checkpoint")
+    add_device_argument(t)
+    t.set_defaults(func=_train)
+
+    q = bsub.add_parser("predict", help="predict metric depth for every frame",
+                        description="Predict every frame's depth and store it in the sequence as "
+                                    "pred/NAME/depth.")
+    q.add_argument("sequence")
+    q.add_argument("--checkpoint", help="trained checkpoint (default: SEQ.baseline.pt)")
+    q.add_argument("--name", default="stereo-baseline", help="prediction name")
+    q.add_argument("--batch-size", type=int, default=4)
+    add_device_argument(q)
+    q.set_defaults(func=_predict)
+
+
+def _train(args: argparse.Namespace) -> int:
+    from staticdepth.baseline.config import preset
+    from staticdepth.baseline.train import default_checkpoint_path, train
+    from staticdepth.cli import parse_overrides, resolve_device
+
+    overrides = parse_overrides(args.set)
+    if args.weights:
+        overrides["imagenet_weights"] = args.weights
+    conf = preset(args.preset, overrides)
+    device = resolve_device(args.device)
+    ckpt = args.checkpoint or default_checkpoint_path(args.sequence)
+    info = train(args.sequence, ckpt, conf, device, overwrite=args.overwrite,
+                 checkpoint_every=args.checkpoint_every, log=print)
+    loss = info["epoch_loss"]
+    print(f"trained {info['epochs']} epochs ({info['steps']} steps, {info['frames']} frames, "
+          f"baseline {info['baseline_m']:.3f} m) -> {ckpt}"
+          + (f"; loss {loss[0]:.4f} -> {loss[-1]:.4f}" if loss else ""))
+    return 0
+
+
+def _predict(args: argparse.Namespace) -> int:
+    from staticdepth.baseline.predict import predict_sequence
+    from staticdepth.baseline.train import default_checkpoint_path
+    from staticdepth.cli import resolve_device
+
+    ckpt = args.checkpoint or default_checkpoint_path(args.sequence)
+    info = predict_sequence(args.sequence, ckpt, resolve_device(args.device), name=args.name,
+                            batch_size=args.batch_size)
+    print(f"stored pred/{info['name']}/depth ({info['frames']} frames, metric) in "
+          f"{args.sequence}")
+    return 0

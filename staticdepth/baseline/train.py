@@ -1,0 +1,180 @@
+"""Stage ``baseline train``: fit the stereo baseline on a sequence's adaptation split.
+
+:func:`train_step` is the pure part (forward, loss, optimiser step); :func:`train` is the loop that
+owns data, checkpoints (atomic: temporary file + ``os.replace``), resuming, progress and logging.
+Randomness is derived from ``conf.seed`` and the epoch / step number, so a resumed run follows the
+same batches and augmentations as an uninterrupted one (bit-exact on the CPU).
+"""
+from __future__ import annotations
+
+import os
+import time
+from typing import Any, Callable, Mapping
+
+import torch
+
+from staticdepth.baseline.config import BaselineConfig, config_from_dict
+from staticdepth.baseline.data import StereoGeometry, load_pairs, sample_batch, stereo_geometry
+from staticdepth.baseline.losses import stereo_loss
+from staticdepth.baseline.network import DepthNet, build_model
+from staticdepth.errors import InputError
+from staticdepth.progress import progress
+
+CHECKPOINT_FORMAT = "staticdepth.baseline/1"
+_SEED_STRIDE = 1_000_003
+
+
+def train_step(model: DepthNet, batch: Mapping[str, torch.Tensor], conf: BaselineConfig,
+               optimizer: torch.optim.Optimizer | None = None) -> dict[str, float]:
+    """One step on a batch from :func:`~staticdepth.baseline.data.make_batch` (on the model's
+    device). Computes the loss; with an ``optimizer``, also back-propagates and steps.
+    Returns the loss terms as floats."""
+    disps = model(batch["image"])
+    terms = stereo_loss(disps, batch["target"], batch["source"], batch["focal_px"],
+                        batch["baseline_m"], batch["direction"], conf)
+    if optimizer is not None:
+        optimizer.zero_grad(set_to_none=True)
+        terms["loss"].backward()
+        optimizer.step()
+    return {k: float(v.detach()) for k, v in terms.items()}
+
+
+def default_checkpoint_path(sequence_path: str | os.PathLike) -> str:
+    base = os.fspath(sequence_path)
+    if base.endswith(".h5"):
+        base = base[:-3]
+    return base + ".baseline.pt"
+
+
+def save_checkpoint(path: str, state: dict[str, Any]) -> None:
+    """Write ``state`` with ``torch.save`` to a temporary file and rename it onto ``path``."""
+    tmp = f"{path}.tmp{os.getpid()}"
+    try:
+        torch.save(state, tmp)
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
+    """Read a baseline checkpoint (tensors and plain values only); errors name the file."""
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError("checkpoint not found (train first: staticdepth baseline train)", path)
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:
+        raise InputError(f"not a readable checkpoint ({type(e).__name__})", path) from None
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise InputError(f"not a stereo-baseline checkpoint (expected format "
+                         f"{CHECKPOINT_FORMAT!r})", path)
+    state["config"] = config_from_dict(state["config"], path)
+    return state
+
+
+def _samples_per_epoch(n_frames: int, conf: BaselineConfig) -> int:
+    return n_frames * (2 if conf.both_sides else 1)
+
+
+def train(sequence_path: str | os.PathLike, checkpoint_path: str | os.PathLike,
+          conf: BaselineConfig, device: torch.device | str = "cpu", *, overwrite: bool = False,
+          checkpoint_every: int = 200, log: Callable[[str], None] | None = None
+          ) -> dict[str, Any]:
+    """Train on the adaptation split of ``sequence_path``; checkpoint to ``checkpoint_path``.
+
+    An existing unfinished checkpoint with the same settings is resumed; a finished one is kept
+    (nothing to do) unless ``overwrite``; one with other settings is an error. Checkpoints are
+    written every ``checkpoint_every`` steps and at the end of every epoch.
+    Returns a summary: epochs, steps, per-epoch mean losses, seconds, images per second.
+    """
+    from staticdepth.dataset.h5 import SequenceReader
+
+    log = log or (lambda s: None)
+    seq, ckpt = os.fspath(sequence_path), os.fspath(checkpoint_path)
+    device = torch.device(device)
+    with SequenceReader(seq) as r:
+        geo = stereo_geometry(r, conf)
+        left, right = load_pairs(r, r.split("adapt"), conf)
+        seq_name = r.meta.name
+    resume = os.path.exists(ckpt) and not overwrite
+    state = load_checkpoint(ckpt) if resume else None
+    if state is not None:
+        _check_compatible(state, conf, geo, ckpt)
+    torch.manual_seed(conf.seed)
+    model = build_model(conf, load_weights=not resume).to(device)
+    opt = torch.optim.Adam(model.parameters(), lr=conf.lr)
+    sched = torch.optim.lr_scheduler.StepLR(opt, conf.lr_step_epochs, conf.lr_gamma)
+    epoch, batch0, step, history = 0, 0, 0, []
+    if state is not None:
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+        epoch, batch0, step = state["epoch"], state["batch"], state["step"]
+        history = list(state["history"])
+        log(f"resuming {ckpt} at epoch {epoch}, step {step}" if epoch < conf.epochs
+            else f"{ckpt} is already trained ({conf.epochs} epochs); --overwrite to retrain")
+    n_samples = _samples_per_epoch(len(left), conf)
+    per_epoch = max(1, n_samples // conf.batch_size)   # drop_last, as MonoDepth2
+    bs = min(conf.batch_size, n_samples)
+
+    def snapshot(done_batches: int) -> dict[str, Any]:
+        e, b = (epoch + 1, 0) if done_batches == per_epoch else (epoch, done_batches)
+        return {"format": CHECKPOINT_FORMAT, "config": conf.to_dict(), "model": model.state_dict(),
+                "optimizer": opt.state_dict(), "scheduler": sched.state_dict(), "epoch": e,
+                "batch": b, "step": step, "history": history, "sequence": seq_name,
+                "baseline_m": geo.baseline_m, "focal_px": geo.focal_px,
+                "focal_px_full": geo.focal_px_full, "sequence_size": list(geo.sequence_size)}
+
+    t0, n_images = time.perf_counter(), 0
+    model.train()
+    bar = progress(total=(conf.epochs - epoch) * per_epoch - batch0, desc="baseline train",
+                   unit="step")
+    while epoch < conf.epochs:
+        perm = torch.randperm(n_samples, generator=torch.Generator().manual_seed(
+            conf.seed * _SEED_STRIDE + epoch))
+        losses = [h for h in history if h["epoch"] == epoch]
+        for b in range(batch0, per_epoch):
+            g = torch.Generator().manual_seed(conf.seed * _SEED_STRIDE + 7919 * (step + 1))
+            torch.manual_seed(conf.seed * _SEED_STRIDE + 104729 * (step + 1))
+            batch = sample_batch(left, right, perm[b * bs:(b + 1) * bs], geo, conf, g)
+            batch = {k: v.to(device, non_blocking=True) for k, v in batch.items()}
+            terms = train_step(model, batch, conf, opt)
+            step += 1
+            n_images += bs
+            rec = {"epoch": epoch, "step": step, **terms}
+            history.append(rec)
+            losses.append(rec)
+            bar.update(1)
+            bar.set_postfix(loss=f"{terms['loss']:.4f}", epoch=epoch)
+            if checkpoint_every and step % checkpoint_every == 0 and b + 1 < per_epoch:
+                save_checkpoint(ckpt, snapshot(b + 1))
+        lr = opt.param_groups[0]["lr"]
+        sched.step()
+        save_checkpoint(ckpt, snapshot(per_epoch))
+        mean = sum(h["loss"] for h in losses) / max(1, len(losses))
+        log(f"epoch {epoch + 1}/{conf.epochs}: loss {mean:.4f} (lr {lr:.2e})")
+        epoch, batch0 = epoch + 1, 0
+    bar.close()
+    seconds = time.perf_counter() - t0
+    epochs = sorted({h["epoch"] for h in history})
+    epoch_loss = [sum(h["loss"] for h in history if h["epoch"] == e)
+                  / sum(1 for h in history if h["epoch"] == e) for e in epochs]
+    return {"checkpoint": ckpt, "epochs": conf.epochs, "steps": step, "epoch_loss": epoch_loss,
+            "seconds": seconds, "images_per_s": n_images / seconds if n_images else 0.0,
+            "frames": len(left), "baseline_m": geo.baseline_m, "focal_px": geo.focal_px}
+
+
+def _check_compatible(state: Mapping[str, Any], conf: BaselineConfig, geo: StereoGeometry,
+                      path: str) -> None:
+    old: BaselineConfig = state["config"]
+    diff = sorted(k for k, v in conf.to_dict().items() if old.to_dict()[k] != v)
+    if diff:
+        raise InputError(f"checkpoint was trained with other settings ({', '.join(diff)}); "
+                         "use --overwrite to start again or another --checkpoint", path)
+    if abs(state["baseline_m"] - geo.baseline_m) > 1e-9 or \
+            abs(state["focal_px"] - geo.focal_px) > 1e-6:
+        raise InputError("checkpoint was trained on a sequence with another stereo geometry; "
+                         "use --overwrite or another --checkpoint", path)
