@@ -1,0 +1,160 @@
+"""Scene alignment (METHOD.md section 4): move a prediction's ground onto the agents' plane.
+
+1. Back-project the prediction ``P = Z r`` and fit its ground plane ``a X + b Y + c Z = d_p`` by
+   total least squares inside a ground mask (agents' pixels removed).
+2. Eq. 2 moves every point within its depth slice onto that plane, and the re-projection onto the
+   agents' plane ``n_g . P = d_g`` is, in closed form, ``Z_new = d_g Z / (n_g . P_g)``.
+Because ``P_g`` is affine in Z with pixel-affine coefficients, ``n_g . P_g = C0 + Z L(u, v)`` with
+``L`` affine in (u, v): the whole map costs a few float32 array operations.
+
+The result does not depend on the prediction's global scale and is in the units of ``d_g`` (metres
+when ``d_g`` is the camera height). Pixels where ``n_g . P_g <= eps d_p`` (above the agents'
+horizon) keep their depth times the median ratio ``Z_new / Z`` over the ground mask.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+from staticdepth.errors import InputError
+from staticdepth.geometry.plane import fit_plane
+from staticdepth.geometry.projection import ray_grid
+
+
+def depth_from_inverse(inverse_depth: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    """Relative depth ``1 / max(D, eps)`` of a relative inverse depth map (the paper's DPT depth);
+    NaN stays NaN."""
+    D = np.asarray(inverse_depth, dtype=np.float32)
+    with np.errstate(invalid="ignore"):
+        return (1.0 / np.maximum(D, np.float32(eps))).astype(np.float32)
+
+
+def ground_mask_from_feet(foot_uv: np.ndarray, width: int, height: int,
+                          erode_px: float = 10.0) -> np.ndarray:
+    """The convex hull of the agents' foot points (N, 2), eroded by ``erode_px``, as (H, W) bool.
+
+    Erosion of a convex polygon by a disk is the intersection of its edges' half-planes moved
+    inward by the radius. Raises when the points span no area.
+    """
+    uv = np.asarray(foot_uv, dtype=np.float64).reshape(-1, 2)
+    uv = uv[np.all(np.isfinite(uv), axis=1)]
+    if len(uv) < 3:
+        raise InputError(f"a ground mask from feet needs at least 3 foot points, got {len(uv)}")
+    try:
+        hull = ConvexHull(uv)
+    except QhullError:
+        raise InputError("the foot points are collinear: they cover no ground area") from None
+    u = np.arange(width, dtype=np.float32)[None, :]
+    v = np.arange(height, dtype=np.float32)[:, None]
+    mask = np.ones((height, width), bool)
+    for a, b, c in hull.equations:          # a u + b v + c <= 0 inside, (a, b) unit
+        mask &= (np.float32(a) * u + np.float32(b) * v + np.float32(c + erode_px)) <= 0
+    if not mask.any():
+        raise InputError(f"the feet's hull eroded by {erode_px} px leaves no ground pixel")
+    return mask
+
+
+def fit_predicted_plane(depth: np.ndarray, K: np.ndarray, mask: np.ndarray,
+                        max_points: int = 20000) -> tuple[np.ndarray, float]:
+    """TLS plane (n_p, d_p) of the back-projected prediction inside ``mask`` (H, W bool).
+
+    At most about ``max_points`` pixels (an even stride over the mask) are used. Raises when fewer than 3 valid
+    depths lie in the mask or they are collinear.
+    """
+    depth = np.asarray(depth)
+    vs, us = np.nonzero(np.asarray(mask, bool) & np.isfinite(depth) & (depth > 0))
+    if len(vs) < 3:
+        raise InputError(f"the ground mask holds {len(vs)} valid predicted depths (need >= 3)")
+    if len(vs) > max_points:
+        step = -(-len(vs) // max_points)
+        vs, us = vs[::step], us[::step]
+    K = np.asarray(K, dtype=np.float64)
+    z = depth[vs, us].astype(np.float64)
+    x = (us - K[0, 2] - K[0, 1] * (vs - K[1, 2]) / K[1, 1]) / K[0, 0]
+    y = (vs - K[1, 2]) / K[1, 1]
+    return fit_plane(np.stack([x * z, y * z, z], axis=1))
+
+
+@dataclass(frozen=True, eq=False)
+class Alignment:
+    """One aligned frame: ``depth`` (H, W) float32 in units of d_g (NaN where the input was), the
+    predicted plane, the fallback ratio and how many pixels used it, and ``skipped`` (nadir)."""
+
+    depth: np.ndarray
+    plane_normal: np.ndarray
+    plane_d: float
+    fallback_ratio: float
+    n_fallback: int
+    skipped: bool
+
+
+def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: np.ndarray, *,
+                agent_mask: np.ndarray | None = None, near_plane_rel: float | None = None,
+                eps: float = 1e-3, nadir_tol: float = 1e-6) -> Alignment:
+    """Align a relative depth map (H, W) to the agents' ground plane ``n_g . P = d_g``.
+
+    ground_mask: (H, W) bool where the ground is expected; ``agent_mask`` pixels are removed from
+    it and, with ``near_plane_rel``, aligned together with pixels whose back-projection lies
+    within ``near_plane_rel * d_p`` of the predicted plane (every other pixel is only rescaled by
+    the median ratio). ``eps`` is relative to d_p. A nadir prediction (a_p = b_p = 0) is rescaled
+    by the median ratio of the agents' plane depth over the ground and flagged ``skipped``.
+    """
+    Z = np.asarray(depth, dtype=np.float32)
+    if Z.ndim != 2:
+        raise InputError(f"a depth map must be 2-D (H, W), got shape {Z.shape}")
+    h, w = Z.shape
+    K = np.asarray(K, dtype=np.float64)
+    n_g = np.asarray(n_g, dtype=np.float64)
+    G = np.asarray(ground_mask, bool)
+    if G.shape != Z.shape:
+        raise InputError(f"ground mask shape {G.shape} differs from the prediction's {Z.shape}")
+    if agent_mask is not None:
+        G = G & ~np.asarray(agent_mask, bool)
+    n_p, d_p = fit_predicted_plane(Z, K, G)
+    a, b, c = n_p
+    s2 = a * a + b * b
+    fx, fy, cx, cy, sk = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
+    y = ((np.arange(h) - cy) / fy)[:, None]
+    x = (np.arange(w)[None, :] - cx - sk * y) / fx
+    valid = np.isfinite(Z) & (Z > 0)
+    if s2 < nadir_tol:
+        rays_ng = (ray_grid(K, w, h) @ n_g).astype(np.float32)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(rays_ng > 0, d_g / (rays_ng * Z), np.nan)
+        r = _median_ratio(ratio, G & valid)
+        return Alignment(Z * np.float32(r), n_p, d_p, r, int(valid.sum()), True)
+    # n_g . P_g = C0 + Z L(u, v), L = x Ax + y Ay + C1 (Eq. 2 expanded)
+    C0 = (n_g[0] * a + n_g[1] * b) * d_p / s2
+    L = (x * ((n_g[0] * b * b - n_g[1] * a * b) / s2)
+         + y * ((n_g[1] * a * a - n_g[0] * a * b) / s2)
+         + (n_g[2] - c * (n_g[0] * a + n_g[1] * b) / s2)).astype(np.float32)
+    denom = np.float32(C0) + Z * L
+    ok = valid & (denom > eps * d_p)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.float32(d_g) * Z / denom
+    if near_plane_rel is not None:
+        dist = np.abs(Z * (np.float32(a) * x.astype(np.float32) + np.float32(b) * y.astype(np.float32)
+                           + np.float32(c)) - np.float32(d_p))
+        move = dist < near_plane_rel * d_p
+        if agent_mask is not None:
+            move |= np.asarray(agent_mask, bool)
+        ok &= move
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = _median_ratio(out / Z, G & ok)
+    fb = valid & ~ok
+    out = np.where(ok, out, Z * np.float32(r))
+    out[~valid] = np.nan
+    return Alignment(out.astype(np.float32, copy=False), n_p, d_p, r, int(fb.sum()), False)
+
+
+def _median_ratio(ratio: np.ndarray, where: np.ndarray, max_points: int = 20000) -> float:
+    vals = ratio[where]
+    if len(vals) > max_points:
+        vals = vals[::-(-len(vals) // max_points)]
+    vals = vals[np.isfinite(vals) & (vals > 0)]
+    if len(vals) == 0:
+        raise InputError("no ground pixel can be aligned (the ground mask lies above the agents' "
+                         "horizon or holds no valid depth)")
+    return float(np.median(vals))

@@ -1,0 +1,98 @@
+"""Metric scale from the camera height (METHOD.md section 5).
+
+The anchor is the bottom row's centre pixel ``(u_a, v_a) = (W/2, H-1)``, assumed to see the ground.
+Its depth on the plane ``n_g . P = H_c`` is ``D'_min = H_c / (n_g . K^-1 [u_a, v_a, 1])``; the scale
+of a prediction is ``D'_min / Z_pred(anchor)``. Methods that assume a camera parallel to the ground
+(McCraith et al.; Xue et al.) use ``f H_c / (v_a - c_y)`` instead, kept here for comparison.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from staticdepth.errors import InputError
+from staticdepth.geometry.projection import rays_from_pixels
+
+
+def anchor_pixel(width: int, height: int) -> tuple[float, float]:
+    """The paper's anchor: bottom row, centre column ``(W/2, H-1)``."""
+    return width / 2.0, float(height - 1)
+
+
+def anchor_depth(K: np.ndarray, normal, camera_height_m: float, u: float, v: float) -> float:
+    """Depth (m) of the ground seen at pixel (u, v): ``H_c / (n . K^-1 [u, v, 1])``.
+
+    Raises when the pixel looks above the horizon (n . r <= 0) or the height is not positive.
+    """
+    if not camera_height_m > 0:
+        raise InputError(f"camera height must be positive, got {camera_height_m}")
+    nr = float(rays_from_pixels(K, u, v) @ np.asarray(normal, dtype=np.float64))
+    if nr <= 1e-9:
+        raise InputError(f"the anchor pixel ({u:g}, {v:g}) looks above the ground's horizon")
+    return camera_height_m / nr
+
+
+def anchor_depth_parallel(K: np.ndarray, camera_height_m: float, v: float) -> float:
+    """The parallel-camera baseline ``f_y H_c / (v - c_y)``; raises for v <= c_y."""
+    K = np.asarray(K, dtype=np.float64)
+    if not camera_height_m > 0:
+        raise InputError(f"camera height must be positive, got {camera_height_m}")
+    if v <= K[1, 2]:
+        raise InputError(f"row {v:g} is not below the principal point (c_y = {K[1, 2]:g}): a "
+                         "parallel camera sees no ground there")
+    return float(K[1, 1] * camera_height_m / (v - K[1, 2]))
+
+
+@dataclass(frozen=True)
+class AnchorScale:
+    """Scale of one predicted frame: ``scale`` = anchor_depth_m / pred_anchor (NaN when skipped)."""
+
+    scale: float
+    anchor_depth_m: float
+    anchor_depth_parallel_m: float
+    pred_anchor: float
+    skipped: str | None = None
+
+
+def scale_from_anchor(pred_depth: np.ndarray, K: np.ndarray, normal, camera_height_m: float, *,
+                      patch_px: int = 5, agent_mask: np.ndarray | None = None) -> AnchorScale:
+    """The metric scale of a relative depth map (H, W) from its anchor.
+
+    The scale is the median of ``plane depth / prediction`` over a ``patch_px`` square around the
+    anchor (clipped to the image; ``pred_anchor`` = anchor depth / scale); a frame whose patch touches ``agent_mask`` or holds no valid depth is skipped
+    (``scale`` NaN, ``skipped`` says why) so that :func:`temporal_scale` can ignore it.
+    """
+    Z = np.asarray(pred_depth)
+    h, w = Z.shape
+    u_a, v_a = anchor_pixel(w, h)
+    D = anchor_depth(K, normal, camera_height_m, u_a, v_a)
+    try:
+        Dp = anchor_depth_parallel(K, camera_height_m, v_a)
+    except InputError:
+        Dp = float("nan")
+    r = max(patch_px // 2, 0)
+    uc = min(int(round(u_a)), w - 1)
+    sl = (slice(max(int(v_a) - r, 0), int(v_a) + 1), slice(max(uc - r, 0), min(uc + r + 1, w)))
+    if agent_mask is not None and np.asarray(agent_mask, bool)[sl].any():
+        return AnchorScale(float("nan"), D, Dp, float("nan"), "an agent covers the anchor")
+    vs, us = np.mgrid[sl]
+    nr = rays_from_pixels(K, us, vs) @ np.asarray(normal, dtype=np.float64)
+    z_pred = Z[sl]
+    ok = np.isfinite(z_pred) & (z_pred > 0) & (nr > 1e-9)
+    if not ok.any():
+        return AnchorScale(float("nan"), D, Dp, float("nan"), "no valid depth at the anchor")
+    ratio = camera_height_m / nr[ok] / z_pred[ok]        # plane depth / prediction, per pixel
+    scale = float(np.median(ratio))
+    z = D / scale
+    return AnchorScale(scale, D, Dp, z)
+
+
+def temporal_scale(scales) -> float:
+    """Median of the per-frame scales, ignoring skipped (NaN) frames; raises when all are."""
+    s = np.asarray([x.scale if isinstance(x, AnchorScale) else x for x in scales], dtype=float)
+    s = s[np.isfinite(s) & (s > 0)]
+    if len(s) == 0:
+        raise InputError("no frame gave a scale (the anchor was covered or invalid in all)")
+    return float(np.median(s))
+

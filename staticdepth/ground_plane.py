@@ -1,0 +1,145 @@
+"""Stage: the ground plane from agents' observations (``staticdepth ground-plane``).
+
+Reads an observation CSV (columns ``frame, track, foot_u, foot_v, height_px``, optional
+``class_id``, ``score``), fits :func:`staticdepth.geometry.agent_plane.fit_agent_plane` and writes
+the plane as JSON (``normal``, ``horizon``, ``d_over_agent_height``, ``inliers``, ``uncertainty``,
+``camera_height_m`` when an agent height or a camera height is given).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from staticdepth.errors import InputError
+from staticdepth.geometry import load_camera
+from staticdepth.geometry.agent_plane import (MODELS, PRESETS, AgentPlane, AgentPlaneConfig,
+                                              camera_height_from_prior, fit_agent_plane)
+from staticdepth.tracking import OBS_DTYPE
+
+REQUIRED_COLUMNS = ("frame", "track", "foot_u", "foot_v", "height_px")
+
+
+def read_observations_csv(path: str | os.PathLike) -> np.ndarray:
+    """The observation table (:data:`~staticdepth.tracking.OBS_DTYPE`) from a CSV with a header."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.reader(f))
+    except FileNotFoundError:
+        raise InputError("file not found", path) from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"cannot read: {e}", path) from None
+    rows = [r for r in rows if any(c.strip() for c in r)]
+    if not rows:
+        raise InputError("empty file (expected a header with "
+                         f"{', '.join(REQUIRED_COLUMNS)})", path)
+    header = [c.strip() for c in rows[0]]
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    if missing:
+        raise InputError(f"missing column(s) {', '.join(missing)} (header: {', '.join(header)})",
+                         path)
+    cols = {c: header.index(c) for c in header}
+    out = np.zeros(len(rows) - 1, OBS_DTYPE)
+    out["class_id"] = -1
+    out["score"] = 1.0
+    for i, r in enumerate(rows[1:]):
+        if len(r) != len(header):
+            raise InputError(f"line {i + 2}: {len(r)} fields, the header has {len(header)}", path)
+        for name in ("frame", "track", "foot_u", "foot_v", "height_px", "class_id", "score"):
+            if name not in cols:
+                continue
+            text = r[cols[name]].strip()
+            try:
+                val = float(text)
+            except ValueError:
+                raise InputError(f"line {i + 2}: column {name!r} is not a number: {text!r}",
+                                 path) from None
+            if not np.isfinite(val):
+                raise InputError(f"line {i + 2}: column {name!r} is not finite: {text!r}", path)
+            out[name][i] = val
+    out["top_v"] = out["foot_v"] - out["height_px"]
+    usable = int(np.sum(out["height_px"] > 0))
+    if usable < 3:
+        raise InputError(f"{usable} usable observation(s) (height_px > 0); the ground plane needs "
+                         "at least 3", path)
+    return out
+
+
+def estimate_ground_plane(observations: np.ndarray, K: np.ndarray,
+                          conf: AgentPlaneConfig = AgentPlaneConfig(), *,
+                          agent_height_m: float | None = None,
+                          camera_height_m: float | None = None) -> AgentPlane:
+    """Fit the plane and attach a camera height: the given one, else from the agent-height prior."""
+    plane = fit_agent_plane(K, observations, conf)
+    if camera_height_m is not None:
+        return plane.with_camera_height(camera_height_m, "given")
+    if agent_height_m is not None:
+        return plane.with_camera_height(camera_height_from_prior(plane, agent_height_m),
+                                        f"agent height prior {agent_height_m:g} m")
+    return plane
+
+
+def write_json(path: str | os.PathLike, obj: Any) -> None:
+    """Write JSON atomically (temporary file, then rename)."""
+    path = os.fspath(path)
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w") as f:
+        json.dump(obj, f, indent=2)
+    os.replace(tmp, path)
+
+
+def summary(plane: AgentPlane) -> str:
+    lines = [f"ground plane ({plane.model}): pitch {plane.pitch_deg:.2f} deg, roll "
+             f"{plane.roll_deg:.2f} deg, normal {np.round(plane.normal, 4).tolist()}",
+             f"  d / agent height {plane.d_over_agent_height:.3f}, inlier tracks "
+             f"{int(plane.inliers.sum())}/{len(plane.inliers)}, {plane.n_observations} "
+             f"observations, rms {plane.rms_px:.2f} px"]
+    if np.isfinite(plane.normal_std_deg):
+        lines.append(f"  uncertainty: normal {plane.normal_std_deg:.2f} deg, d/H "
+                     f"{plane.d_over_h_std:.3f}")
+    if plane.camera_height_m is not None:
+        lines.append(f"  camera height {plane.camera_height_m:.3f} m "
+                     f"({plane.camera_height_source})")
+    return "\n".join(lines)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("ground-plane", help="ground plane from agents' foot points and heights",
+                       description="Fit the ground plane (normal, horizon, d/H, camera height) to "
+                                   "tracked agents' observations (METHOD.md section 2).")
+    p.add_argument("--observations", required=True,
+                   help="CSV with columns frame, track, foot_u, foot_v, height_px (pixels)")
+    p.add_argument("--intrinsics", required=True, help="JSON with fx, fy, cx, cy (or a camera/rig)")
+    p.add_argument("--agent-height", type=float, help="agent height prior in metres (people 1.7)")
+    p.add_argument("--camera-height", type=float, help="known camera height in metres")
+    p.add_argument("--model", choices=MODELS, default="exact")
+    p.add_argument("--radius", type=float, help="agent body radius in metres (default 0.2, 0 = "
+                                                "thin axis)")
+    p.add_argument("--bootstrap", type=int, help="resamples for the uncertainty (default 20)")
+    p.add_argument("--out", required=True, help="plane JSON to write")
+    p.set_defaults(func=_ground_plane_cmd)
+
+
+def _ground_plane_cmd(args: argparse.Namespace) -> int:
+    camera = load_camera(args.intrinsics)
+    obs = read_observations_csv(args.observations)
+    conf = PRESETS[args.model]
+    if args.radius is not None:
+        conf = replace(conf, radius_m=args.radius)
+    if args.bootstrap is not None:
+        conf = replace(conf, bootstrap=args.bootstrap)
+    if args.agent_height is not None:
+        conf = replace(conf, agent_height_m=args.agent_height)
+    try:
+        plane = estimate_ground_plane(obs, camera.K, conf, agent_height_m=args.agent_height,
+                                      camera_height_m=args.camera_height)
+    except InputError as e:
+        raise InputError(e.problem, args.observations) from None
+    write_json(args.out, plane.to_dict())
+    print(summary(plane))
+    return 0

@@ -1,0 +1,211 @@
+"""Agents' observations: per-frame instances -> detections -> tracks -> a tidy observation table.
+
+A detection is one agent instance in one frame: its foot point (bottom centre of the mask: the
+lowest row, the median column of that row), its top row, box and score. Detections are linked
+across frames by the Hungarian assignment (``scipy.optimize.linear_sum_assignment``) on box IoU,
+or on foot-point distance relative to the pixel height when there are no boxes. Observations keep
+tracks seen in at least ``min_frames`` frames, dropping detections that touch the image border,
+are small (``height_px < min_height_px``) or have a low score.
+
+Output: :data:`OBS_DTYPE` rows (frame, track, class_id, foot_u, foot_v, height_px, top_v, score),
+the input of :func:`staticdepth.geometry.agent_plane.fit_agent_plane`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from staticdepth.dataset.schema import AGENT_CLASSES
+from staticdepth.errors import InputError
+
+OBS_DTYPE = np.dtype([("frame", np.int32), ("track", np.int32), ("class_id", np.int16),
+                      ("foot_u", np.float32), ("foot_v", np.float32), ("height_px", np.float32),
+                      ("top_v", np.float32), ("score", np.float32)])
+
+DET_DTYPE = np.dtype([("frame", np.int32), ("instance_id", np.int32), ("class_id", np.int16),
+                      ("track", np.int32), ("foot_u", np.float32), ("foot_v", np.float32),
+                      ("top_v", np.float32), ("left", np.float32), ("right", np.float32),
+                      ("score", np.float32), ("border", np.bool_)])
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """Which detections and tracks become observations, and how detections are linked."""
+
+    min_height_px: float = 20.0
+    min_score: float = 0.3
+    min_frames: int = 3
+    border_px: int = 1               # a box within this many pixels of the edge touches it
+    min_iou: float = 0.1             # linking gate with boxes
+    max_step_rel: float = 0.5        # linking gate without boxes: foot step / pixel height
+    max_gap: int = 1                 # frames a track may miss and still be continued
+    min_travel_px: float = 3.0       # tracks whose feet stay within this spread are dropped
+    drop_collinear: bool = True      # drop tracks whose foot points lie on one line
+    collinear_px: float = 1.0        # RMS distance from the best line below which it is one line
+    classes: frozenset[int] | None = AGENT_CLASSES
+
+
+def detections_from_instances(instance_map: np.ndarray, rows: np.ndarray | None = None,
+                              frame: int = 0, border_px: int = 1) -> np.ndarray:
+    """Detections (:data:`DET_DTYPE`) of the instances of one (H, W) map (0 = background).
+
+    rows: (K, 3) ``(instance_id, class_id, score)`` or a structured array with those fields
+    (AGENT_DTYPE works); instances absent from ``rows`` are ignored. None = every instance, class
+    unknown (-1), score 1.
+    """
+    m = np.asarray(instance_map)
+    if m.ndim != 2:
+        raise InputError(f"an instance map must be 2-D, got shape {m.shape}")
+    h, w = m.shape
+    vs, us = np.nonzero(m)
+    ids = m[vs, us].astype(np.int64)
+    order = np.lexsort((us, -vs, ids))       # by id, then lowest row first, then column
+    ids, vs, us = ids[order], vs[order], us[order]
+    uniq, start = np.unique(ids, return_index=True)
+    info = _row_info(rows, uniq)
+    out = np.zeros(len(uniq), DET_DTYPE)
+    out["frame"], out["instance_id"], out["track"] = frame, uniq, -1
+    ends = np.r_[start[1:], len(ids)]
+    for k, (a, b) in enumerate(zip(start, ends)):
+        v_low = vs[a]
+        low = us[a:b][vs[a:b] == v_low]
+        out["foot_u"][k] = np.median(low)
+        out["foot_v"][k] = v_low
+        out["top_v"][k] = vs[a:b].min()
+        out["left"][k], out["right"][k] = us[a:b].min(), us[a:b].max()
+    out["class_id"], out["score"] = info[:, 0], info[:, 1]
+    out["border"] = ((out["left"] <= border_px - 1 + 1e-3) | (out["right"] >= w - border_px)
+                     | (out["top_v"] <= border_px - 1 + 1e-3) | (out["foot_v"] >= h - border_px))
+    keep = np.isfinite(info[:, 1])
+    return out[keep]
+
+
+def _row_info(rows, ids: np.ndarray) -> np.ndarray:
+    """(len(ids), 2) class and score per instance id; score NaN for ids absent from ``rows``."""
+    info = np.column_stack([np.full(len(ids), -1.0), np.ones(len(ids))])
+    if rows is None:
+        return info
+    r = np.asarray(rows)
+    if r.dtype.names:
+        tab = np.column_stack([r["instance_id"], r["class_id"],
+                               r["score"] if "score" in r.dtype.names else np.ones(len(r))])
+    else:
+        tab = np.asarray(r, dtype=np.float64).reshape(-1, 3)
+    info[:, 1] = np.nan
+    pos = {int(i): k for k, i in enumerate(ids)}
+    for iid, cls, score in tab:
+        k = pos.get(int(iid))
+        if k is not None:
+            info[k] = (cls, score)
+    return info
+
+
+def detections_from_agents(agents: np.ndarray, width: int, height: int,
+                           border_px: int = 1) -> np.ndarray:
+    """Detections from ``dataset/schema.py::AGENT_DTYPE`` rows (their track ids are kept)."""
+    a = np.asarray(agents)
+    out = np.zeros(len(a), DET_DTYPE)
+    for f in ("frame", "instance_id", "class_id", "foot_u", "foot_v", "top_v", "score"):
+        out[f] = a[f]
+    out["track"] = a["track_id"]
+    out["left"] = out["right"] = np.nan
+    out["border"] = ((a["foot_u"] <= border_px - 1) | (a["foot_u"] >= width - border_px)
+                     | (a["top_v"] <= border_px - 1) | (a["foot_v"] >= height - border_px))
+    return out
+
+
+def link_tracks(dets: np.ndarray, conf: TrackingConfig = TrackingConfig()) -> np.ndarray:
+    """Assign ``track`` ids frame by frame (Hungarian on 1 - IoU, or on the foot step over the
+    pixel height when boxes are unknown); same class only. Returns a copy, sorted by frame."""
+    d = np.sort(np.asarray(dets, DET_DTYPE), order=["frame", "instance_id"]).copy()
+    d["track"] = -1
+    live: dict[int, int] = {}            # track -> index of its last detection
+    next_id = 0
+    for f in np.unique(d["frame"]):
+        cur = np.flatnonzero(d["frame"] == f)
+        tracks = [t for t, i in live.items() if f - d["frame"][i] <= conf.max_gap + 1]
+        if tracks and len(cur):
+            prev = np.array([live[t] for t in tracks])
+            cost = _link_cost(d[prev], d[cur], conf)
+            r, c = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e6))
+            for i, j in zip(r, c):
+                if np.isfinite(cost[i, j]):
+                    d["track"][cur[j]] = tracks[i]
+        for j in cur:
+            if d["track"][j] < 0:
+                d["track"][j] = next_id
+                next_id += 1
+            live[int(d["track"][j])] = j
+    return d
+
+
+def _link_cost(a: np.ndarray, b: np.ndarray, conf: TrackingConfig) -> np.ndarray:
+    """(len(a), len(b)) cost; inf where the gate or the class forbids the link."""
+    boxes = np.all(np.isfinite(a["left"])) and np.all(np.isfinite(b["left"]))
+    if boxes:
+        l_ = np.maximum(a["left"][:, None], b["left"][None])
+        r_ = np.minimum(a["right"][:, None], b["right"][None]) + 1
+        t_ = np.maximum(a["top_v"][:, None], b["top_v"][None])
+        b_ = np.minimum(a["foot_v"][:, None], b["foot_v"][None]) + 1
+        inter = np.clip(r_ - l_, 0, None) * np.clip(b_ - t_, 0, None)
+        area = lambda x: (x["right"] - x["left"] + 1) * (x["foot_v"] - x["top_v"] + 1)  # noqa: E731
+        iou = inter / (area(a)[:, None] + area(b)[None] - inter)
+        cost = np.where(iou >= conf.min_iou, 1.0 - iou, np.inf)
+    else:
+        step = np.hypot(a["foot_u"][:, None] - b["foot_u"][None],
+                        a["foot_v"][:, None] - b["foot_v"][None])
+        h = np.maximum(a["foot_v"] - a["top_v"], 1.0)[:, None]
+        rel = step / h
+        cost = np.where(rel <= conf.max_step_rel, rel, np.inf)
+    return np.where(a["class_id"][:, None] == b["class_id"][None], cost, np.inf)
+
+
+def observations(dets: np.ndarray, conf: TrackingConfig = TrackingConfig()) -> np.ndarray:
+    """Filter linked detections into the observation table (:data:`OBS_DTYPE`), sorted by
+    (track, frame). Detections without a track are linked first."""
+    d = np.asarray(dets, DET_DTYPE)
+    if len(d) and np.any(d["track"] < 0):
+        d = link_tracks(d, conf)
+    h = d["foot_v"] - d["top_v"]
+    ok = (~d["border"]) & (h >= conf.min_height_px) & (d["score"] >= conf.min_score)
+    if conf.classes is not None:
+        ok &= np.isin(d["class_id"], list(conf.classes)) | (d["class_id"] < 0)
+    d, h = d[ok], h[ok]
+    keep = np.zeros(len(d), bool)
+    for t in np.unique(d["track"]):
+        sel = np.flatnonzero(d["track"] == t)
+        if len(np.unique(d["frame"][sel])) < conf.min_frames:
+            continue
+        uv = np.stack([d["foot_u"][sel], d["foot_v"][sel]], 1).astype(np.float64)
+        sv = np.linalg.svd(uv - uv.mean(0), compute_uv=False) / np.sqrt(len(sel))
+        if sv[0] < conf.min_travel_px:
+            continue
+        if conf.drop_collinear and sv[1] < conf.collinear_px:
+            continue
+        keep[sel] = True
+    d, h = d[keep], h[keep]
+    out = np.zeros(len(d), OBS_DTYPE)
+    for f in ("frame", "track", "class_id", "foot_u", "foot_v", "top_v", "score"):
+        out[f] = d[f]
+    out["height_px"] = h
+    return np.sort(out, order=["track", "frame"])
+
+
+def observations_from_instances(frames: Iterable[tuple[np.ndarray, np.ndarray | None]],
+                                conf: TrackingConfig = TrackingConfig()) -> np.ndarray:
+    """Observations from per-frame ``(instance_map (H, W), rows)`` pairs (see
+    :func:`detections_from_instances`); frames are numbered in order."""
+    dets = [detections_from_instances(m, rows, i, conf.border_px) for i, (m, rows) in
+            enumerate(frames)]
+    if not dets:
+        raise InputError("no frames to track agents in")
+    return observations(link_tracks(np.concatenate(dets), conf), conf)
+
+
+def observations_from_agents(agents: np.ndarray, width: int, height: int,
+                             conf: TrackingConfig = TrackingConfig()) -> np.ndarray:
+    """Observations from AGENT_DTYPE rows; rows without a track id are linked by foot distance."""
+    return observations(detections_from_agents(agents, width, height, conf.border_px), conf)

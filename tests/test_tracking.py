@@ -1,0 +1,118 @@
+"""Agents' observations from instance maps and agent rows."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from staticdepth.dataset.schema import empty_agents
+from staticdepth.errors import InputError
+from staticdepth.tracking import (TrackingConfig, detections_from_agents, detections_from_instances,
+                                  link_tracks,
+                                  observations, observations_from_agents,
+                                  observations_from_instances)
+
+W, H = 120, 90
+
+
+def ellipse(m, cu, top, bottom, half_w, value):
+    """Fill an axis-aligned ellipse spanning rows top..bottom, centred on column cu."""
+    v, u = np.mgrid[:H, :W]
+    cv, a = (top + bottom) / 2, (bottom - top) / 2
+    inside = ((u - cu) / half_w) ** 2 + ((v - cv) / (a + 0.5)) ** 2 <= 1
+    inside &= (v >= top) & (v <= bottom)
+    m[inside] = value
+
+
+def frames():
+    """Six frames: agents A and B walk on curved paths (ids change every frame), C touches the
+    left border, D is 10 px tall, E has a low score."""
+    out = []
+    for f in range(6):
+        m = np.zeros((H, W), np.uint16)
+        ellipse(m, 20 + 6 * f, 10 + f, 44 + f + int((f - 2.5) ** 2), 5, 1 + (f % 3))  # A
+        ellipse(m, 90 - 5 * f, 30 + 2 * f * (f % 2), 80 + 2 * f * (f % 2) - f, 6, 7)  # B
+        ellipse(m, 2, 40, 70, 4, 9)                                                  # C
+        ellipse(m, 60, 75, 85, 3, 11)                                                # D
+        ellipse(m, 100, 5, 30 + f, 4, 12)                                            # E
+        rows = [(1 + (f % 3), 0, 0.9), (7, 0, 0.8), (9, 0, 0.9), (11, 0, 0.9), (12, 0, 0.1)]
+        out.append((m, np.array(rows)))
+    return out
+
+
+def test_detection_foot_point_is_the_bottom_centre():
+    m = np.zeros((H, W), np.uint16)
+    m[20:41, 30:37] = 5           # rows 20..40, columns 30..36
+    m[40, 30:33] = 0              # the lowest row only covers columns 33..36
+    d = detections_from_instances(m, np.array([[5, 0, 0.7]]), frame=3)
+    assert len(d) == 1
+    assert (d["foot_v"][0], d["top_v"][0], d["foot_u"][0]) == (40, 20, 34.5)
+    assert (d["left"][0], d["right"][0], d["frame"][0], d["score"][0]) == (30, 36, 3,
+                                                                           np.float32(0.7))
+    assert not d["border"][0]
+    assert len(detections_from_instances(m, np.array([[6, 0, 0.7]]))) == 0  # not listed
+
+
+def test_observations_from_instance_maps_track_and_filter():
+    obs = observations_from_instances(frames())
+    tracks = np.unique(obs["track"])
+    assert len(tracks) == 2                       # A and B; C, D, E are filtered out
+    for t in tracks:
+        sel = obs[obs["track"] == t]
+        assert list(sel["frame"]) == list(range(6))
+    a = obs[obs["foot_u"] < obs["foot_u"].mean()]   # A starts left
+    first = a[a["frame"] == 0][0]
+    assert (first["foot_v"], first["top_v"], first["foot_u"]) == (50, 10, 20)
+    assert first["height_px"] == 40
+
+
+def test_low_score_and_small_agents_kept_when_allowed():
+    conf = TrackingConfig(min_score=0.0, min_height_px=5, drop_collinear=False, min_travel_px=0)
+    obs = observations_from_instances(frames(), conf)
+    # E (low score, moving foot straight down) is kept now; D is static (same point) but kept
+    assert len(np.unique(obs["track"])) == 4
+
+
+def test_collinear_and_short_tracks_dropped():
+    a = empty_agents(8)
+    a["frame"] = [0, 1, 2, 3, 0, 1, 2, 3]
+    a["instance_id"] = [1, 1, 1, 1, 2, 2, 2, 2]
+    a["class_id"] = 0
+    a["foot_u"] = [10, 20, 30, 40, 80, 82, 86, 82]     # track 2 curves; track 1 is a line
+    a["foot_v"] = [60, 61, 62, 63, 60, 64, 66, 70]
+    a["top_v"] = a["foot_v"] - 30
+    obs = observations_from_agents(a, W, H)             # no track ids: linked by foot distance
+    assert len(np.unique(obs["track"])) == 1
+    assert set(obs["foot_u"]) == {80, 82, 86}
+    keep = observations_from_agents(a, W, H, TrackingConfig(drop_collinear=False))
+    assert len(np.unique(keep["track"])) == 2
+    short = observations_from_agents(a[a["frame"] < 2], W, H, TrackingConfig(drop_collinear=False))
+    assert len(short) == 0
+
+
+def test_hungarian_keeps_identities_of_close_agents():
+    a = empty_agents(10)
+    a["frame"] = np.repeat(np.arange(5), 2)
+    a["instance_id"] = np.tile([1, 2], 5)[::-1].copy()       # instance ids swap meaning
+    a["class_id"] = 0
+    x = np.arange(5) * 4.0
+    # they meet at frame 1; a greedy nearest match would swap them at frame 2, the optimal one not
+    a["foot_u"] = np.ravel(np.column_stack([50 + x, 58 - x]))
+    a["foot_v"] = np.ravel(np.column_stack([60 + 0.1 * x ** 2, 62 + 0.1 * x ** 2]))
+    a["top_v"] = a["foot_v"] - 40
+    d = link_tracks(detections_from_agents(a, W, H), TrackingConfig())
+    for t in np.unique(d["track"]):
+        us = d["foot_u"][d["track"] == t]
+        assert np.all(np.diff(us) > 0) or np.all(np.diff(us) < 0)    # each track one agent
+    assert len(np.unique(d["track"])) == 2
+
+
+def test_agent_rows_with_track_ids_are_kept_and_errors():
+    a = empty_agents(4)
+    a["frame"], a["track_id"], a["class_id"] = [0, 1, 2, 3], 7, 0
+    a["foot_u"], a["foot_v"], a["top_v"] = [10, 20, 25, 40], [50, 55, 52, 60], [20, 25, 22, 30]
+    obs = observations(detections_from_agents(a, W, H))
+    assert set(obs["track"]) == {7} and len(obs) == 4
+    with pytest.raises(InputError, match="2-D"):
+        detections_from_instances(np.zeros((2, 3, 4), np.uint16))
+    with pytest.raises(InputError, match="no frames"):
+        observations_from_instances([])
