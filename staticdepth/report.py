@@ -192,8 +192,8 @@ def register(sub) -> None:
                        description="Evaluate the stored predictions, print the paper's three "
                                    "tables, write them as CSV/Markdown and an offline HTML report.")
     p.add_argument("sequences", nargs="+", help="SCENE=SEQ.h5 or SEQ.h5 (scene = file stem)")
-    p.add_argument("--summary", action="append", default=[],
-                   help="SCENE=adapt_summary.json (anchor depths, planes) from `adapt`")
+    p.add_argument("--summary", nargs="*", default=[],
+                   help="SCENE=SEQ.adapt.json ... (anchor depths, planes) written by `adapt`")
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=_report_cmd)
 

@@ -84,8 +84,10 @@ def load_recipe(path: str | os.PathLike, variables: Mapping[str, str] | None = N
     if not isinstance(r["stages"], dict) or not r["stages"]:
         raise InputError("'stages' must be a non-empty mapping", src)
     env = {"name": str(r["name"]), "data": os.environ.get("STATICDEPTH_DATA", "../shared/data")}
-    env.update({k: str(v) for k, v in (r.get("vars") or {}).items()})
-    env.update({k: str(v) for k, v in (variables or {}).items()})
+    for k, v in {**(r.get("vars") or {}), **dict(variables or {})}.items():
+        env[k] = str(v)
+    for k in list(env):  # vars may refer to each other and to {name}, {data}
+        env[k] = str(_subst(env[k], env, f"{src} vars"))
     env["out_dir"] = str(_subst(r.get("out_dir", f"runs/{r['name']}"), env, src))
     stages = {}
     for name, st in r["stages"].items():
@@ -106,7 +108,8 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
     from staticdepth.cli import main as cli_main
 
     out_dir = recipe["out_dir"]
-    os.makedirs(out_dir, exist_ok=True)
+    if not dry_run:
+        os.makedirs(out_dir, exist_ok=True)
     state_path = os.path.join(out_dir, STATE_FILE)
     state = json.load(open(state_path)) if os.path.exists(state_path) else {}
     chain = ""

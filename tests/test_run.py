@@ -1,5 +1,6 @@
 """Recipe runner: placeholders, argv building, skipping up-to-date stages, errors."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -64,3 +65,21 @@ def test_recipe_errors(tmp_path, capsys):
                   "\nstages: {a: {command: metrics, args: {pred: x.npy, gt: y.npy}}}\n")
     assert main(["run", str(rp)]) == 2
     assert "stage 'a' failed" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("recipe", sorted((Path(__file__).parents[1] / "recipes").glob("*.yaml")),
+                         ids=lambda p: p.stem)
+def test_shipped_recipes_parse_against_the_real_cli(recipe):
+    """Every stage of every shipped recipe is a valid command line of the real parser."""
+    from staticdepth.cli import build_parser
+
+    r = load_recipe(recipe)
+    assert r["stages"], recipe
+    parser = build_parser()
+    for name, st in r["stages"].items():
+        argv = argv_from_args(st["command"], st["args"])
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit:
+            pytest.fail(f"{recipe.name} stage {name}: invalid command line {argv}")
+        assert callable(args.func)
