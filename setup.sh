@@ -12,11 +12,11 @@ fi
 "$PY" -c 'import sys; sys.exit(sys.version_info < (3, 10))' || {
   echo "setup.sh: Python >= 3.10 is needed ($("$PY" --version 2>&1))" >&2; exit 2; }
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
-.venv/bin/python -m pip install -q --upgrade pip >/dev/null 2>&1 || true
 # The CPU build of torch first: a bare 'torch' requirement would pull a multi-GB CUDA build.
 # A local CPU wheel (a wheelhouse in pip's find-links) is used when there is one; else PyTorch's CPU index.
 .venv/bin/python -m pip install -q --no-index --no-deps "torch==2.13.0" 2>/dev/null ||
   .venv/bin/python -m pip install -q "torch==2.13.0" --index-url https://download.pytorch.org/whl/cpu
-.venv/bin/python -m pip install -q -e ".[test]"
+# Everything, optional extras included (transformers, depthai, pycolmap, ray): the tests use them.
+.venv/bin/python -m pip install -q -e ".[test,all]"
 echo "$want" > "$stamp"
 echo "setup.sh: ready (.venv/bin/staticdepth)"
