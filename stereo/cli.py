@@ -41,7 +41,9 @@ def register(sub) -> None:
     p.add_argument("--ply", help="point cloud of the first frame (PLY)")
     p.add_argument("--matcher", default="sgbm", help="sgbm (default) or onnx")
     p.add_argument("--model", help="ONNX file (--matcher onnx)")
-    p.add_argument("--contract", help="ONNX contract name (crestereo, hitnet, raft-stereo)")
+    p.add_argument("--contract", help="ONNX contract: crestereo, crestereo-init-next, "
+                                      "crestereo-combined, hitnet, hitnet-rgb, raft-stereo, or a "
+                                      "JSON file (default: chosen from the model's input names)")
     p.add_argument("--fill", action="store_true", help="dense mode: fill every pixel")
     p.add_argument("--min-depth", type=float, help="nearest depth (m): sets the disparity range")
     p.add_argument("--max-depth", type=float, default=80.0, help="depth cap (m)")
@@ -115,7 +117,7 @@ def _config(args, **extra):
     if args.matcher == "onnx":
         if not args.model:
             raise InputError("--matcher onnx needs --model FILE.onnx")
-        options.update(model=args.model, contract=args.contract or "crestereo")
+        options.update(model=args.model, contract=args.contract)
     return StereoConfig(matcher=args.matcher, max_depth_m=args.max_depth,
                         min_depth_m=args.min_depth, fill=args.fill, options=options, **extra)
 

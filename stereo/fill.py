@@ -9,13 +9,15 @@ import cv2
 from scipy import ndimage
 
 
-def trim_foreground_edges(disparity: np.ndarray, radius_px: int, jump_px: float = 2.0) -> np.ndarray:
+def trim_foreground_edges(disparity: np.ndarray, radius_px: int, jump_px: float = 2.0,
+                          copy: bool = True) -> np.ndarray:
     """Invalidate pixels within ``radius_px`` (along the row) of a neighbour ``jump_px`` farther away.
 
     Block matching and SGM smear the foreground's disparity over the background beside it
     ("foreground fattening"); those wrong pixels carry the foreground's disparity and sit next to
     the true background, so removing foreground pixels that have a much smaller disparity nearby
-    removes them (at the cost of ``radius_px`` true pixels along each depth edge).
+    removes them (at the cost of ``radius_px`` true pixels along each depth edge). With
+    ``copy=False`` a float32 input is modified in place (and returned).
     """
     d = np.asarray(disparity, dtype=np.float32)
     if radius_px <= 0:
@@ -23,9 +25,23 @@ def trim_foreground_edges(disparity: np.ndarray, radius_px: int, jump_px: float 
     far = np.where(np.isnan(d), np.float32(np.inf), d)
     nearest_far = cv2.erode(far, np.ones((1, 2 * radius_px + 1), np.uint8),
                             borderType=cv2.BORDER_REPLICATE)
-    out = d.copy()
+    out = d.copy() if copy or d is not disparity else d
     out[d - nearest_far > jump_px] = np.nan
     return out
+
+
+def lr_consistent(disp_left: np.ndarray, disp_right: np.ndarray, tol_px: float) -> np.ndarray:
+    """True where the right view's disparity at ``u - d`` agrees with ``d`` within ``tol_px``.
+
+    Both maps (H, W) hold positive disparities in their own view (NaN = invalid): a left pixel u
+    with disparity d sees right pixel round(u - d), whose disparity should again be d.
+    """
+    h, w = disp_left.shape
+    u = np.arange(w, dtype=np.float32)[None, :]
+    ur = np.round(u - np.nan_to_num(disp_left, nan=-1e6)).astype(np.int64)
+    inside = (ur >= 0) & (ur < w)
+    dr = np.take_along_axis(disp_right, np.clip(ur, 0, w - 1), axis=1)
+    return inside & (np.abs(dr - disp_left) <= tol_px)
 
 
 def _forward_fill(d: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ import numpy as np
 
 from staticdepth.config import from_dict
 from staticdepth.errors import InputError
-from staticdepth.stereo.fill import trim_foreground_edges
+from staticdepth.stereo.fill import lr_consistent, trim_foreground_edges
 from staticdepth.stereo.match import MatchOutput
 
 MODES = {"3way": cv2.STEREO_SGBM_MODE_SGBM_3WAY, "sgbm": cv2.STEREO_SGBM_MODE_SGBM,
@@ -137,31 +137,32 @@ class SGBMMatcher:
         c = self.conf
         L, R = self._pad(left_rgb), self._pad(right_rgb)
         raw_left = self._left.compute(L, R)
-        disp = raw_left.astype(np.float32) / 16.0
-        disp[raw_left < 0] = np.nan
-        if self._right is not None:
-            raw_right = self._right.compute(R, L)
-            if c.wls:
-                wls = cv2.ximgproc.createDisparityWLSFilter(self._left)
-                wls.setLambda(c.wls_lambda)
-                wls.setSigmaColor(c.wls_sigma)
-                filtered = wls.filter(raw_left, L, disparity_map_right=raw_right)
-                conf_map = wls.getConfidenceMap()
-                disp = filtered.astype(np.float32) / 16.0
-                disp[(conf_map < 128) | (filtered < 0)] = np.nan
-            if c.full_lr:
-                disp[~_lr_consistent(disp, -raw_right.astype(np.float32) / 16.0, c.lr_px)] = np.nan
+        if self._right is None:       # the default path: crop first, convert once, trim in place
+            disp = _float_disparity(self._crop(raw_left))
+            if c.trim_radius:
+                disp = trim_foreground_edges(disp, c.trim_radius, c.trim_jump_px, copy=False)
+            return MatchOutput(disp, ~np.isnan(disp))
+        disp = _float_disparity(raw_left)
+        raw_right = self._right.compute(R, L)
+        if c.wls:
+            wls = cv2.ximgproc.createDisparityWLSFilter(self._left)
+            wls.setLambda(c.wls_lambda)
+            wls.setSigmaColor(c.wls_sigma)
+            filtered = wls.filter(raw_left, L, disparity_map_right=raw_right)
+            conf_map = wls.getConfidenceMap()
+            disp = filtered.astype(np.float32) / 16.0
+            disp[(conf_map < 128) | (filtered < 0)] = np.nan
+        if c.full_lr:
+            disp[~lr_consistent(disp, -raw_right.astype(np.float32) / 16.0, c.lr_px)] = np.nan
         disp = self._crop(disp)
         if c.trim_radius:
             disp = trim_foreground_edges(disp, c.trim_radius, c.trim_jump_px)
         return MatchOutput(disp, ~np.isnan(disp))
 
 
-def _lr_consistent(disp_left: np.ndarray, disp_right: np.ndarray, tol_px: float) -> np.ndarray:
-    """True where the right view's disparity at ``u - d`` agrees with ``d`` within ``tol_px``."""
-    h, w = disp_left.shape
-    u = np.arange(w, dtype=np.float32)[None, :]
-    ur = np.round(u - np.nan_to_num(disp_left, nan=-1e6)).astype(np.int64)
-    inside = (ur >= 0) & (ur < w)
-    dr = np.take_along_axis(disp_right, np.clip(ur, 0, w - 1), axis=1)
-    return inside & (np.abs(dr - disp_left) <= tol_px)
+def _float_disparity(raw: np.ndarray) -> np.ndarray:
+    """SGBM's fixed-point disparity (int16, x16, negative = invalid) -> float32 px, NaN invalid."""
+    disp = raw.astype(np.float32)
+    disp *= np.float32(1 / 16)
+    disp[raw < 0] = np.nan
+    return disp
