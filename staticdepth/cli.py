@@ -16,10 +16,18 @@ from staticdepth.errors import InputError
 
 # Modules that contribute subcommands, in the order their commands are listed in --help.
 COMMAND_MODULES = [
-    "staticdepth.dataset.cli",       # synth, inspect, verify, ...
-    "staticdepth.demo",              # demo
+    "staticdepth.capture.cli",       # capture
+    "staticdepth.stereo.cli",        # calibrate, mount, stereo
+    "staticdepth.stereo.rig_cli",    # import-rig
+    "staticdepth.dataset.cli",       # synth, inspect, verify
+    "staticdepth.dataset.commands",  # pack, import-kitti, import-carla, export, publish
+    "staticdepth.ground_plane",      # ground-plane
+    "staticdepth.align",             # align
+    "staticdepth.baseline.cli",      # baseline train, baseline predict
     "staticdepth.evaluate",          # metrics, evaluate
     "staticdepth.report",            # report
+    "staticdepth.run",               # run (recipes)
+    "staticdepth.demo",              # demo
 ]
 
 
