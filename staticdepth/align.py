@@ -1,14 +1,20 @@
 """Stage: align predicted depth maps to the agents' ground plane (``staticdepth align``).
 
-Reads one ``.npy`` prediction (H, W) or a folder of them (processed in name order), the camera,
-the plane JSON written by ``staticdepth ground-plane`` and a ground mask, and writes the aligned
-maps (float32, NaN = unknown) atomically. With a camera height (``--camera-height``, or the
-plane's ``camera_height_m``) the output is in metres and the anchor scale of section 5 is
-reported; otherwise it is in units of the camera height.
+Inputs: one ``.npy`` prediction (H, W) or a folder of them (processed in name order), or a
+sequence file's stored prediction ``pred/<name>/depth`` (``--sequence``, written back as
+``pred/<name>-align``); the plane JSON written by ``staticdepth ground-plane``; and a ground mask:
+an image/.npy (``--ground-mask``), a polygon (``--ground-polygon "u1,v1 u2,v2 ..."`` or a JSON/TXT
+file of vertices) or, for a sequence, a ground-truth semantic map per frame (``--ground-aux
+ground``, e.g. the CARLA importer's). ``--agent-mask`` pixels are removed from the plane fit and
+always aligned (METHOD.md section 4). Aligned maps are float32 (NaN = unknown), written
+atomically. With a camera height (``--camera-height``, or the plane's ``camera_height_m``) the
+output is in metres and the anchor scale of section 5 is reported; otherwise it is in units of the
+camera height.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import os
 from pathlib import Path
 from typing import Any
@@ -18,15 +24,18 @@ import numpy as np
 from staticdepth.errors import InputError
 from staticdepth.geometry import load_camera
 from staticdepth.geometry.agent_plane import AgentPlane
-from staticdepth.geometry.alignment import align_depth, depth_from_inverse
+from staticdepth.geometry.alignment import (align_depth, depth_from_inverse,
+                                            ground_mask_from_polygon, ground_mask_from_semantics)
 from staticdepth.geometry.camera import read_json
 from staticdepth.geometry.scale import scale_from_anchor, temporal_scale
 from staticdepth.ground_plane import write_json
 from staticdepth.progress import progress
 
 
-def load_mask(path: str | os.PathLike) -> np.ndarray:
-    """A ground mask from an image (non-zero = ground) or a ``.npy`` array, as (H, W) bool."""
+def load_mask(path: str | os.PathLike, what: str = "ground", allow_empty: bool = False
+              ) -> np.ndarray:
+    """A mask from an image (non-zero = set) or a ``.npy`` array, as (H, W) bool; raises when it
+    is empty unless ``allow_empty``. ``what`` names the mask in messages."""
     path = os.fspath(path)
     if path.endswith(".npy"):
         m = _load_npy(path)
@@ -42,9 +51,42 @@ def load_mask(path: str | os.PathLike) -> np.ndarray:
         m = m.max(axis=2)
     if m.ndim != 2:
         raise InputError(f"a mask must be a 2-D image, got shape {m.shape}", path)
-    if not np.any(m):
-        raise InputError("the ground mask is empty", path)
+    if not allow_empty and not np.any(m):
+        raise InputError(f"the {what} mask is empty", path)
     return m != 0
+
+
+def parse_polygon(text: str) -> np.ndarray:
+    """Vertices (N, 2) from ``"u1,v1 u2,v2 ..."`` or from a file: JSON (a list of [u, v] pairs, or
+    an object with ``vertices`` or ``points``) or text (one ``u v`` or ``u,v`` pair per line)."""
+    source = None
+    if os.path.isfile(text):
+        source = text
+        try:
+            with open(text) as f:
+                body = f.read()
+        except (OSError, UnicodeDecodeError) as e:
+            raise InputError(f"cannot read: {e}", text) from None
+        if text.lower().endswith(".json"):
+            try:
+                obj = json.loads(body)
+            except json.JSONDecodeError as e:
+                raise InputError(f"not valid JSON ({e.msg} at line {e.lineno})", text) from None
+            if isinstance(obj, dict):
+                obj = obj.get("vertices", obj.get("points"))
+            pairs = obj
+        else:
+            pairs = [ln.replace(",", " ").split() for ln in body.splitlines() if ln.strip()]
+    else:
+        pairs = [p.split(",") for p in text.split()]
+    try:
+        P = np.array(pairs, dtype=np.float64)
+    except (TypeError, ValueError):
+        P = np.zeros((0, 3))
+    if P.ndim != 2 or P.shape[1] != 2:
+        raise InputError("a ground polygon is a list of u,v pairs (\"u1,v1 u2,v2 ...\" or a "
+                         f"JSON/TXT file of them), got {text[:60]!r}", source)
+    return P
 
 
 def _load_npy(path: str) -> np.ndarray:
@@ -66,19 +108,22 @@ def save_npy_atomic(path: str | os.PathLike, array: np.ndarray) -> None:
 
 def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: np.ndarray, *,
               inverse: bool = False, camera_height_m: float | None = None,
-              near_plane_rel: float | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-    """Align one predicted map; returns the map and its info (plane fit, fallback, anchor scale)."""
+              near_plane_rel: float | None = None, agent_mask: np.ndarray | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
+    """Align one predicted map; returns the map and its info (plane fit, fallback, anchor scale).
+    ``agent_mask`` (H, W) pixels leave the plane fit, are always aligned and skip the anchor."""
     pred = np.asarray(pred, dtype=np.float32)
     if pred.ndim != 2:
         raise InputError(f"a prediction must be a 2-D (H, W) map, got shape {pred.shape}")
     Z = depth_from_inverse(pred) if inverse else pred
     d_g = camera_height_m if camera_height_m is not None else 1.0
-    res = align_depth(Z, K, plane.normal, d_g, ground_mask, near_plane_rel=near_plane_rel)
+    res = align_depth(Z, K, plane.normal, d_g, ground_mask, near_plane_rel=near_plane_rel,
+                      agent_mask=agent_mask)
     info: dict[str, Any] = {"pred_plane_normal": res.plane_normal.tolist(),
                             "pred_plane_d": res.plane_d, "fallback_ratio": res.fallback_ratio,
                             "fallback_pixels": res.n_fallback, "skipped_nadir": res.skipped}
     if camera_height_m is not None:
-        a = scale_from_anchor(Z, K, plane.normal, camera_height_m)
+        a = scale_from_anchor(Z, K, plane.normal, camera_height_m, agent_mask=agent_mask)
         info.update(anchor_depth_m=a.anchor_depth_m,
                     anchor_depth_parallel_m=a.anchor_depth_parallel_m,
                     scale=None if a.skipped else a.scale, scale_skipped=a.skipped)
@@ -89,28 +134,99 @@ def register(sub) -> None:
     p = sub.add_parser("align", help="align predicted depth to the agents' ground plane",
                        description="Scene alignment (Eq. 2 and re-projection, METHOD.md section "
                                    "4); metric output with a camera height (section 5).")
-    p.add_argument("--pred", required=True, help=".npy (H x W) prediction or a folder of them")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--pred", help=".npy (H x W) prediction or a folder of them")
+    src.add_argument("--sequence", help="sequence file (.h5): align its stored prediction "
+                                        "pred/<--pred-name>/depth")
+    p.add_argument("--pred-name", default="base", help="stored prediction to align (--sequence)")
+    p.add_argument("--out-name", help="prediction to write (--sequence; default <pred-name>-align)")
     p.add_argument("--inverse", action="store_true",
                    help="the prediction is relative inverse depth (depth = 1 / max(D, eps))")
-    p.add_argument("--intrinsics", required=True, help="JSON with fx, fy, cx, cy (or a camera/rig)")
+    p.add_argument("--intrinsics", help="JSON with fx, fy, cx, cy (or a camera/rig); default "
+                                        "with --sequence: the sequence's camera")
     p.add_argument("--plane", required=True, help="plane JSON from 'staticdepth ground-plane'")
-    p.add_argument("--ground-mask", required=True, help="image (non-zero = ground) or .npy")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--ground-mask", help="image (non-zero = ground) or .npy")
+    g.add_argument("--ground-polygon", metavar="VERTICES",
+                   help='ground polygon "u1,v1 u2,v2 ..." (pixels) or a JSON/TXT file of vertices')
+    g.add_argument("--ground-aux", metavar="NAME",
+                   help="with --sequence: the per-frame ground-truth ground map aux/NAME "
+                        "(e.g. 'ground' from the CARLA importer)")
+    p.add_argument("--agent-mask", help="image or .npy of agent pixels: left out of the plane "
+                                        "fit, always aligned")
     p.add_argument("--camera-height", type=float,
                    help="camera height in metres (default: the plane's, else relative output)")
     p.add_argument("--near-plane", type=float, metavar="REL",
                    help="align only pixels within REL x d of the predicted plane; rescale others")
-    p.add_argument("--out", required=True, help=".npy file (or folder for a folder of inputs)")
+    p.add_argument("--out", help=".npy file (or folder for a folder of inputs); not with "
+                                 "--sequence")
     p.add_argument("--json", help="write per-frame information here")
     p.set_defaults(func=_align_cmd)
 
 
+class _Masks:
+    """The ground mask of a frame (fixed, or per frame from a sequence) and the agent mask."""
+
+    def __init__(self, args: argparse.Namespace):
+        self.fixed = load_mask(args.ground_mask) if args.ground_mask else None
+        self.polygon = parse_polygon(args.ground_polygon) if args.ground_polygon else None
+        self.aux = args.ground_aux
+        self.agents = (load_mask(args.agent_mask, "agent", allow_empty=True)
+                       if args.agent_mask else None)
+        self.agent_path = args.agent_mask
+        self.source = args.ground_mask or args.ground_polygon
+
+    def ground(self, shape: tuple[int, int], reader=None, i: int = 0) -> np.ndarray:
+        if self.aux is not None:
+            try:
+                return ground_mask_from_semantics(reader.aux(self.aux, i))
+            except InputError as e:
+                raise InputError(f"frame {i}: aux/{self.aux}: {e.problem}", reader.path) from None
+        if self.polygon is not None:
+            return ground_mask_from_polygon(self.polygon, shape[1], shape[0])
+        if self.fixed.shape != shape:
+            raise InputError(f"prediction shape {shape} differs from the ground mask's "
+                             f"{self.fixed.shape}", self.source)
+        return self.fixed
+
+    def agent(self, shape: tuple[int, int]) -> np.ndarray | None:
+        if self.agents is not None and self.agents.shape != shape:
+            raise InputError(f"agent mask shape {self.agents.shape} differs from the "
+                             f"prediction's {shape}", self.agent_path)
+        return self.agents
+
+
 def _align_cmd(args: argparse.Namespace) -> int:
-    camera = load_camera(args.intrinsics)
     plane = AgentPlane.from_dict(read_json(args.plane), args.plane)
-    mask = load_mask(args.ground_mask)
     height = args.camera_height if args.camera_height is not None else plane.camera_height_m
     if height is not None and not height > 0:
         raise InputError(f"camera height must be positive, got {height}")
+    if args.ground_aux and not args.sequence:
+        raise InputError("--ground-aux reads a sequence's per-frame maps: it needs --sequence")
+    masks = _Masks(args)
+    if args.sequence:
+        frames, out_desc = _align_sequence(args, plane, height, masks)
+    else:
+        frames, out_desc = _align_files(args, plane, height, masks)
+    units = "m" if height is not None else "camera heights"
+    result: dict[str, Any] = {"units": units, "camera_height_m": height, "frames": frames}
+    if height is not None:
+        scales = [f["scale"] for f in frames if f.get("scale") is not None]
+        result["scale"] = temporal_scale(scales) if scales else None
+        result.update({k: frames[0][k] for k in ("anchor_depth_m", "anchor_depth_parallel_m")})
+    if args.json:
+        write_json(args.json, result)
+    print(f"aligned {len(frames)} map(s) -> {out_desc} ({units})")
+    if height is not None:
+        print(f"  anchor depth {result['anchor_depth_m']:.3f} m (parallel-camera baseline "
+              f"{result['anchor_depth_parallel_m']:.3f} m), scale {result['scale']}")
+    return 0
+
+
+def _align_files(args, plane: AgentPlane, height, masks: _Masks):
+    if args.intrinsics is None or args.out is None:
+        raise InputError("--pred needs --intrinsics and --out")
+    camera = load_camera(args.intrinsics)
     src = Path(args.pred)
     if src.is_dir():
         inputs = sorted(src.glob("*.npy"))
@@ -123,26 +239,54 @@ def _align_cmd(args: argparse.Namespace) -> int:
     frames = []
     for i, o in progress(list(zip(inputs, outputs)), desc="align"):
         pred = _load_npy(os.fspath(i))
-        if pred.shape != mask.shape:
-            raise InputError(f"prediction shape {pred.shape} differs from the ground mask's "
-                             f"{mask.shape}", i)
+        if pred.ndim != 2:
+            raise InputError(f"a prediction must be a 2-D (H, W) map, got shape {pred.shape}", i)
+        ground, agents = masks.ground(pred.shape), masks.agent(pred.shape)
         try:
-            out, info = align_map(pred, camera.K, plane, mask, inverse=args.inverse,
-                                  camera_height_m=height, near_plane_rel=args.near_plane)
+            out, info = align_map(pred, camera.K, plane, ground, inverse=args.inverse,
+                                  camera_height_m=height, near_plane_rel=args.near_plane,
+                                  agent_mask=agents)
         except InputError as e:
             raise InputError(e.problem, i) from None
         save_npy_atomic(o, out)
         frames.append({"input": os.fspath(i), "output": os.fspath(o), **info})
-    units = "m" if height is not None else "camera heights"
-    result: dict[str, Any] = {"units": units, "camera_height_m": height, "frames": frames}
-    if height is not None:
-        scales = [f["scale"] for f in frames if f.get("scale") is not None]
-        result["scale"] = temporal_scale(scales) if scales else None
-        result.update({k: frames[0][k] for k in ("anchor_depth_m", "anchor_depth_parallel_m")})
-    if args.json:
-        write_json(args.json, result)
-    print(f"aligned {len(frames)} map(s) -> {args.out} ({units})")
-    if height is not None:
-        print(f"  anchor depth {result['anchor_depth_m']:.3f} m (parallel-camera baseline "
-              f"{result['anchor_depth_parallel_m']:.3f} m), scale {result['scale']}")
-    return 0
+    return frames, args.out
+
+
+def _align_sequence(args, plane: AgentPlane, height, masks: _Masks):
+    from staticdepth.dataset.h5 import SequenceReader, add_prediction
+
+    if args.out is not None:
+        raise InputError("--sequence writes into the sequence file: use --out-name, not --out")
+    out_name = args.out_name or f"{args.pred_name}-align"
+    if out_name == args.pred_name:
+        raise InputError(f"--out-name {out_name!r} would overwrite the prediction being aligned")
+    seq = os.fspath(args.sequence)
+    frames: list[dict[str, Any]] = []
+    with SequenceReader(seq) as r:
+        K = load_camera(args.intrinsics).K if args.intrinsics else r.camera.K
+        if args.pred_name not in r.predictions():
+            raise InputError(f"sequence has no prediction {args.pred_name!r} (has "
+                             f"{r.predictions()})", seq)
+        if masks.aux is not None and masks.aux not in r.aux_names():
+            raise InputError(f"sequence has no aux map {masks.aux!r} (has {r.aux_names()})", seq)
+
+        def aligned():
+            for i in progress(range(len(r)), total=len(r), desc="align"):
+                pred = r.prediction(args.pred_name, i)
+                try:
+                    out, info = align_map(pred, K, plane, masks.ground(pred.shape, r, i),
+                                          inverse=args.inverse, camera_height_m=height,
+                                          near_plane_rel=args.near_plane,
+                                          agent_mask=masks.agent(pred.shape))
+                except InputError as e:
+                    if e.path:
+                        raise
+                    raise InputError(f"frame {i}: {e.problem}", seq) from None
+                frames.append({"frame": i, **info})
+                yield out
+
+        attrs = {"source": f"pred/{args.pred_name}", "plane": os.fspath(args.plane),
+                 "units": "m" if height is not None else "camera heights"}
+        add_prediction(seq, out_name, aligned(), attrs)
+    return frames, f"{seq}:pred/{out_name}"

@@ -1,8 +1,9 @@
 """Stage: the ground plane from agents' observations (``staticdepth ground-plane``).
 
 Reads an observation CSV (columns ``frame, track, foot_u, foot_v, height_px``, optional
-``class_id``, ``score``), fits :func:`staticdepth.geometry.agent_plane.fit_agent_plane` and writes
-the plane as JSON (``normal``, ``horizon``, ``d_over_agent_height``, ``inliers``, ``uncertainty``,
+``class_id``, ``score`` and ``top_u``, the column of the agent's highest pixel), fits
+:func:`staticdepth.geometry.agent_plane.fit_agent_plane` and writes the plane as JSON
+(``normal``, ``horizon``, ``d_over_agent_height``, ``inliers``, ``uncertainty``,
 ``camera_height_m`` when an agent height or a camera height is given).
 """
 from __future__ import annotations
@@ -47,10 +48,12 @@ def read_observations_csv(path: str | os.PathLike) -> np.ndarray:
     out = np.zeros(len(rows) - 1, OBS_DTYPE)
     out["class_id"] = -1
     out["score"] = 1.0
+    out["top_u"] = np.nan
     for i, r in enumerate(rows[1:]):
         if len(r) != len(header):
             raise InputError(f"line {i + 2}: {len(r)} fields, the header has {len(header)}", path)
-        for name in ("frame", "track", "foot_u", "foot_v", "height_px", "class_id", "score"):
+        for name in ("frame", "track", "foot_u", "foot_v", "height_px", "class_id", "score",
+                     "top_u"):
             if name not in cols:
                 continue
             text = r[cols[name]].strip()
@@ -113,7 +116,8 @@ def register(sub) -> None:
                        description="Fit the ground plane (normal, horizon, d/H, camera height) to "
                                    "tracked agents' observations (METHOD.md section 2).")
     p.add_argument("--observations", required=True,
-                   help="CSV with columns frame, track, foot_u, foot_v, height_px (pixels)")
+                   help="CSV with columns frame, track, foot_u, foot_v, height_px (pixels); "
+                        "optional class_id, score, top_u (column of the highest pixel)")
     p.add_argument("--intrinsics", required=True, help="JSON with fx, fy, cx, cy (or a camera/rig)")
     p.add_argument("--agent-height", type=float, help="agent height prior in metres (people 1.7)")
     p.add_argument("--camera-height", type=float, help="known camera height in metres")

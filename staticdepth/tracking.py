@@ -1,14 +1,23 @@
 """Agents' observations: per-frame instances -> detections -> tracks -> a tidy observation table.
 
 A detection is one agent instance in one frame: its foot point (bottom centre of the mask: the
-lowest row, the median column of that row), its top row, box and score. Detections are linked
-across frames by the Hungarian assignment (``scipy.optimize.linear_sum_assignment``) on box IoU,
+lowest row, the median column of that row), its top point (the highest row, the median column of
+that row; the column is NaN when only a box or an agent row without it is known), box and score.
+Detections are linked across frames by the Hungarian assignment (``scipy.optimize.linear_sum_assignment``) on box IoU,
 or on foot-point distance relative to the pixel height when there are no boxes. Observations keep
 tracks seen in at least ``min_frames`` frames, dropping detections that touch the image border,
 are small (``height_px < min_height_px``) or have a low score.
 
-Output: :data:`OBS_DTYPE` rows (frame, track, class_id, foot_u, foot_v, height_px, top_v, score),
-the input of :func:`staticdepth.geometry.agent_plane.fit_agent_plane`.
+Which tracks are kept (see :func:`observations`): a *static* track (feet within ``min_travel_px``
+RMS of their mean in every direction) is always dropped: it fixes only its own height. A
+*collinear* track (feet within ``collinear_px`` RMS of their best-fit line, a straight walker) is
+dropped only with ``drop_collinear``: the paper asks for it because Eq. 1 needs spread, while for
+the exact model a straight track still constrains the normal (its pixel height changes along the
+line while its own height s_j stays fixed). :meth:`TrackingConfig.for_model` picks the default per
+ground-plane model.
+
+Output: :data:`OBS_DTYPE` rows (frame, track, class_id, foot_u, foot_v, height_px, top_v, score,
+top_u), the input of :func:`staticdepth.geometry.agent_plane.fit_agent_plane`.
 """
 from __future__ import annotations
 
@@ -23,12 +32,12 @@ from staticdepth.errors import InputError
 
 OBS_DTYPE = np.dtype([("frame", np.int32), ("track", np.int32), ("class_id", np.int16),
                       ("foot_u", np.float32), ("foot_v", np.float32), ("height_px", np.float32),
-                      ("top_v", np.float32), ("score", np.float32)])
+                      ("top_v", np.float32), ("score", np.float32), ("top_u", np.float32)])
 
 DET_DTYPE = np.dtype([("frame", np.int32), ("instance_id", np.int32), ("class_id", np.int16),
                       ("track", np.int32), ("foot_u", np.float32), ("foot_v", np.float32),
                       ("top_v", np.float32), ("left", np.float32), ("right", np.float32),
-                      ("score", np.float32), ("border", np.bool_)])
+                      ("score", np.float32), ("border", np.bool_), ("top_u", np.float32)])
 
 
 @dataclass(frozen=True)
@@ -42,10 +51,16 @@ class TrackingConfig:
     min_iou: float = 0.1             # linking gate with boxes
     max_step_rel: float = 0.5        # linking gate without boxes: foot step / pixel height
     max_gap: int = 1                 # frames a track may miss and still be continued
-    min_travel_px: float = 3.0       # tracks whose feet stay within this spread are dropped
-    drop_collinear: bool = True      # drop tracks whose foot points lie on one line
+    min_travel_px: float = 3.0       # static: feet within this RMS spread in every direction
+    drop_collinear: bool = True      # also drop straight walkers (for Eq. 1; see for_model)
     collinear_px: float = 1.0        # RMS distance from the best line below which it is one line
     classes: frozenset[int] | None = AGENT_CLASSES
+
+    @classmethod
+    def for_model(cls, model: str, **overrides) -> "TrackingConfig":
+        """The default for a ground-plane model: straight walkers are dropped for the Eq. 1 models
+        (``paper``, ``affine``) and kept for ``exact``."""
+        return cls(**{"drop_collinear": model != "exact", **overrides})
 
 
 def detections_from_instances(instance_map: np.ndarray, rows: np.ndarray | None = None,
@@ -70,11 +85,11 @@ def detections_from_instances(instance_map: np.ndarray, rows: np.ndarray | None 
     out["frame"], out["instance_id"], out["track"] = frame, uniq, -1
     ends = np.r_[start[1:], len(ids)]
     for k, (a, b) in enumerate(zip(start, ends)):
-        v_low = vs[a]
-        low = us[a:b][vs[a:b] == v_low]
-        out["foot_u"][k] = np.median(low)
+        v_low, v_top = vs[a], vs[b - 1]
+        out["foot_u"][k] = np.median(us[a:b][vs[a:b] == v_low])
         out["foot_v"][k] = v_low
-        out["top_v"][k] = vs[a:b].min()
+        out["top_v"][k] = v_top
+        out["top_u"][k] = np.median(us[a:b][vs[a:b] == v_top])
         out["left"][k], out["right"][k] = us[a:b].min(), us[a:b].max()
     out["class_id"], out["score"] = info[:, 0], info[:, 1]
     out["border"] = ((out["left"] <= border_px - 1 + 1e-3) | (out["right"] >= w - border_px)
@@ -105,11 +120,13 @@ def _row_info(rows, ids: np.ndarray) -> np.ndarray:
 
 def detections_from_agents(agents: np.ndarray, width: int, height: int,
                            border_px: int = 1) -> np.ndarray:
-    """Detections from ``dataset/schema.py::AGENT_DTYPE`` rows (their track ids are kept)."""
+    """Detections from ``dataset/schema.py::AGENT_DTYPE`` rows (their track ids are kept); the top
+    column comes from a ``top_u`` field when the rows have one, else it is unknown (NaN)."""
     a = np.asarray(agents)
     out = np.zeros(len(a), DET_DTYPE)
     for f in ("frame", "instance_id", "class_id", "foot_u", "foot_v", "top_v", "score"):
         out[f] = a[f]
+    out["top_u"] = a["top_u"] if "top_u" in (a.dtype.names or ()) else np.nan
     out["track"] = a["track_id"]
     out["left"] = out["right"] = np.nan
     out["border"] = ((a["foot_u"] <= border_px - 1) | (a["foot_u"] >= width - border_px)
@@ -165,7 +182,13 @@ def _link_cost(a: np.ndarray, b: np.ndarray, conf: TrackingConfig) -> np.ndarray
 
 def observations(dets: np.ndarray, conf: TrackingConfig = TrackingConfig()) -> np.ndarray:
     """Filter linked detections into the observation table (:data:`OBS_DTYPE`), sorted by
-    (track, frame). Detections without a track are linked first."""
+    (track, frame). Detections without a track are linked first.
+
+    Kept: detections off the border, at least ``min_height_px`` tall, scored ``min_score`` or more,
+    of the agent classes; then tracks seen in ``min_frames`` frames whose feet (sigma_1 >= sigma_2
+    the RMS spreads along and across their total-least-squares line) are not static (sigma_1 <
+    ``min_travel_px``) and, with ``drop_collinear``, not on one line (sigma_2 < ``collinear_px``).
+    """
     d = np.asarray(dets, DET_DTYPE)
     if len(d) and np.any(d["track"] < 0):
         d = link_tracks(d, conf)
@@ -188,7 +211,7 @@ def observations(dets: np.ndarray, conf: TrackingConfig = TrackingConfig()) -> n
         keep[sel] = True
     d, h = d[keep], h[keep]
     out = np.zeros(len(d), OBS_DTYPE)
-    for f in ("frame", "track", "class_id", "foot_u", "foot_v", "top_v", "score"):
+    for f in ("frame", "track", "class_id", "foot_u", "foot_v", "top_v", "score", "top_u"):
         out[f] = d[f]
     out["height_px"] = h
     return np.sort(out, order=["track", "frame"])

@@ -13,12 +13,12 @@ import pytest
 
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_plane import (AgentPlane, AgentPlaneConfig, camera_height_from_prior,
-                                              fit_agent_plane, head_rows, plane_affine,
-                                              plane_paper)
+                                              fit_agent_plane, head_pixels, head_rows,
+                                              plane_affine, plane_paper)
 from staticdepth.geometry.plane import angle_between_deg
 
 OBS = [("frame", "i4"), ("track", "i4"), ("class_id", "i2"), ("foot_u", "f8"), ("foot_v", "f8"),
-       ("height_px", "f8"), ("top_v", "f8"), ("score", "f4")]
+       ("height_px", "f8"), ("top_v", "f8"), ("top_u", "f8"), ("score", "f4")]
 
 
 def camera_K(f: float = 600.0, w: int = 800, h: int = 400) -> tuple[np.ndarray, int, int]:
@@ -38,9 +38,12 @@ def _project(K, P):
 
 
 def people_observations(rng, K, w, h, n, cam_height, n_tracks=40, frames=(5, 12), radius=0.2,
-                        noise_px=1.0, max_depth=40.0, heights=(1.7, 0.07)) -> np.ndarray:
+                        noise_px=1.0, max_depth=40.0, heights=(1.7, 0.07),
+                        turn_sd=0.35) -> np.ndarray:
     """Tracks of upright cylinders walking on ``n . P = cam_height``; observation table rows with
-    the silhouette's lowest point (foot_u, foot_v) and highest row, plus Gaussian pixel noise."""
+    the silhouette's lowest point (foot_u, foot_v) and highest point (top_u, top_v), plus Gaussian
+    pixel noise on all four. ``turn_sd`` (rad) is the heading's random walk per step (0 = straight
+    walkers)."""
     e1 = np.cross(n, [0, 0, 1.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(n, e1)
@@ -57,18 +60,18 @@ def people_observations(rng, K, w, h, n, cam_height, n_tracks=40, frames=(5, 12)
         heading = rng.uniform(0, 2 * math.pi)
         out = []
         for i in range(rng.integers(frames[0], frames[1] + 1)):
-            heading += rng.normal(0, 0.35)
+            heading += rng.normal(0, turn_sd) if turn_sd > 0 else 0.0
             A = A + 0.8 * (math.cos(heading) * e1 + math.sin(heading) * e2)
             foot, head = A + radius * rim, A - H * n + radius * rim
             if foot[:, 2].min() <= 0.1 or head[:, 2].min() <= 0.1:
                 break
             fu, fv = _project(K, foot)
             hu, hv = _project(K, head)
-            ib = np.argmax(fv)
+            ib, it = np.argmax(fv), np.argmin(hv)
             if (min(fu.min(), hu.min()) < 1 or max(fu.max(), hu.max()) > w - 2 or hv.min() < 1
                     or fv[ib] > h - 2):
                 continue
-            out.append((track, i, fu[ib], fv[ib], hv.min()))
+            out.append((track, i, fu[ib], fv[ib], hv[it], hu[it]))
         if len(out) >= 3:
             rows += out
             track += 1
@@ -78,6 +81,7 @@ def people_observations(rng, K, w, h, n, cam_height, n_tracks=40, frames=(5, 12)
     obs["track"], obs["frame"], obs["class_id"], obs["score"] = a[:, 0], a[:, 1], 0, 1
     obs["foot_u"], obs["foot_v"] = a[:, 2] + noise[:, 0], a[:, 3] + noise[:, 1]
     obs["top_v"] = a[:, 4] + noise[:, 2]
+    obs["top_u"] = a[:, 5] + rng.normal(0, noise_px, len(a))
     obs["height_px"] = obs["foot_v"] - obs["top_v"]
     return obs
 
@@ -106,6 +110,9 @@ def test_head_rows_match_dense_projection():
     s = np.full(len(obs), 1.7 / 6.0)
     v = head_rows(K, n, rays, s, 0.2 / 1.7)
     assert np.max(np.abs(v - obs["top_v"])) < 0.05
+    u, v2 = head_pixels(K, n, rays, s, 0.2 / 1.7)
+    np.testing.assert_array_equal(v2, v)
+    assert np.max(np.abs(u - obs["top_u"])) < 0.05
     thin = head_rows(K, n, rays, s, 0.0)        # ignoring the body's thickness biases the rows
     assert np.max(np.abs(thin - obs["top_v"])) > 1.0
 
@@ -118,11 +125,15 @@ def test_exact_model_recovers_normal_and_camera_height(f, pitch, roll, height):
     obs = people_observations(rng, K, w, h, n, height)
     plane = fit_agent_plane(K, obs, AgentPlaneConfig(bootstrap=0))
     paper = fit_agent_plane(K, obs, AgentPlaneConfig(model="paper", bootstrap=0))
+    rows_only = fit_agent_plane(K, obs[[c for c in obs.dtype.names if c != "top_u"]],
+                                AgentPlaneConfig(bootstrap=0))       # boxes: no top column
     err, err_paper = angle_between_deg(plane.normal, n), angle_between_deg(paper.normal, n)
+    err_rows = angle_between_deg(rows_only.normal, n)
     cam_h = camera_height_from_prior(plane, 1.7)
-    print(f"pitch {pitch}: exact {err:.2f} deg, paper {err_paper:.2f} deg, "
-          f"height {100 * (cam_h / height - 1):+.1f}%")
-    assert err < 1.0
+    print(f"pitch {pitch}: exact {err:.2f} deg (rows only {err_rows:.2f}), paper "
+          f"{err_paper:.2f} deg, height {100 * (cam_h / height - 1):+.1f}%")
+    assert err < 0.5              # head rows and columns
+    assert err_rows < 1.0         # head rows only
     assert abs(cam_h / height - 1) < 0.05
     assert plane.inliers.mean() > 0.9
     # the horizon line is where n . K^-1 [u, v, 1] = 0
@@ -174,6 +185,19 @@ def test_thin_model_on_thin_agents_and_bootstrap():
     assert back.normal_std_deg == pytest.approx(plane.normal_std_deg)
 
 
+def test_straight_walkers_still_fix_the_plane():
+    """Tracks that walk straight lines (each one collinear on its own) constrain the exact model."""
+    rng = np.random.default_rng(11)
+    K, w, h = camera_K(600.0)
+    n = true_normal(30.0, 2.0)
+    obs = people_observations(rng, K, w, h, n, 6.0, n_tracks=25, turn_sd=0.0)
+    for t in np.unique(obs["track"]):             # each track's feet lie on one line (up to noise)
+        uv = np.stack([obs["foot_u"], obs["foot_v"]], 1)[obs["track"] == t]
+        assert np.linalg.svd(uv - uv.mean(0), compute_uv=False)[1] / math.sqrt(len(uv)) < 2.0
+    plane = fit_agent_plane(K, obs, AgentPlaneConfig(bootstrap=0))
+    assert angle_between_deg(plane.normal, n) < 1.0
+
+
 def test_degenerate_inputs_raise():
     K, w, h = camera_K()
     obs = np.zeros(2, OBS)
@@ -199,6 +223,25 @@ def test_degenerate_inputs_raise():
     missing = np.zeros(5, [("foot_u", "f8"), ("foot_v", "f8"), ("height_px", "f8")])
     with pytest.raises(InputError, match="'track'"):
         fit_agent_plane(K, missing)
+    # observations that are not usable (no height, not finite) do not count
+    few = np.zeros(6, OBS)
+    few["track"] = np.arange(6)
+    few["foot_u"], few["foot_v"] = [1, 50, 90, 9, 9, 9], [5, 80, 30, 9, 9, 9]
+    few["height_px"] = [40, 50, 45, 0, -3, np.nan]
+    with pytest.raises(InputError, match=r"at least 3 usable observations .*got 2"):
+        fit_agent_plane(K, few[[0, 1, 3, 4, 5]])
+    # every track seen once: each observation only fixes its own track's height
+    once = np.zeros(10, OBS)
+    once["track"] = np.arange(10)
+    once["foot_u"], once["foot_v"] = rng.uniform(0, 800, 10), rng.uniform(200, 400, 10)
+    once["height_px"] = 60
+    with pytest.raises(InputError, match="seen in several frames"):
+        fit_agent_plane(K, once, AgentPlaneConfig(bootstrap=0))
+    # a real nadir camera (people seen from straight above) with the exact model
+    n_nadir = true_normal(90.0)
+    nadir = people_observations(np.random.default_rng(0), K, w, h, n_nadir, 6.0, n_tracks=12)
+    with pytest.raises(InputError, match="nadir"):
+        fit_agent_plane(K, nadir, AgentPlaneConfig(bootstrap=0))
 
 
 def test_config_and_prior_errors():
@@ -206,6 +249,8 @@ def test_config_and_prior_errors():
         AgentPlaneConfig(model="magic")
     with pytest.raises(InputError):
         AgentPlaneConfig(radius_m=-1.0)
+    with pytest.raises(InputError, match="column weight"):
+        AgentPlaneConfig(column_weight=-0.5)
     plane = AgentPlane(true_normal(20), np.array([0, 1.0, -10]), 3.0, np.array([1, 2]),
                        np.array([0.3, 0.3]), np.array([False, False]), 1.0, "exact", 10)
     with pytest.raises(InputError, match="no inlier person track"):

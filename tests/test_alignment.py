@@ -170,3 +170,62 @@ def test_alignment_errors():
         align_depth(depth, K, -n, 5.0, ground)
     np.testing.assert_allclose(depth_from_inverse(np.array([2.0, 0.0, -1.0]), eps=1e-3),
                                [0.5, 1e3, 1e3], rtol=1e-6)
+
+
+def test_ground_mask_from_polygon_matches_an_independent_point_in_polygon_test():
+    from matplotlib.path import Path as MplPath
+
+    from staticdepth.geometry.alignment import ground_mask_from_polygon
+    rect = [(39.5, 19.5), (120.5, 19.5), (120.5, 70.5), (39.5, 70.5)]
+    vs, us = np.nonzero(ground_mask_from_polygon(rect, W, H))
+    assert (us.min(), us.max(), vs.min(), vs.max(), len(us)) == (40, 120, 20, 70, 81 * 51)
+    # a concave polygon reaching outside the image, against matplotlib's test
+    poly = np.array([[-20.3, 75.2], [60.7, 5.1], [90.2, 50.6], [130.4, 3.3], [175.1, 78.9]])
+    m = ground_mask_from_polygon(poly, W, H)
+    u, v = np.meshgrid(np.arange(W), np.arange(H))
+    ref = MplPath(poly).contains_points(np.stack([u.ravel(), v.ravel()], 1)).reshape(H, W)
+    assert m.sum() > 3000 and np.array_equal(m, ref)
+    with pytest.raises(InputError, match="at least 3"):
+        ground_mask_from_polygon([(0, 0), (5, 5)], W, H)
+    with pytest.raises(InputError, match="no area"):
+        ground_mask_from_polygon([(0, 0), (5, 5), (10, 10)], W, H)
+    with pytest.raises(InputError, match="covers no pixel"):
+        ground_mask_from_polygon([(500, 500), (600, 500), (600, 600)], W, H)
+    with pytest.raises(InputError, match="pairs"):
+        ground_mask_from_polygon([(1, 2, 3), (4, 5, 6), (7, 8, 9), (1, 1, 1), (0, 0, 0)], W, H)
+
+
+def test_ground_mask_from_semantics_and_alignment_with_it():
+    from staticdepth.geometry.alignment import ground_mask_from_semantics
+    K, n, depth, ground, wall = scene()
+    labels = np.where(ground, 7, np.where(wall, 3, 0)).astype(np.uint8)   # 7 = road, 3 = wall
+    G = ground_mask_from_semantics(labels, ground_labels=(7,))
+    assert np.array_equal(G, ground)
+    assert np.array_equal(ground_mask_from_semantics(ground), ground)      # a boolean map
+    res = align_depth(depth_from_inverse(dpt_failure(depth)), K, n, 5.0, G)
+    assert np.mean(np.abs(res.depth - depth)[ground] / depth[ground]) < 0.01
+    with pytest.raises(InputError, match="no ground pixel"):
+        ground_mask_from_semantics(labels, ground_labels=(9,))
+    with pytest.raises(InputError, match="2-D"):
+        ground_mask_from_semantics(labels[None])
+
+
+def test_degenerate_alignment_inputs_raise_instead_of_nan_maps():
+    K, n, depth, ground, wall = scene()
+    Z = depth_from_inverse(dpt_failure(depth))
+    with pytest.raises(InputError, match="the ground mask is empty$"):
+        align_depth(Z, K, n, 5.0, np.zeros_like(ground))
+    with pytest.raises(InputError, match="empty once the agents' pixels are removed"):
+        align_depth(Z, K, n, 5.0, wall, agent_mask=wall)
+    with pytest.raises(InputError, match="agent mask shape"):
+        align_depth(Z, K, n, 5.0, ground, agent_mask=wall[:5])
+    with pytest.raises(InputError, match="finite non-zero"):
+        align_depth(Z, K, [0, 0, 0], 5.0, ground)
+    with pytest.raises(InputError, match="finite non-zero"):
+        align_depth(Z, K, [np.nan, 1, 0], 5.0, ground)
+    for d_g in (0.0, -5.0, float("nan")):
+        with pytest.raises(InputError, match="must be positive"):
+            align_depth(Z, K, n, d_g, ground)
+    # a non-unit normal is normalised: same result as the unit one
+    np.testing.assert_allclose(align_depth(Z, K, 3 * n, 5.0, ground).depth,
+                               align_depth(Z, K, n, 5.0, ground).depth, rtol=1e-6)

@@ -139,3 +139,143 @@ def test_align_command_errors(tmp_path, capsys):
         err = capsys.readouterr().err
         assert rc == 2 and msg in err, (extra, err)
     assert not (tmp_path / "o.npy").exists()
+
+
+def _align(tmp_path, *extra):
+    return main(["align", "--pred", str(tmp_path / "pred.npy"), "--inverse", "--intrinsics",
+                 str(tmp_path / "cam.json"), "--plane", str(tmp_path / "plane.json"),
+                 "--camera-height", "5", "--out", str(tmp_path / "out.npy"), *extra])
+
+
+def test_align_with_a_ground_polygon_text_json_or_txt(tmp_path):
+    K, n, depth, ground = _align_inputs(tmp_path)
+    # a quadrilateral inside the ground region (rows 55-79 see the ground everywhere)
+    verts = [(10.5, 55.5), (150.5, 55.5), (155.5, 79.4), (5.5, 79.4)]
+    assert ground[56:80, 6:155].all()
+    (tmp_path / "poly.json").write_text(json.dumps({"vertices": verts}))
+    (tmp_path / "poly.txt").write_text("".join(f"{u} {v}\n" for u, v in verts))
+    text = " ".join(f"{u},{v}" for u, v in verts)
+    for arg in (text, str(tmp_path / "poly.json"), str(tmp_path / "poly.txt")):
+        assert _align(tmp_path, "--ground-polygon", arg) == 0
+        out = np.load(tmp_path / "out.npy")
+        assert np.mean(np.abs(out - depth)[ground] / depth[ground]) < 0.01, arg
+
+
+def test_align_agent_mask_leaves_the_fit_and_is_aligned(tmp_path):
+    K, n, depth, ground = _align_inputs(tmp_path)
+    # a fake "agent" over part of the ground whose prediction is garbage: removed from the fit
+    pred = dpt_failure(depth)
+    agent = np.zeros_like(ground)
+    agent[60:75, 20:60] = True
+    pred[agent] = 5.0
+    np.save(tmp_path / "pred.npy", pred)
+    cv2.imwrite(str(tmp_path / "agents.png"), agent.astype(np.uint8) * 255)
+    assert _align(tmp_path, "--ground-mask", str(tmp_path / "mask.png"), "--agent-mask",
+                  str(tmp_path / "agents.png"), "--near-plane", "0.01", "--json",
+                  str(tmp_path / "info.json")) == 0
+    out = np.load(tmp_path / "out.npy")
+    g = ground & ~agent
+    assert np.mean(np.abs(out - depth)[g] / depth[g]) < 0.01
+    # always aligned, even with --near-plane (it lies far off the predicted plane): not merely
+    # rescaled by the fallback ratio like the pixels off the plane
+    ratio = json.loads((tmp_path / "info.json").read_text())["frames"][0]["fallback_ratio"]
+    assert np.isfinite(out[agent]).all()
+    assert np.all(np.abs(out[agent] / (0.2 * ratio) - 1) > 0.05)
+    assert _align(tmp_path, "--ground-mask", str(tmp_path / "mask.png")) == 0
+    worse = np.load(tmp_path / "out.npy")
+    assert np.mean(np.abs(worse - depth)[g] / depth[g]) > 0.02       # the fit saw the garbage
+
+
+def _sequence(tmp_path, depth, K, n_frames=2):
+    from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter, add_prediction
+    from staticdepth.geometry.camera import Camera
+
+    h, w = depth.shape
+    cam = Camera.from_intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], w, h)
+    path = tmp_path / "seq.h5"
+    _, _, _, ground, _ = scene()
+    with SequenceWriter(path, SequenceMeta("t", cam), streams=("left",),
+                        aux={"ground": np.uint8}) as wr:
+        for _ in range(n_frames):
+            wr.append(left=np.zeros((h, w, 3), np.uint8), aux={"ground": ground.astype(np.uint8)})
+    base = [depth_from_inverse_np(dpt_failure(depth, 3.0 - i, 0.05 + 0.02 * i))
+            for i in range(n_frames)]
+    add_prediction(path, "base", base)
+    return path
+
+
+def depth_from_inverse_np(D):
+    return (1.0 / D).astype(np.float32)
+
+
+def test_align_sequence_mode_with_ground_truth_semantics(tmp_path, capsys):
+    from staticdepth.dataset.h5 import SequenceReader
+
+    K, n, depth, ground = _align_inputs(tmp_path)
+    seq = _sequence(tmp_path, depth, K)
+    rc = main(["align", "--sequence", str(seq), "--pred-name", "base", "--plane",
+               str(tmp_path / "plane.json"), "--ground-aux", "ground", "--camera-height", "5",
+               "--json", str(tmp_path / "info.json")])
+    assert rc == 0, capsys.readouterr().err
+    with SequenceReader(seq) as r:
+        assert set(r.predictions()) == {"base", "base-align"}
+        for i in range(len(r)):
+            out = r.prediction("base-align", i)
+            assert np.mean(np.abs(out - depth)[ground] / depth[ground]) < 0.01
+    assert len(json.loads((tmp_path / "info.json").read_text())["frames"]) == 2
+    # errors: missing prediction, missing aux map, --ground-aux without a sequence, --out
+    base = ["align", "--plane", str(tmp_path / "plane.json")]
+    cases = [(["--sequence", str(seq), "--pred-name", "nope", "--ground-aux", "ground"],
+              "no prediction 'nope'"),
+             (["--sequence", str(seq), "--ground-aux", "road"], "no aux map 'road'"),
+             (["--sequence", str(seq), "--ground-aux", "ground", "--out", "x.npy"], "--out-name"),
+             (["--sequence", str(seq), "--ground-aux", "ground", "--out-name", "base"],
+              "overwrite"),
+             (["--pred", str(tmp_path / "pred.npy"), "--ground-aux", "ground"],
+              "needs --sequence"),
+             (["--pred", str(tmp_path / "pred.npy"), "--ground-mask", str(tmp_path / "mask.png")],
+              "needs --intrinsics and --out")]
+    for extra, msg in cases:
+        rc = main(base + extra)
+        err = capsys.readouterr().err
+        assert rc == 2 and msg in err and len(err.strip().splitlines()) == 1, (extra, err)
+
+
+def test_align_polygon_and_agent_mask_errors(tmp_path, capsys):
+    _align_inputs(tmp_path)
+    (tmp_path / "bad.json").write_text('{"vertices": [[1, 2, 3]]}')
+    cv2.imwrite(str(tmp_path / "agents_small.png"), np.full((10, 10), 255, np.uint8))
+    cv2.imwrite(str(tmp_path / "agents_all.png"), np.full((80, 160), 255, np.uint8))
+    cases = [(["--ground-polygon", "1,2 3,4"], "at least 3"),
+             (["--ground-polygon", "1,2 3,x 5,6"], "list of u,v pairs"),
+             (["--ground-polygon", str(tmp_path / "bad.json")], "list of u,v pairs"),
+             (["--ground-polygon", "500,500 600,500 600,600"], "covers no pixel"),
+             (["--ground-mask", str(tmp_path / "mask.png"), "--agent-mask",
+               str(tmp_path / "agents_small.png")], "agent mask shape"),
+             (["--ground-mask", str(tmp_path / "mask.png"), "--agent-mask",
+               str(tmp_path / "agents_all.png")], "empty once the agents' pixels are removed")]
+    for extra, msg in cases:
+        rc = _align(tmp_path, *extra)
+        err = capsys.readouterr().err
+        assert rc == 2 and msg in err and len(err.strip().splitlines()) == 1, (extra, err)
+    assert not (tmp_path / "out.npy").exists()
+
+
+def test_ground_plane_command_reads_top_columns(tmp_path):
+    """With the top column (masks) the fit is tighter than with rows only (boxes)."""
+    K, w, h = camera_K(600.0)
+    n = true_normal(25.0, -3.0)
+    obs = people_observations(np.random.default_rng(25), K, w, h, n, 7.5)
+    (tmp_path / "cam.json").write_text(json.dumps({"fx": 600.0, "fy": 600.0, "cx": K[0, 2],
+                                                   "cy": K[1, 2]}))
+    errs = []
+    for cols in (("frame", "track", "foot_u", "foot_v", "height_px"),
+                 ("frame", "track", "foot_u", "foot_v", "height_px", "top_u")):
+        write_csv(tmp_path / "obs.csv", obs, cols)
+        rc = main(["ground-plane", "--observations", str(tmp_path / "obs.csv"), "--intrinsics",
+                   str(tmp_path / "cam.json"), "--bootstrap", "0", "--out",
+                   str(tmp_path / "p.json")])
+        assert rc == 0
+        errs.append(angle_between_deg(json.loads((tmp_path / "p.json").read_text())["normal"], n))
+    print(f"rows only {errs[0]:.2f} deg, rows + columns {errs[1]:.2f} deg")
+    assert errs[1] < 0.5 and errs[1] < errs[0]

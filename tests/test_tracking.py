@@ -43,9 +43,10 @@ def test_detection_foot_point_is_the_bottom_centre():
     m = np.zeros((H, W), np.uint16)
     m[20:41, 30:37] = 5           # rows 20..40, columns 30..36
     m[40, 30:33] = 0              # the lowest row only covers columns 33..36
+    m[20, 30:35] = 0              # the top row only covers columns 35..36
     d = detections_from_instances(m, np.array([[5, 0, 0.7]]), frame=3)
     assert len(d) == 1
-    assert (d["foot_v"][0], d["top_v"][0], d["foot_u"][0]) == (40, 20, 34.5)
+    assert (d["foot_v"][0], d["top_v"][0], d["foot_u"][0], d["top_u"][0]) == (40, 20, 34.5, 35.5)
     assert (d["left"][0], d["right"][0], d["frame"][0], d["score"][0]) == (30, 36, 3,
                                                                            np.float32(0.7))
     assert not d["border"][0]
@@ -61,7 +62,7 @@ def test_observations_from_instance_maps_track_and_filter():
         assert list(sel["frame"]) == list(range(6))
     a = obs[obs["foot_u"] < obs["foot_u"].mean()]   # A starts left
     first = a[a["frame"] == 0][0]
-    assert (first["foot_v"], first["top_v"], first["foot_u"]) == (50, 10, 20)
+    assert (first["foot_v"], first["top_v"], first["foot_u"], first["top_u"]) == (50, 10, 20, 20)
     assert first["height_px"] == 40
 
 
@@ -112,7 +113,35 @@ def test_agent_rows_with_track_ids_are_kept_and_errors():
     a["foot_u"], a["foot_v"], a["top_v"] = [10, 20, 25, 40], [50, 55, 52, 60], [20, 25, 22, 30]
     obs = observations(detections_from_agents(a, W, H))
     assert set(obs["track"]) == {7} and len(obs) == 4
+    assert np.all(np.isnan(obs["top_u"]))            # agent rows carry no top column
     with pytest.raises(InputError, match="2-D"):
         detections_from_instances(np.zeros((2, 3, 4), np.uint16))
     with pytest.raises(InputError, match="no frames"):
         observations_from_instances([])
+
+
+def straight_and_static_agents():
+    """Track 1 walks a straight line (feet exactly collinear), track 2 curves, track 3 stands
+    still (feet jitter by half a pixel), each seen in 5 frames with known track ids."""
+    a = empty_agents(15)
+    a["frame"] = np.tile(np.arange(5), 3)
+    a["track_id"] = np.repeat([1, 2, 3], 5)
+    a["instance_id"] = a["track_id"]
+    a["class_id"] = 0
+    a["foot_u"] = np.r_[10 + 8 * np.arange(5), [80, 82, 86, 82, 78], [50, 50.5, 50, 49.5, 50]]
+    a["foot_v"] = np.r_[60 + 2 * np.arange(5), [60, 64, 66, 70, 72], [70, 70, 70.5, 70, 69.5]]
+    a["top_v"] = a["foot_v"] - 30
+    return a
+
+
+def test_collinear_rule_drops_straight_walkers_only_for_eq1_models():
+    a = straight_and_static_agents()
+    for model, kept in (("paper", {2}), ("affine", {2}), ("exact", {1, 2})):
+        conf = TrackingConfig.for_model(model)
+        assert conf.drop_collinear == (model != "exact")
+        obs = observations(detections_from_agents(a, W, H), conf)
+        assert set(obs["track"]) == kept, model          # the static track 3 never passes
+    # the static rule alone: feet within min_travel_px RMS in every direction
+    loose = TrackingConfig.for_model("exact", min_travel_px=0.3)
+    assert set(observations(detections_from_agents(a, W, H), loose)["track"]) == {1, 2, 3}
+    assert TrackingConfig.for_model("paper", min_frames=6).min_frames == 6

@@ -56,12 +56,55 @@ def ground_mask_from_feet(foot_uv: np.ndarray, width: int, height: int,
     return mask
 
 
+def ground_mask_from_polygon(vertices, width: int, height: int) -> np.ndarray:
+    """Pixels (H, W) bool whose centre (integer u, v) lies inside the polygon (N, 2) of (u, v)
+    vertices (even-odd rule; a pixel centre exactly on an edge may fall either side).
+
+    Raises for fewer than 3 finite vertices, a polygon without area or one that covers no pixel.
+    """
+    try:
+        P = np.asarray(vertices, dtype=np.float64).reshape(-1, 2)
+    except ValueError:
+        raise InputError("ground polygon vertices must be (u, v) pairs") from None
+    if len(P) < 3 or not np.all(np.isfinite(P)):
+        raise InputError(f"a ground polygon needs at least 3 finite (u, v) vertices, got {len(P)}")
+    x, y = P[:, 0], P[:, 1]
+    area = 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+    if area < 1e-9:
+        raise InputError("the ground polygon has no area (its vertices are collinear)")
+    u = np.arange(width, dtype=np.float64)[None, :]
+    v = np.arange(height, dtype=np.float64)[:, None]
+    inside = np.zeros((height, width), bool)
+    for (x1, y1), (x2, y2) in zip(P, np.roll(P, -1, axis=0)):
+        rows = (y1 > v[:, 0]) != (y2 > v[:, 0])           # the edge crosses these rows
+        if not rows.any():
+            continue
+        vr = v[rows]
+        x_cross = x1 + (vr - y1) * (x2 - x1) / (y2 - y1)
+        inside[rows] ^= u < x_cross
+    if not inside.any():
+        raise InputError(f"the ground polygon covers no pixel of the {width}x{height} image")
+    return inside
+
+
+def ground_mask_from_semantics(labels: np.ndarray, ground_labels=(1,)) -> np.ndarray:
+    """Ground mask (H, W) bool from a ground-truth semantic or boolean map: pixels whose label is
+    one of ``ground_labels`` (a boolean map: its true pixels). Raises when none is ground."""
+    lab = np.asarray(labels)
+    if lab.ndim != 2:
+        raise InputError(f"a semantic map must be 2-D (H, W), got shape {lab.shape}")
+    mask = lab if lab.dtype == bool else np.isin(lab, list(ground_labels))
+    if not mask.any():
+        raise InputError(f"the semantic map has no ground pixel (labels {list(ground_labels)})")
+    return mask
+
+
 def fit_predicted_plane(depth: np.ndarray, K: np.ndarray, mask: np.ndarray,
                         max_points: int = 20000) -> tuple[np.ndarray, float]:
     """TLS plane (n_p, d_p) of the back-projected prediction inside ``mask`` (H, W bool).
 
-    At most about ``max_points`` pixels (an even stride over the mask) are used. Raises when fewer than 3 valid
-    depths lie in the mask or they are collinear.
+    At most about ``max_points`` pixels (an even stride over the mask) are used. Raises when
+    fewer than 3 valid depths lie in the mask or they are collinear.
     """
     depth = np.asarray(depth)
     vs, us = np.nonzero(np.asarray(mask, bool) & np.isfinite(depth) & (depth > 0))
@@ -100,6 +143,9 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
     within ``near_plane_rel * d_p`` of the predicted plane (every other pixel is only rescaled by
     the median ratio). ``eps`` is relative to d_p. A nadir prediction (a_p = b_p = 0) is rescaled
     by the median ratio of the agents' plane depth over the ground and flagged ``skipped``.
+    Raises InputError for an empty ground mask (also after removing the agents), too few valid
+    depths in it, a non-finite or zero ``n_g``, a ``d_g`` that is not positive, or when no ground
+    pixel can be aligned; the output is never a map of NaN where the input had depths.
     """
     Z = np.asarray(depth, dtype=np.float32)
     if Z.ndim != 2:
@@ -107,11 +153,23 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
     h, w = Z.shape
     K = np.asarray(K, dtype=np.float64)
     n_g = np.asarray(n_g, dtype=np.float64)
+    if n_g.shape != (3,) or not np.all(np.isfinite(n_g)) or np.linalg.norm(n_g) < 1e-12:
+        raise InputError(f"the agents' plane normal must be a finite non-zero 3-vector, got {n_g}")
+    n_g = n_g / np.linalg.norm(n_g)
+    if not (np.isfinite(d_g) and d_g > 0):
+        raise InputError(f"the agents' plane offset (camera height) must be positive, got {d_g}")
     G = np.asarray(ground_mask, bool)
     if G.shape != Z.shape:
         raise InputError(f"ground mask shape {G.shape} differs from the prediction's {Z.shape}")
+    if not G.any():
+        raise InputError("the ground mask is empty")
     if agent_mask is not None:
-        G = G & ~np.asarray(agent_mask, bool)
+        A = np.asarray(agent_mask, bool)
+        if A.shape != Z.shape:
+            raise InputError(f"agent mask shape {A.shape} differs from the prediction's {Z.shape}")
+        G = G & ~A
+        if not G.any():
+            raise InputError("the ground mask is empty once the agents' pixels are removed")
     n_p, d_p = fit_predicted_plane(Z, K, G)
     a, b, c = n_p
     s2 = a * a + b * b
