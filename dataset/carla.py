@@ -100,6 +100,7 @@ def agents_from_masks(tags: np.ndarray, ids: np.ndarray, agent_tags: Mapping[int
         rows[k]["foot_v"] = bottom
         rows[k]["foot_u"] = np.median(u[v == bottom])
         rows[k]["top_v"] = v.min()
+        rows[k]["top_u"] = np.median(u[v == v.min()])
     return inst, rows
 
 

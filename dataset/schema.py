@@ -39,6 +39,7 @@ AGENT_DTYPE = np.dtype([
     ("foot_u", np.float32),       # bottom-centre of the mask: column (px)
     ("foot_v", np.float32),       # lowest mask row (px)
     ("top_v", np.float32),        # highest mask row (px)
+    ("top_u", np.float32),        # median column of the highest mask row (px; NaN = unknown)
     ("score", np.float32),        # detector confidence (1 for ground truth)
     ("foot_x", np.float32), ("foot_y", np.float32), ("foot_z", np.float32),  # true foot (axis
     # bottom, on the ground), camera frame, metres
@@ -54,7 +55,8 @@ OPTIONAL_ATTRS = ("rig", "mounting", "camera_height_m", "provenance", "created")
 
 def empty_agents(n: int = 0) -> np.ndarray:
     a = np.zeros(n, dtype=AGENT_DTYPE)
-    for f in ("foot_x", "foot_y", "foot_z", "head_x", "head_y", "head_z", "height_m", "radius_m"):
+    for f in ("top_u", "foot_x", "foot_y", "foot_z", "head_x", "head_y", "head_z", "height_m",
+              "radius_m"):
         a[f] = np.nan
     a["track_id"] = -1
     a["foot_u"] = a["foot_v"] = a["top_v"] = -1

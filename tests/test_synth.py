@@ -214,3 +214,19 @@ def test_synth_command_writes_a_sequence(tmp_path):
         np.testing.assert_array_equal(r.depth(2), scene.render(2)["depth"])
     assert main(["synth", "--preset", "demo", "--set", "nope=1", "--out",
                  str(tmp_path / "t.h5")]) == 2
+
+
+def test_top_u_is_the_median_column_of_the_highest_mask_row():
+    from staticdepth.dataset.synth import SyntheticScene, preset
+
+    fr = SyntheticScene(preset("demo", seed=3)).render(5)
+    checked = 0
+    for r in fr["agents"]:
+        m = fr["instances"] == r["instance_id"]
+        rows = np.nonzero(m.any(1))[0]
+        if len(rows) == 0:
+            continue
+        assert r["top_v"] == rows[0]
+        assert r["top_u"] == pytest.approx(np.median(np.nonzero(m[rows[0]])[0]))
+        checked += 1
+    assert checked >= 3

@@ -277,6 +277,7 @@ class SyntheticScene:
             r["track_id"] = obj.track_id
             r["foot_u"] = u0 + float(np.median(cols))
             r["foot_v"], r["top_v"] = v0 + bottom, v0 + rows_with[0]
+            r["top_u"] = u0 + float(np.median(np.nonzero(mask[rows_with[0]])[0]))
             r["foot_x"], r["foot_y"], r["foot_z"] = foot_c
             r["head_x"], r["head_y"], r["head_z"] = head_c
             r["height_m"], r["radius_m"] = obj.height_m, obj.radius_m
