@@ -10,7 +10,8 @@ blueprint attributes ``image_size_x``, ``image_size_y``, ``fov`` (degrees), opti
 ``transform.rotation.{pitch,yaw,roll}`` (degrees, Unreal: negative pitch looks down).
 
 Camera: f = W / (2 tan(fov/2)), principal point at the image centre. Mounting: height = location.z,
-ground normal from Unreal's rotation matrix, equal to ``Mounting.from_pitch_roll(z, -pitch, -roll)``.
+ground normal from Unreal's rotation matrix, equal to
+``Mounting.from_pitch_roll(z, -pitch, -roll)``.
 Depth at CARLA's far plane (sky, 1000 m) is stored as NaN.
 """
 from __future__ import annotations
@@ -47,7 +48,7 @@ GROUND_TAGS_LEGACY = frozenset({6, 7, 8, 14, 22})
 
 # -- encodings (pure) ---------------------------------------------------------------------------
 def depth_from_carla_rgb(rgb: np.ndarray) -> np.ndarray:
-    """CARLA depth image (H, W, 3) RGB uint8 -> depth (H, W) float32 metres; the far plane -> NaN."""
+    """CARLA depth image (H, W, 3) RGB uint8 -> depth (H, W) float32 metres; far plane -> NaN."""
     c = np.asarray(rgb).astype(np.float64)
     depth = (c[..., 0] + 256.0 * c[..., 1] + 65536.0 * c[..., 2]) * _DEPTH_SCALE
     out = depth.astype(np.float32)
@@ -56,14 +57,14 @@ def depth_from_carla_rgb(rgb: np.ndarray) -> np.ndarray:
 
 
 def carla_rgb_from_depth(depth: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`depth_from_carla_rgb` (nearest code); NaN and >= 1000 m -> the far plane."""
+    """Inverse of :func:`depth_from_carla_rgb` (nearest code); NaN and >= 1000 m -> far plane."""
     d = np.nan_to_num(np.asarray(depth, dtype=np.float64), nan=FAR_PLANE_M)
     code = np.clip(np.round(d / _DEPTH_SCALE), 0, 256 ** 3 - 1).astype(np.int64)
     return np.stack([code & 255, (code >> 8) & 255, code >> 16], axis=-1).astype(np.uint8)
 
 
 def tags_ids_from_instance_rgb(rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """CARLA 0.9.14+ instance image (H, W, 3) RGB -> semantic tags (uint8), instance ids (uint16)."""
+    """CARLA 0.9.14+ instance image (H, W, 3) RGB -> semantic tags uint8, instance ids uint16."""
     a = np.asarray(rgb)
     ids = a[..., 1].astype(np.uint16) + (a[..., 2].astype(np.uint16) << 8)
     return a[..., 0].copy(), ids
@@ -105,9 +106,10 @@ def agents_from_masks(tags: np.ndarray, ids: np.ndarray, agent_tags: Mapping[int
 
 
 def ue_rotation(pitch_deg: float, yaw_deg: float, roll_deg: float) -> np.ndarray:
-    """Unreal's FRotationMatrix: rows are the actor's forward (X), right (Y), up (Z) axes in world."""
+    """Unreal's FRotationMatrix: rows are the actor's forward (X), right (Y), up (Z) world axes."""
     p, y, r = (math.radians(a) for a in (pitch_deg, yaw_deg, roll_deg))
-    sp, cp, sy, cy, sr, cr = math.sin(p), math.cos(p), math.sin(y), math.cos(y), math.sin(r), math.cos(r)
+    sp, cp, sy, cy = math.sin(p), math.cos(p), math.sin(y), math.cos(y)
+    sr, cr = math.sin(r), math.cos(r)
     return np.array([[cp * cy, cp * sy, sp],
                      [sr * sp * cy - cr * sy, sr * sp * sy + cr * cy, -sr * cp],
                      [-(cr * sp * cy + sr * sy), cy * sr - cr * sp * sy, cr * cp]])
@@ -182,7 +184,7 @@ def _read_coded(path: str, size: tuple[int, int]) -> np.ndarray:
 
 
 def load_frame(task: CarlaTask) -> LoadedFrame:
-    """Images, depth, instance map, agents and ground mask of one frame (pure function of the task)."""
+    """Images, depth, instance map, agents and ground mask of one frame (pure in the task)."""
     left = read_rgb(task.rgb)
     if (left.shape[1], left.shape[0]) != task.size:
         raise InputError(f"image is {left.shape[1]}x{left.shape[0]}, sensor.json says "
@@ -191,7 +193,8 @@ def load_frame(task: CarlaTask) -> LoadedFrame:
     if task.right is not None:
         r = read_rgb(task.right)
         if r.shape != left.shape:
-            raise InputError(f"right image is {r.shape[1]}x{r.shape[0]}, left {task.size}", task.right)
+            raise InputError(f"right image is {r.shape[1]}x{r.shape[0]}, left {task.size}",
+                             task.right)
         arrays["right"] = r
     arrays["depth"] = depth_from_carla_rgb(_read_coded(task.depth, task.size))
     tags, ids = tags_ids_from_instance_rgb(_read_coded(task.instance, task.size))
@@ -214,7 +217,8 @@ def _timestamps(folder: str, stems: list[str], tick: float | None) -> list[float
                 try:
                     table[str(int(row[0]))] = float(row[1])
                 except (ValueError, IndexError):
-                    raise InputError(f"line {k}: expected 'frame,timestamp_s', got {row}", path) from None
+                    raise InputError(f"line {k}: expected 'frame,timestamp_s', got {row}",
+                                     path) from None
         missing = [s for s in stems if str(int(s)) not in table]
         if missing:
             raise InputError(f"no timestamp for frame {missing[0]} ({len(missing)} missing)", path)
@@ -228,8 +232,8 @@ def carla_tasks(folder: str | os.PathLike, *, legacy_tags: bool = False
     if not os.path.isdir(folder):
         raise InputError("folder not found", folder)
     sensor = CarlaSensor.load(os.path.join(folder, "sensor.json"))
-    names = ["rgb", "depth", "instance"] + (["right"] if os.path.isdir(os.path.join(folder, "right"))
-                                            else [])
+    has_right_dir = os.path.isdir(os.path.join(folder, "right"))
+    names = ["rgb", "depth", "instance"] + (["right"] if has_right_dir else [])
     streams = {os.path.join(folder, n): list_frames(os.path.join(folder, n)) for n in names}
     stems = match_streams(streams, folder)
     if not stems:
@@ -265,7 +269,8 @@ def import_carla(folder: str | os.PathLike, out: str | os.PathLike, *, name: str
                     "tag_numbering": "pre-0.9.14" if legacy_tags else "0.9.14+",
                     "ground_tags": sorted(GROUND_TAGS_LEGACY if legacy_tags else GROUND_TAGS),
                     "ground_mask": "aux/ground", "far_plane_m": f"{FAR_PLANE_M} -> NaN"})
-    streams = ("left", "right", "depth", "instances") if has_right else ("left", "depth", "instances")
+    streams = (("left", "right", "depth", "instances") if has_right
+               else ("left", "depth", "instances"))
     return write_frames(out, meta, streams, tasks, load_frame, labels=labels, skip_bad=skip_bad,
                         resume=resume, overwrite=overwrite, aux=(AuxStream("ground"),),
                         executor=executor, desc="import-carla")

@@ -10,7 +10,8 @@ from staticdepth.errors import InputError
 
 def register(sub) -> None:
     p = sub.add_parser("synth", help="render a synthetic fixed-camera stereo sequence",
-                       description="Render a synthetic sequence (known geometry) to a sequence file.")
+                       description="Render a synthetic sequence (known geometry) to a sequence "
+                                   "file.")
     p.add_argument("--preset", default="demo", help="scene preset (demo, street, c1, c2, c3, r2)")
     p.add_argument("--frames", type=int, default=60)
     p.add_argument("--adapt-frames", type=int, default=None,

@@ -1,4 +1,4 @@
-"""Commands ``pack``, ``import-kitti``, ``import-carla``, ``export`` and ``publish`` (thin shells)."""
+"""Commands ``pack``, ``import-kitti``, ``import-carla``, ``export``, ``publish`` (thin shells)."""
 from __future__ import annotations
 
 import argparse
@@ -12,7 +12,8 @@ def _writer_options(p: argparse.ArgumentParser, executors: bool = True) -> None:
                    help="the first N frames form the adaptation split, the rest the evaluation")
     p.add_argument("--skip-bad", action="store_true",
                    help="skip unreadable frames (listed and counted) instead of stopping")
-    p.add_argument("--resume", action="store_true", help="continue an interrupted run (<out>.partial)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run (<out>.partial)")
     p.add_argument("--overwrite", action="store_true")
     if executors:
         p.add_argument("--workers", type=int, default=1, help="local worker processes")
@@ -22,16 +23,20 @@ def _writer_options(p: argparse.ArgumentParser, executors: bool = True) -> None:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("pack", help="pack a stereo recording into a sequence file with stereo depth",
+    p = sub.add_parser("pack",
+                       help="pack a stereo recording into a sequence file with stereo depth",
                        description="Run the stereo pipeline on every pair of a recording and store "
                                    "images, depth (NaN where the stereo check failed), timestamps, "
                                    "rig, camera height, splits and provenance.")
     p.add_argument("--recording", required=True,
-                   help="recording folder (DIR/left/*.png, DIR/right/*.png, optional timestamps.csv)")
+                   help="recording folder: a `staticdepth capture` recording, or DIR/left/*.png, "
+                        "DIR/right/*.png with an optional DIR/timestamps.csv")
     p.add_argument("--rig", default=None, help="stereo rig JSON (default: the recording's own rig)")
-    p.add_argument("--camera-height", type=float, default=None, help="camera height over the ground (m)")
+    p.add_argument("--camera-height", type=float, default=None,
+                   help="camera height over the ground (m)")
     p.add_argument("--matcher", default="sgbm", help="stereo matcher (sgbm, onnx, ...)")
-    p.add_argument("--model", default=None, help="matcher model file (e.g. a CREStereo ONNX export)")
+    p.add_argument("--model", default=None,
+                   help="matcher model file (e.g. a CREStereo ONNX export)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="stereo setting override")
     p.add_argument("--no-right", action="store_true", help="do not store the right image")
     p.add_argument("--name", default=None, help="sequence name (default: the recording's folder)")
@@ -53,7 +58,8 @@ def register(sub) -> None:
     p.set_defaults(func=_import_kitti)
 
     p = sub.add_parser("import-carla", help="import frames saved from CARLA's sensors",
-                       description="Import rgb/, depth/, instance/ (and right/) PNGs and sensor.json "
+                       description="Import rgb/, depth/, instance/ (and right/) PNGs and "
+                                   "sensor.json "
                                    "saved from CARLA's Python API into a sequence file.")
     p.add_argument("dir", help="CARLA export folder")
     p.add_argument("--name", default=None)
@@ -64,7 +70,8 @@ def register(sub) -> None:
 
     p = sub.add_parser("export", help="export a sequence file to KITTI-style folders",
                        description="Write PNG images, uint16 depth x256 (0 = unknown), timestamps, "
-                                   "calibration and split lists, one file per frame in frame order.")
+                                   "calibration and split lists, one file per frame in frame "
+                                   "order.")
     p.add_argument("file", help="sequence file (.h5)")
     p.add_argument("--format", default="kitti", choices=("kitti",))
     p.add_argument("--out", required=True, help="output folder")
@@ -156,5 +163,6 @@ def _publish(args: argparse.Namespace) -> int:
         raise InputError("--out must be a folder, not one of the input files", args.out)
     info = publish(args.files, args.out, title=args.title, licence=args.licence,
                    citation=args.citation, export=not args.no_export, overwrite=args.overwrite)
-    print(f"published {len(info['sequences'])} sequence(s), {info['files']} files, to {info['path']}")
+    print(f"published {len(info['sequences'])} sequence(s), {info['files']} files, "
+          f"to {info['path']}")
     return 0

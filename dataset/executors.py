@@ -125,7 +125,7 @@ class RayExecutor:
 
 
 def make_executor(kind: str = "serial", workers: int = 1, address: str | None = None):
-    """The executor named ``kind`` (serial, process, ray); ``workers > 1`` with serial means process."""
+    """The executor named ``kind`` (serial, process, ray); serial with workers > 1 is process."""
     if kind not in EXECUTORS:
         raise InputError(f"unknown executor {kind!r} (choose from {', '.join(EXECUTORS)})")
     if kind == "ray":

@@ -46,7 +46,7 @@ def _write(path: str, img: np.ndarray) -> None:
 
 
 def replace_dir(tmp: str, out: str, overwrite: bool) -> None:
-    """Move the finished folder ``tmp`` onto ``out`` (an existing ``out`` only with ``overwrite``)."""
+    """Move the finished folder ``tmp`` onto ``out`` (replacing ``out`` only with ``overwrite``)."""
     if os.path.exists(out):
         if not overwrite:
             raise InputError("output exists (use --overwrite to replace it)", out)

@@ -27,7 +27,7 @@ from staticdepth.dataset import schema
 from staticdepth.errors import InputError
 from staticdepth.geometry.camera import Camera, Mounting, StereoRig
 
-try:  # Blosc-zstd when hdf5plugin is importable, gzip otherwise (readable everywhere).
+try:  # Blosc-lz4 when hdf5plugin is importable, gzip otherwise (readable everywhere).
     import hdf5plugin
 
     def _compression(kind: str) -> dict[str, Any]:

@@ -44,14 +44,15 @@ def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
 
 
 def summarize(reader: SequenceReader, sample: int = 16) -> dict[str, Any]:
-    """Frames, splits, streams, ground-truth density and depth range (over up to ``sample`` frames)."""
+    """Frames, splits, streams, ground-truth density and depth range (over <= ``sample`` frames)."""
     m = reader.meta
     info: dict[str, Any] = {
         "path": reader.path, "name": m.name, "frames": len(reader),
         "size": f"{reader.width}x{reader.height}", "streams": reader.streams(),
         "gt_kind": m.gt_kind, "source": m.source,
         "splits": {"adapt": len(reader.split("adapt")), "eval": len(reader.split("eval"))},
-        "camera": {k: round(v, 3) for k, v in m.camera.to_dict().items() if k in ("fx", "fy", "cx", "cy")},
+        "camera": {k: round(v, 3) for k, v in m.camera.to_dict().items()
+                   if k in ("fx", "fy", "cx", "cy")},
         "camera_height_m": m.camera_height_m,
         "baseline_m": None if m.rig is None else round(m.rig.baseline_m, 4),
         "predictions": reader.predictions(),

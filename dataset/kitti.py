@@ -7,7 +7,8 @@ Layout read (KITTI raw, synced):
 Depth (METHOD.md section 8): ``P = P_rect_02 . R_rect_00 (4x4) . [R|T]_cam0_from_velo``; keep points
 with x_velo > 0 (and a positive camera depth); ``u, v = round(.) - 1``; in bounds; nearest point per
 pixel; NaN = unknown. The official depth-completion maps (uint16 PNG / 256, 0 = unknown) replace the
-projection when given (``depth_maps`` root holding ``**/<drive>_sync/proj_depth/groundtruth/image_02``).
+projection when given (``depth_maps``: a root holding
+``**/<drive>_sync/proj_depth/groundtruth/image_02``).
 """
 from __future__ import annotations
 
@@ -65,7 +66,8 @@ class KittiCalib:
 
     ``P_rect_02``/``P_rect_03``: 3x4 projections of the rectified colour cameras (from rectified
     camera 0 coordinates); ``R_rect_00``: 3x3 rectifying rotation of camera 0; ``cam0_from_velo``:
-    4x4 pose of the LiDAR in (unrectified) camera 0; ``size_rect``: (width, height) of rectified images.
+    4x4 pose of the LiDAR in (unrectified) camera 0; ``size_rect``: (width, height) of the
+    rectified images.
     """
 
     P_rect_02: np.ndarray
@@ -115,7 +117,7 @@ class KittiCalib:
 
 
 def read_velodyne(path: str | os.PathLike) -> np.ndarray:
-    """A scan as (N, 4) float32 (x, y, z, reflectance); a truncated file is an :class:`InputError`."""
+    """A scan as (N, 4) float32 (x, y, z, reflectance); a truncated file is an InputError."""
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise InputError("file not found", path)
@@ -154,7 +156,10 @@ def depth_from_lidar(points_velo: np.ndarray, img_from_velo: np.ndarray, width: 
 
 
 def read_depth_png(path: str | os.PathLike) -> np.ndarray:
-    """KITTI depth-completion map (uint16 PNG, depth * 256, 0 = unknown) as float32 metres, NaN unknown."""
+    """KITTI depth-completion map (uint16 PNG, depth * 256, 0 = unknown) as float32 metres.
+
+    Unknown pixels are NaN.
+    """
     a = read_image(path, flags=cv2.IMREAD_ANYDEPTH)
     if a.dtype != np.uint16:
         raise InputError(f"expected a 16-bit depth PNG, got {a.dtype}", path)
@@ -196,7 +201,10 @@ class KittiTask:
 
 
 def drive_dir(root: str | os.PathLike, drive: str) -> str:
-    """``<root>/<date>/<drive>_sync`` for a drive named ``2011_09_28_drive_0016`` (``_sync`` optional)."""
+    """``<root>/<date>/<drive>_sync`` for a drive named ``2011_09_28_drive_0016``.
+
+    The ``_sync`` suffix of the name is optional.
+    """
     name = drive if drive.endswith("_sync") else drive + "_sync"
     d = os.path.join(os.fspath(root), name[:10], name)
     if not os.path.isdir(d):
@@ -219,14 +227,16 @@ def drive_tasks(root: str | os.PathLike, drive: str, *, right: bool = False,
     """Tasks and labels (``<drive>/<frame>``) for every frame of one drive, in frame order."""
     d = drive_dir(root, drive)
     calib = KittiCalib.load(os.path.dirname(d))
-    streams = {os.path.join(d, "image_02", "data"): list_frames(os.path.join(d, "image_02", "data"))}
+    left_dir = os.path.join(d, "image_02", "data")
+    streams = {left_dir: list_frames(left_dir)}
     if depth_maps is None:
         scan_dir = os.path.join(d, "velodyne_points", "data")
         if not os.path.isdir(scan_dir) or not list_frames(scan_dir, ".bin"):
             raise InputError("drive has no LiDAR scans (velodyne_points/data/*.bin)", d)
         streams[scan_dir] = list_frames(scan_dir, ".bin")
     if right:
-        streams[os.path.join(d, "image_03", "data")] = list_frames(os.path.join(d, "image_03", "data"))
+        right_dir = os.path.join(d, "image_03", "data")
+        streams[right_dir] = list_frames(right_dir)
     stems = match_streams(streams, d)
     if not stems:
         raise InputError("drive has no frames", d)
@@ -260,7 +270,8 @@ def load_frame(task: KittiTask) -> LoadedFrame:
     if task.right is not None:
         r = read_rgb(task.right)
         if r.shape != left.shape:
-            raise InputError(f"right image is {r.shape[1]}x{r.shape[0]}, left is {w}x{h}", task.right)
+            raise InputError(f"right image is {r.shape[1]}x{r.shape[0]}, left is {w}x{h}",
+                             task.right)
         arrays["right"] = r
     if task.depth_png is not None:
         if os.path.exists(task.depth_png):
@@ -276,7 +287,8 @@ def load_frame(task: KittiTask) -> LoadedFrame:
     return LoadedFrame(arrays=arrays, timestamp=task.timestamp)
 
 
-def pose_difference(images_a: Sequence[np.ndarray], images_b: Sequence[np.ndarray]) -> dict[str, Any]:
+def pose_difference(images_a: Sequence[np.ndarray], images_b: Sequence[np.ndarray]
+                    ) -> dict[str, Any]:
     """How far apart two drives' views are: median images' mean absolute difference (grey levels,
     0-255) and their shift (px) by phase correlation. Moving objects vanish in the medians."""
     def med(imgs):

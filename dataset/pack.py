@@ -1,4 +1,4 @@
-"""Pack frames into a sequence file: the writing loop shared by every importer, and stereo recordings.
+"""Pack frames into a sequence file: the writing loop every importer shares; stereo recordings.
 
 Every importer (KITTI, CARLA, stereo recordings) turns its input into a list of *tasks* (one per
 frame, picklable) and a pure *loader* ``load(task) -> LoadedFrame``. :func:`write_frames` runs the
@@ -62,7 +62,7 @@ def read_rgb(path: str | os.PathLike) -> np.ndarray:
 
 
 def list_frames(folder: str | os.PathLike, ext: str = ".png") -> list[str]:
-    """Sorted file names (not paths) with extension ``ext`` in ``folder``; error if the folder is missing."""
+    """Sorted file names (not paths) with extension ``ext`` in ``folder`` (which must exist)."""
     folder = os.fspath(folder)
     if not os.path.isdir(folder):
         raise InputError("folder not found", folder)
@@ -203,7 +203,7 @@ class StereoTask:
 
 
 def recording_tasks(folder: str | os.PathLike) -> tuple[list[StereoTask], list[str], Any]:
-    """Tasks, labels and the recording's own rig (or None) of a capture-layout or plain recording."""
+    """Tasks, labels and the own rig (or None) of a capture-layout or plain recording."""
     folder = os.fspath(folder)
     if not os.path.isdir(folder):
         raise InputError("recording folder not found", folder)
@@ -214,14 +214,16 @@ def recording_tasks(folder: str | os.PathLike) -> tuple[list[StereoTask], list[s
         tasks = [StereoTask(os.fspath(f.left_path), os.fspath(f.right_path), f.timestamp_s)
                  for f in rec.frames]
         return tasks, [f"{f.frame:08d}" for f in rec.frames], rec.rig
-    names = {os.path.join(folder, s): list_frames(os.path.join(folder, s)) for s in ("left", "right")}
+    names = {os.path.join(folder, s): list_frames(os.path.join(folder, s))
+             for s in ("left", "right")}
     stems = match_streams(names, folder)
     ts: list[float | None] = [None] * len(stems)
     csv_path = os.path.join(folder, "timestamps.csv")
     if os.path.exists(csv_path):
         with open(csv_path) as f:
             rows = [ln.strip() for ln in f if ln.strip()]
-        if rows and not rows[0].split(",")[-1].strip().replace(".", "", 1).replace("-", "", 1).isdigit():
+        last = rows[0].split(",")[-1].strip() if rows else ""
+        if rows and not last.replace(".", "", 1).replace("-", "", 1).isdigit():
             rows = rows[1:]  # header
         if len(rows) != len(stems):
             raise InputError(f"{len(rows)} timestamps for {len(stems)} frames", csv_path)
@@ -267,19 +269,18 @@ class StereoLoader:
         return LoadedFrame(arrays=arrays, timestamp=task.timestamp)
 
 
-def _rectified_mounting(rig, pipe, camera_height_m: float | None):
+def _rectified_mounting(rig, camera_height_m: float | None):
+    """The rig's mounting with ``camera_height_m`` when given (else None without a mounting).
+
+    ``staticdepth mount`` stores the ground normal in the rectified left camera's frame already
+    (the frame of the packed images and depth maps), so it is used as it is.
+    """
     from staticdepth.geometry.camera import Mounting
-    from staticdepth.stereo.rectify import stereo_rectify
 
     m = rig.mounting
     if m is None:
         return None
-    if pipe.rectifier.maps is None:
-        R1 = np.eye(3)
-    else:
-        rect = rig.rectification or stereo_rectify(rig, pipe.config.alpha)
-        R1 = np.asarray(rect["R1"])
-    return Mounting(camera_height_m or m.height_m, R1 @ m.normal, m.source)
+    return Mounting(camera_height_m or m.height_m, m.normal, m.source)
 
 
 def pack_recording(recording: str | os.PathLike, rig_path: str | os.PathLike | None,
@@ -322,7 +323,7 @@ def pack_recording(recording: str | os.PathLike, rig_path: str | os.PathLike | N
         raise InputError(f"--camera-height must be positive, got {camera_height_m}")
     tasks = [StereoTask(t.left, t.right, float(i) if t.timestamp is None else t.timestamp)
              for i, t in enumerate(tasks)]
-    mounting = _rectified_mounting(rig, pipe, camera_height_m)
+    mounting = _rectified_mounting(rig, camera_height_m)
     meta = SequenceMeta(
         name=name or os.path.basename(os.path.normpath(os.fspath(recording))), camera=pipe.camera,
         gt_kind="stereo", source=f"stereo recording: {os.fspath(recording)}",

@@ -44,7 +44,7 @@ def _files(root: str) -> list[str]:
 
 
 def sequence_card(reader: SequenceReader) -> dict[str, Any]:
-    """Card entry for one sequence: camera and rig, height, splits, ground truth and its statistics."""
+    """Card entry for one sequence: camera, rig, height, splits, ground truth, its statistics."""
     m = reader.meta
     dens, lo, hi, meds = [], np.inf, -np.inf, []
     if reader.has("depth"):
@@ -102,7 +102,8 @@ def card_markdown(card: dict[str, Any]) -> str:
               "## Sequences", ""]
     for s in card["sequences"]:
         lines += [f"### {s['name']}", "", "```json", json.dumps(s, indent=2), "```", ""]
-    lines += ["## Files", "", "- `sequences/*.h5`: sequence files (read with `staticdepth inspect`)",
+    lines += ["## Files", "",
+              "- `sequences/*.h5`: sequence files (read with `staticdepth inspect`)",
               "- `kitti/<name>/`: KITTI-style export", f"- `{MANIFEST}`: SHA-256 of every file; "
               "check with `staticdepth verify <this folder>`", "", "## Citation", "",
               card["citation"] or "(none given)", ""]

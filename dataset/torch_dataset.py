@@ -33,7 +33,8 @@ class SequenceDataset(Dataset):
             self.indices = list(r.split(split))
             missing = [s for s in streams if not r.has(s)]
             if missing:
-                raise InputError(f"sequence has no stream(s) {missing} (has {r.streams()})", self.path)
+                raise InputError(f"sequence has no stream(s) {missing} (has {r.streams()})",
+                                 self.path)
             self.camera = r.camera
             self.adapt_frames = r.meta.adapt_frames
             self.camera_height_m = r.meta.camera_height_m

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 import os
+from dataclasses import dataclass
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -27,16 +29,21 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("stereo", help="depth from stereo pairs (SGBM or an ONNX network)",
-                       description="Rectify, match and triangulate a recorded stereo sequence into a "
-                                   "sequence file, or match one rectified pair (--rectified).")
-    p.add_argument("--rig", help="rig JSON (from calibrate or an import)")
-    p.add_argument("--left", required=True, help="left frames: folder, glob, video or one image")
-    p.add_argument("--right", required=True, help="right frames: folder, glob, video or one image")
+                       description="Rectify, match and triangulate a recorded stereo sequence "
+                                   "into a sequence file, or match one rectified pair "
+                                   "(--rectified).")
+    p.add_argument("--rig", help="rig JSON (from calibrate or an import; default for --recording: "
+                                 "the recording's own)")
+    p.add_argument("--left", help="left frames: folder, glob, video or one image")
+    p.add_argument("--right", help="right frames: folder, glob, video or one image")
+    p.add_argument("--recording", help="a recorded sequence instead of --left/--right: a "
+                                       "`staticdepth capture` folder or DIR/left, DIR/right")
     p.add_argument("--out", help="sequence file to write (.h5); resumes a killed run")
     p.add_argument("--name", help="sequence name (default: the output's stem)")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--rectified", action="store_true", help="one already rectified pair, no rig")
-    p.add_argument("--max-disparity", type=int, help="disparity range (rounded up to 16)")
+    p.add_argument("--max-disparity", type=int, help="disparity range in px, rounded up to 16 "
+                                                     "(sequences: default from --min-depth)")
     p.add_argument("--disparity-out", help="left disparity file (.pfm, .png x256 or .npy)")
     p.add_argument("--ply", help="point cloud of the first frame (PLY)")
     p.add_argument("--matcher", default="sgbm", help="sgbm (default) or onnx")
@@ -123,9 +130,13 @@ def _config(args, **extra):
 
 
 def cmd_stereo(args: argparse.Namespace) -> int:
+    if args.recording and (args.left or args.right or args.rectified):
+        raise InputError("give either --recording or --left/--right, not both")
+    if not args.recording and not (args.left and args.right):
+        raise InputError("stereo needs --left and --right (or --recording DIR)")
     if args.rectified:
         return _stereo_pair(args)
-    if not args.rig or not args.out:
+    if not (args.rig or args.recording) or not args.out:
         raise InputError("stereo needs --rig and --out (or --rectified for one rectified pair)")
     return _stereo_sequence(args)
 
@@ -145,10 +156,9 @@ def _stereo_pair(args) -> int:
                          f"{right.shape[1]}x{right.shape[0]}", args.right)
     check_rectified(left, right, source=args.left)
     h, w = left.shape[:2]
-    rig = (StereoRig.load(args.rig) if args.rig else
-           StereoRig.rectified(Camera.from_intrinsics(1.0, 1.0, (w - 1) / 2, (h - 1) / 2, w, h), 1.0))
-    n = int(16 * np.ceil(args.max_disparity / 16))
-    pipe = StereoPipeline(rig, _config(args, num_disparities=n))
+    unit = Camera.from_intrinsics(1.0, 1.0, (w - 1) / 2, (h - 1) / 2, w, h)
+    rig = StereoRig.load(args.rig) if args.rig else StereoRig.rectified(unit, 1.0)
+    pipe = StereoPipeline(rig, _config(args, num_disparities=_num_disparities(args.max_disparity)))
     res = pipe.process(left, right)
     write_disparity(args.disparity_out, res.disparity)
     if args.ply and args.rig:
@@ -158,54 +168,112 @@ def _stereo_pair(args) -> int:
     return 0
 
 
-def _frames(spec: str):
-    """(count, iterator factory(start)) for a folder/glob of images or a video."""
+def _num_disparities(max_disparity: int) -> int:
+    if max_disparity <= 0:
+        raise InputError(f"--max-disparity must be positive, got {max_disparity}")
+    return int(16 * np.ceil(max_disparity / 16))
+
+
+@dataclass
+class _Frames:
+    """The input pairs of a sequence: count, reader from a frame on, names, timestamps, rig."""
+
+    count: int
+    pairs: Callable[[int], Iterator[tuple[np.ndarray, np.ndarray]]]
+    first: str                          # the first left frame's name (for errors)
+    left_files: list[str] | None = None
+    right_files: list[str] | None = None
+    timestamps: list[float] | None = None
+    rig: StereoRig | None = None        # a recording's own rig
+
+
+def _stream(spec: str):
+    """(count, iterator factory(start), files or None) for a folder/glob of images or a video."""
     from staticdepth.stereo.io import expand_images, is_video, iter_video, read_rgb, \
         video_frame_count
 
     if is_video(spec):
-        return video_frame_count(spec), lambda start: iter_video(spec, start), spec
+        return video_frame_count(spec), lambda start: iter_video(spec, start), None
     files = expand_images(spec)
-    return len(files), lambda start: (read_rgb(f) for f in files[start:]), files[0]
+    return len(files), lambda start: (read_rgb(f) for f in files[start:]), files
+
+
+def _sequence_input(args) -> _Frames:
+    from staticdepth.stereo.io import read_rgb
+
+    if args.recording:
+        from staticdepth.dataset.pack import recording_tasks
+
+        tasks, _, rig = recording_tasks(args.recording)
+        if not tasks:
+            raise InputError("the recording has no complete frame", args.recording)
+        times = [t.timestamp for t in tasks]
+        return _Frames(len(tasks),
+                       lambda start: ((read_rgb(t.left), read_rgb(t.right)) for t in tasks[start:]),
+                       tasks[0].left, [t.left for t in tasks], [t.right for t in tasks],
+                       None if None in times else times, rig)
+    n_left, left_iter, left_files = _stream(args.left)
+    n_right, right_iter, right_files = _stream(args.right)
+    if n_left != n_right:
+        raise InputError(f"{n_left} left frames but {n_right} right frames", args.right)
+    return _Frames(n_left, lambda start: zip(left_iter(start), right_iter(start)),
+                   left_files[0] if left_files else args.left, left_files, right_files)
 
 
 def _stereo_sequence(args) -> int:
     from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
     from staticdepth.progress import progress
-    from staticdepth.stereo.io import write_ply
+    from staticdepth.stereo.io import check_image_headers, write_ply
     from staticdepth.stereo.pipeline import StereoPipeline
     from staticdepth.stereo.rectify import check_rectified
 
-    rig = StereoRig.load(args.rig)
-    n_left, left_iter, left_src = _frames(args.left)
-    n_right, right_iter, _ = _frames(args.right)
-    if n_left != n_right:
-        raise InputError(f"{n_left} left frames but {n_right} right frames", args.right)
-    pipe = StereoPipeline(rig, _config(args))
-    first_l, first_r = next(left_iter(0)), next(right_iter(0))
-    pipe.check_frame(first_l, first_r, left_src)
+    frames = _sequence_input(args)
+    if args.rig:
+        rig = StereoRig.load(args.rig)
+    elif frames.rig is not None:
+        rig = frames.rig
+    else:
+        raise InputError("the recording has no rig: pass --rig rig.json", args.recording)
+    rig_name = args.rig or f"{args.recording} (its rig)"
+    extra = {}
+    if args.max_disparity:
+        extra["num_disparities"] = _num_disparities(args.max_disparity)
+    pipe = StereoPipeline(rig, _config(args, **extra))
+    # Every check before any work: sizes and readability of every file's header, the first pair
+    # in full, and that the rig really rectifies it.
+    for files in (frames.left_files, frames.right_files):
+        if files:
+            check_image_headers(files, rig.left.size)
+    first_l, first_r = next(frames.pairs(0))
+    pipe.check_frame(first_l, first_r, frames.first)
     rl, rr = pipe.rectifier.rectify(first_l, first_r)
-    check_rectified(rl, rr, source=f"{args.rig} (after rectifying {left_src})")
+    check_rectified(rl, rr, source=f"{rig_name} (after rectifying {frames.first})")
     name = args.name or os.path.splitext(os.path.basename(args.out))[0]
-    meta = SequenceMeta(name=name, camera=pipe.camera, gt_kind="stereo",
-                        source=f"stereo {args.left} {args.right}", rig=rig,
-                        mounting=_rectified_mounting(rig), provenance=pipe.provenance())
+    source = (f"stereo recording {args.recording}" if args.recording
+              else f"stereo {args.left} {args.right}")
+    meta = SequenceMeta(name=name, camera=pipe.camera, gt_kind="stereo", source=source,
+                        rig=StereoRig.rectified(pipe.camera, pipe.baseline_m),
+                        mounting=_rectified_mounting(rig),
+                        provenance={**pipe.provenance(), "input_rig": rig.to_dict()})
     writer = SequenceWriter(args.out, meta, streams=("left", "right", "depth"), resume=True,
                             overwrite=args.overwrite)
     start = len(writer)
     try:
-        pairs = zip(left_iter(start), right_iter(start))
-        for i, (L, R) in enumerate(progress(pairs, total=n_left - start, desc="stereo"), start):
-            pipe.check_frame(L, R, f"frame {i}")
+        pairs = frames.pairs(start)
+        for i, (L, R) in enumerate(progress(pairs, total=frames.count - start, desc="stereo"),
+                                   start):
+            name_i = frames.left_files[i] if frames.left_files else f"frame {i} of {args.left}"
+            pipe.check_frame(L, R, name_i)
             res = pipe.process(L, R)
-            writer.append(left=res.left_rect, right=res.right_rect, depth=res.depth)
+            ts = None if frames.timestamps is None else frames.timestamps[i]
+            writer.append(left=res.left_rect, right=res.right_rect, depth=res.depth, timestamp=ts)
             if i == 0 and args.ply:
                 write_ply(args.ply, pipe.points(res), res.left_rect)
     except BaseException:
         writer.abort()
         raise
     out = writer.close()
-    print(f"{n_left} frames ({start} resumed) -> {out}")
+    print(f"{frames.count} frames ({start} resumed) -> {out}")
     return 0
 
 

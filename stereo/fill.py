@@ -11,7 +11,7 @@ from scipy import ndimage
 
 def trim_foreground_edges(disparity: np.ndarray, radius_px: int, jump_px: float = 2.0,
                           copy: bool = True) -> np.ndarray:
-    """Invalidate pixels within ``radius_px`` (along the row) of a neighbour ``jump_px`` farther away.
+    """Invalidate pixels within ``radius_px`` (along the row) of a neighbour ``jump_px`` farther.
 
     Block matching and SGM smear the foreground's disparity over the background beside it
     ("foreground fattening"); those wrong pixels carry the foreground's disparity and sit next to
@@ -62,7 +62,8 @@ def fill_from_background(disparity: np.ndarray, median_rows: int = 21) -> np.nda
     row (holes in rectified stereo are occlusions beside a foreground object, so the farther side
     is the right guess); then the filled pixels (only those) are replaced by the median over
     ``median_rows`` rows of the filled map, which removes streaks copied from a single wrong
-    neighbour. Rows without any valid pixel take the nearest filled row (the one below on a tie); an all-invalid map is 0.
+    neighbour. Rows without any valid pixel take the nearest filled row (the one below on a tie);
+    an all-invalid map is 0.
     Returns float32 (H, W) without NaN.
     """
     d = np.asarray(disparity, dtype=np.float32)

@@ -74,7 +74,7 @@ def create_matcher(name: str, *, num_disparities: int, image_size: tuple[int, in
 
 
 def num_disparities_for(focal_px: float, baseline_m: float, min_depth_m: float) -> int:
-    """Disparity search range for objects as near as ``min_depth_m``: f B / Z_min rounded up to 16."""
+    """Disparity range for objects as near as ``min_depth_m``: f B / Z_min rounded up to 16."""
     if not min_depth_m > 0:
         raise InputError(f"minimum depth must be positive, got {min_depth_m}")
     d_max = focal_px * baseline_m / min_depth_m

@@ -2,7 +2,7 @@
 
 >>> pipe = StereoPipeline(rig, StereoConfig(matcher="sgbm", max_depth_m=80.0))
 >>> res = pipe.process(left_rgb, right_rgb)       # raw (unrectified) RGB uint8 pair
->>> res.depth                                     # float32 metres, NaN = invalid, pipe.camera's frame
+>>> res.depth                   # float32 metres, NaN = invalid, in pipe.camera's frame
 
 The pipeline is a pure function of (images, rig, config): it holds no per-frame state and pickles
 as (rig, config), so worker processes can rebuild it.
@@ -130,7 +130,8 @@ class StereoPipeline:
         out = self.matcher.match(left_rect, right_rect)
         disparity = out.disparity
         if self.config.fill:
-            disparity = fill_from_background(disparity, median_rows=_median_rows(disparity.shape[0]))
+            disparity = fill_from_background(disparity,
+                                             median_rows=_median_rows(disparity.shape[0]))
         depth = depth_from_disparity(disparity, self.camera.fx, self.baseline_m,
                                      self.config.max_depth_m)
         return StereoResult(disparity.astype(np.float32, copy=False), depth, out.valid,

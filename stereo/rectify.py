@@ -1,4 +1,4 @@
-"""Rectification: the maps of a calibrated rig, applied per frame, and a check that a pair is rectified.
+"""Rectification: a calibrated rig's maps, applied per frame, and a check that a pair is rectified.
 
 A rig that is already rectified (identity rotation, pure x baseline, equal undistorted cameras)
 needs no maps. Otherwise the rig's stored ``stereoRectify`` outputs are used (or computed here with

@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 
 
-def disparity_scores(pred: np.ndarray, gt: np.ndarray, thresholds_px=(1.0, 2.0)) -> dict[str, float]:
+def disparity_scores(pred: np.ndarray, gt: np.ndarray, thresholds_px=(1.0, 2.0)
+                     ) -> dict[str, float]:
     """Scores of ``pred`` against ``gt`` (both (H, W) px, NaN = invalid/unknown), in percent.
 
     - ``density``: predicted share of the ground-truth pixels;

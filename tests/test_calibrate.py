@@ -108,3 +108,17 @@ def test_bad_input(shared_data, tmp_path):
     bad.write_bytes(b"not an image")
     with pytest.raises(InputError, match="unreadable"):
         calibrate_stereo([str(bad)], [str(bad)], Board())
+
+
+def test_charuco_corners_land_on_the_board_geometry():
+    """ChArUco through OpenCV 5's object API: every inner corner found, at its drawn position."""
+    board = Board("charuco", 7, 5, 0.04, dictionary="DICT_4X4_50")
+    px, margin = 60, 30                      # pixels per square, white margin
+    img = board.charuco().generateImage((7 * px + 2 * margin, 5 * px + 2 * margin),
+                                        marginSize=margin, borderBits=1)
+    img = cv2.GaussianBlur(img, (3, 3), 0.8)
+    ids, uv = detect_corners(board, np.repeat(img[..., None], 3, axis=2))
+    assert sorted(ids.tolist()) == list(range(6 * 4)) and uv.shape == (24, 2)
+    # a corner between pixels k-1 and k sits at k - 0.5 (pixel centres at integers)
+    expected = margin + board.object_points()[ids][:, :2] / 0.04 * px - 0.5
+    assert np.abs(uv - expected).max() < 0.5

@@ -155,3 +155,119 @@ def test_missing_depthai_says_how_to_install(monkeypatch):
     monkeypatch.setitem(sys.modules, "depthai", None)
     with pytest.raises(SourceError, match="pip install"):
         import_depthai()
+
+
+class _FakeDeviceDai:
+    """The real depthai module with the device boundary replaced: a fake ``Device`` (found by
+    ``getAllAvailableDevices``, holding a real ``CalibrationHandler``) and a pipeline whose
+    ``Camera`` nodes record how they were built and are fed by a host :class:`Player`; every other
+    node (``Sync``, queues) and the whole read path are depthai's own, on a host-only pipeline."""
+
+    def __init__(self, calib, n_frames):
+        outer = self
+        self.cameras, self.devices_opened = [], []
+
+        class Info:
+            def __init__(self, device_id, name):
+                self._id, self.name = device_id, name
+
+            def getDeviceId(self):
+                return self._id
+
+        class Device:
+            @staticmethod
+            def getAllAvailableDevices():
+                return [Info("14442C10", "1.1"), Info("18443010", "192.168.1.5")]
+
+            def __init__(self, info):
+                outer.devices_opened.append(info.getDeviceId())
+                self.info = info
+
+            def getDeviceId(self):
+                return self.info.getDeviceId()
+
+            def getProductName(self):
+                return "OAK-FFC-4P"
+
+            def getConnectedCameras(self):
+                return [dai.CameraBoardSocket.CAM_B, dai.CameraBoardSocket.CAM_C]
+
+            def readCalibration(self):
+                return calib
+
+            def close(self):
+                outer.closed = True
+
+        class Camera:
+            def __init__(self, pipeline):
+                self.pipeline, self.initialControl, self.args = pipeline, dai.CameraControl(), {}
+
+            def build(self, socket, sensorFps=None):
+                self.args.update(socket=socket, sensorFps=sensorFps)
+                return self
+
+            def requestOutput(self, size, type=None, fps=None, enableUndistortion=None):
+                self.args.update(size=size, type=type, fps=fps,
+                                 enableUndistortion=enableUndistortion)
+                if self.pipeline.player is None:
+                    self.pipeline.player = self.pipeline.real.create(Player)
+                    self.pipeline.player.n = n_frames
+                return self.pipeline.player.left if len(outer.cameras) == 1 \
+                    else self.pipeline.player.right
+
+        class Pipeline:
+            def __init__(self, device):
+                assert isinstance(device, Device)
+                self.real, self.player = dai.Pipeline(False), None
+
+            def create(self, kind):
+                if kind is dai.node.Camera:
+                    outer.cameras.append(Camera(self))
+                    return outer.cameras[-1]
+                return self.real.create(kind)
+
+            def __getattr__(self, name):
+                return getattr(self.real, name)
+
+        self.Device, self.Pipeline = Device, Pipeline
+
+    def __getattr__(self, name):
+        return getattr(dai, name)
+
+
+def test_device_path_up_to_the_device_boundary(tmp_path, monkeypatch):
+    """open() on a 'device': search by name, calibration export, camera settings, record."""
+    from staticdepth.capture.sources import depthai_source
+
+    calib, _, _ = _calibration(26.83, 27.0)
+    fake = _FakeDeviceDai(calib, n_frames=6)
+    monkeypatch.setattr(depthai_source, "import_depthai", lambda: fake)
+    conf = DepthAIConfig(width=24, height=16, fps=FPS, exposure_us=5000, iso=400,
+                         device="192.168.1.5", frame_timeout_s=0.5)
+    root, s = record(DepthAISource(conf), tmp_path / "rec")
+    assert fake.devices_opened == ["18443010"] and fake.closed
+    left, right = fake.cameras
+    assert left.args == {"socket": dai.CameraBoardSocket.CAM_B, "sensorFps": FPS, "size": (24, 16),
+                         "type": dai.ImgFrame.Type.GRAY8, "fps": FPS, "enableUndistortion": False}
+    assert right.args["socket"] == dai.CameraBoardSocket.CAM_C
+    for cam in (left, right):
+        assert cam.initialControl.getExposureTime() == datetime.timedelta(microseconds=5000)
+        assert cam.initialControl.getSensitivity() == 400
+    # the keyword names the fake accepted are the real API's
+    assert "sensorFps" in dai.node.Camera.build.__doc__
+    assert "enableUndistortion" in dai.node.Camera.requestOutput.__doc__
+    rec = layout.read_recording(root)
+    assert [f.sequence for f in rec.frames] == list(range(6))
+    assert np.array_equal(cv2.imread(str(rec.frames[3].left_path), cv2.IMREAD_UNCHANGED),
+                          _image(3, 0))
+    expected = rig_from_calibration(calib, "CAM_B", "CAM_C", 24, 16, dai)
+    assert rec.rig.baseline_m == pytest.approx(expected.baseline_m)
+    np.testing.assert_allclose(rec.rig.left.K, expected.left.K)
+    assert rec.manifest["source"]["device_id"] == "18443010"
+    assert rec.manifest["source"]["product"] == "OAK-FFC-4P"
+    # a named device that is not there: a clear error, quickly, and no folder
+    t0 = time.monotonic()
+    with pytest.raises(SourceError, match="DepthAI device 'nope' not found within 0.3 s"):
+        record(DepthAISource(DepthAIConfig(device="nope", search_timeout_s=0.3)),
+               tmp_path / "none")
+    assert time.monotonic() - t0 < 3.0 and not (tmp_path / "none").exists()

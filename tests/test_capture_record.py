@@ -269,11 +269,12 @@ def test_killed_recording_reads_back_to_its_last_complete_frame(tmp_path):
         assert sum(1 for _ in rs.frames()) == n
 
 
-def test_sigterm_closes_the_recording_cleanly(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "Ctrl-C"])
+def test_sigterm_and_ctrl_c_close_the_recording_cleanly(tmp_path, sig):
     out = tmp_path / "rec"
     proc = _start_capture(out)
     _wait_rows(out, 10, proc)
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=30)
     assert proc.returncode == 0, stderr
     rec = layout.read_recording(out)

@@ -10,7 +10,7 @@ import torch
 from staticdepth.cli import main
 from staticdepth.dataset import schema
 from staticdepth.dataset.export import export_kitti, kitti_png_from_depth
-from staticdepth.dataset.h5 import SequenceMeta, SequenceReader, SequenceWriter
+from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
 from staticdepth.dataset.kitti import KittiCalib, read_depth_png
 from staticdepth.dataset.torch_dataset import SequenceDataset
 from staticdepth.errors import InputError
@@ -122,3 +122,31 @@ def test_torch_dataset_reads_frames_lazily(tmp_path):
                         streams=("left", "right"))
     with pytest.raises(InputError, match="unknown split"):
         SequenceDataset(seq, split="train")
+
+
+def test_inspect_summary_and_thumbnail_sheet(tmp_path, capsys):
+    from staticdepth.dataset.inspect import colorize_depth
+
+    seq = tmp_path / "S.h5"
+    frames = make_sequence(seq, n=5, adapt=2)
+    sheet, js = tmp_path / "sheet.png", tmp_path / "s.json"
+    assert main(["inspect", str(seq), "--sheet", str(sheet), "--json", str(js)]) == 0
+    text = capsys.readouterr().out
+    assert "frames           5" in text and str(sheet) in text
+    info = json.loads(js.read_text())
+    assert info["frames"] == 5 and info["splits"] == {"adapt": 2, "eval": 3}
+    assert info["gt_density"] == pytest.approx(
+        np.mean([np.isfinite(f["depth"]).mean() for f in frames]), abs=1e-4)
+    assert info["depth_range_m"] == pytest.approx(
+        [min(np.nanmin(f["depth"]) for f in frames), max(np.nanmax(f["depth"]) for f in frames)],
+        abs=1e-3)
+    assert info["baseline_m"] == 0.27 and info["pitch_deg"] == pytest.approx(30.0)
+    img = cv2.imread(str(sheet))[..., ::-1]
+    assert img.shape == (2 * 120, 5 * 240, 3)     # image over depth, one column per frame
+    np.testing.assert_array_equal(
+        img[:120, 240:480], cv2.resize(frames[1]["left"], (240, 120), interpolation=cv2.INTER_AREA))
+    np.testing.assert_array_equal(
+        img[120:, :240], cv2.resize(colorize_depth(frames[0]["depth"]), (240, 120),
+                                    interpolation=cv2.INTER_NEAREST))
+    assert main(["inspect", str(tmp_path / "none.h5")]) == 2
+    assert "none.h5: file not found" in capsys.readouterr().err

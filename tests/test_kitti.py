@@ -41,7 +41,7 @@ def _copy_tree(src_root, dst_root, drives=(DRIVE,)):
 
 
 def _independent_depth(scan, calib_cam, calib_velo, w, h):
-    """Step by step, point by point: velo -> cam0 -> rectified cam0 -> image 2, nearest per pixel."""
+    """Point by point: velo -> cam0 -> rectified cam0 -> image 2, the nearest per pixel."""
     R = calib_velo["R"].reshape(3, 3)
     T = calib_velo["T"]
     R0 = calib_cam["R_rect_00"].reshape(3, 3)

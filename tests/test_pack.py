@@ -1,6 +1,4 @@
 """Packing stereo recordings: stored depth equals the stereo pipeline's, executors agree, resume."""
-import json
-import os
 
 import cv2
 import numpy as np
@@ -200,3 +198,21 @@ def test_pack_bad_input(plain_recording, tmp_path, capsys):
                        overrides={"num_disparities": 32})
     with pytest.raises(InputError, match="recording folder not found"):
         pack_recording(tmp_path / "none", rec / "rig.json", tmp_path / "x.h5")
+
+
+def test_mounting_of_a_calibrated_rig_is_kept_in_the_rectified_frame(plain_recording, tmp_path):
+    """``mount`` stores the ground normal in the rectified left frame: pack must not rotate it."""
+    from staticdepth.geometry.camera import Mounting, normal_from_pitch_roll
+
+    rec, scene, _ = plain_recording
+    cam = scene.rig.left
+    n = normal_from_pitch_roll(30.0, 2.0)
+    rig = StereoRig(cam, cam, cv2.Rodrigues(np.array([0.0, 0.02, 0.01]))[0], [-0.27, 0, 0],
+                    mounting=Mounting(4.5, n))
+    assert not rig.is_rectified()
+    rig.save(tmp_path / "rig.json")
+    pack_recording(rec, tmp_path / "rig.json", tmp_path / "M.h5", camera_height_m=5.0,
+                   overrides={"num_disparities": "32"})
+    with SequenceReader(tmp_path / "M.h5") as r:
+        np.testing.assert_allclose(r.meta.mounting.normal, n, atol=1e-12)
+        assert r.meta.camera_height_m == 5.0

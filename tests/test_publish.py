@@ -31,13 +31,15 @@ def test_release_contents_and_card(release, capsys):
     card = json.loads((out / "dataset_card.json").read_text())
     assert card["licence"] == "CC-BY-4.0" and card["citation"] == "Doe et al., 2025"
     a, b = card["sequences"]
-    assert a["name"] == "A" and a["frames"] == 4 and a["splits"] == {"adapt": [0, 1], "eval": [1, 4]}
+    assert a["name"] == "A" and a["frames"] == 4
+    assert a["splits"] == {"adapt": [0, 1], "eval": [1, 4]}
     assert a["rig"]["baseline_m"] == pytest.approx(0.27) and a["camera_height_m"] == 5.0
     assert a["ground_truth"]["matcher"] == "sgbm" and b["rig"] is None
     dens = np.mean([np.isfinite(f["depth"]).mean() for f in frames])
     assert a["statistics"]["density_mean"] == pytest.approx(dens)
-    assert a["statistics"]["depth_min_m"] == pytest.approx(min(np.nanmin(f["depth"]) for f in frames))
-    assert a["statistics"]["depth_max_m"] == pytest.approx(max(np.nanmax(f["depth"]) for f in frames))
+    stats = a["statistics"]
+    assert stats["depth_min_m"] == pytest.approx(min(np.nanmin(f["depth"]) for f in frames))
+    assert stats["depth_max_m"] == pytest.approx(max(np.nanmax(f["depth"]) for f in frames))
     md = (out / "README.md").read_text()
     assert "CC-BY-4.0" in md and "| A | 4 | 64x32 | 1 / 3 |" in md and "Doe et al." in md
     # every file is in the manifest with its SHA-256

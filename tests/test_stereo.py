@@ -1,4 +1,4 @@
-"""Stereo pipeline: exact answers on a synthetic ground plane, file formats, fill, CLI, bad input."""
+"""Stereo pipeline: exact answers on a synthetic ground plane, formats, fill, CLI, bad input."""
 from __future__ import annotations
 
 import cv2
@@ -58,6 +58,24 @@ def test_ground_plane_depth_matches_truth():
     dense = StereoPipeline(rig, StereoConfig(min_depth_m=2.0, fill=True)).process(left, right)
     assert np.isfinite(dense.disparity).all()
 
+
+
+@pytest.mark.parametrize("border, absrel_max", [("half", 0.03), ("full", 0.015)])
+def test_left_border_is_matched(border, absrel_max):
+    """SGBM leaves the first num_disparities columns empty; both border modes fill them truly."""
+    left, right, depth = ground_pair()
+    rig = StereoRig.rectified(CAM, BASELINE)
+    res = StereoPipeline(rig, StereoConfig(min_depth_m=2.0, options={"border": border})).process(
+        left, right)
+    z, truth = res.depth[:, :64], depth[:, :64]        # 64 disparities at min_depth_m = 2
+    m = np.isfinite(z) & (truth < 20)
+    assert m.sum() > 0.7 * (truth < 20).sum()
+    assert np.mean(np.abs(z[m] - truth[m]) / truth[m]) < absrel_max
+    none = StereoPipeline(rig, StereoConfig(min_depth_m=2.0, options={"border": "none"}))
+    empty = none.process(left, right)
+    assert np.isnan(empty.disparity[:, :64]).all()
+    if border == "half":      # the interior comes from the same unpadded match (trim: 3 px)
+        assert np.array_equal(empty.disparity[:, 67:], res.disparity[:, 67:], equal_nan=True)
 
 def test_calibrated_rig_rectifies_and_triangulates():
     """A rig with a small rotation: rectify its raw views and recover the plane's depth."""
@@ -128,6 +146,9 @@ def test_matcher_and_config_errors():
     with pytest.raises(InputError, match="unknown sgbm preset"):
         create_matcher("sgbm", num_disparities=64, image_size=(400, 200),
                        options={"preset": "x"})
+    with pytest.raises(InputError, match="sgbm border"):
+        create_matcher("sgbm", num_disparities=64, image_size=(400, 200),
+                       options={"border": "left"})
     with pytest.raises(InputError, match="min_depth_m"):
         StereoConfig(min_depth_m=100.0)
     with pytest.raises(InputError, match="num_disparities"):
@@ -219,3 +240,115 @@ def test_cli_sequence_resume_and_errors(tmp_path, capsys):
     rc = main(["stereo", "--rig", str(rig), "--left", str(tmp_path / "L"), "--right",
                str(tmp_path / "R2"), "--out", str(tmp_path / "y.h5")])
     assert rc == 2 and "calibrated for 640x480" in capsys.readouterr().err
+
+
+def _sequence_args(tmp_path, out="seq.h5"):
+    return ["stereo", "--rig", str(tmp_path / "rig.json"), "--left", str(tmp_path / "L"),
+            "--right", str(tmp_path / "R"), "--out", str(tmp_path / out), "--min-depth", "2"]
+
+
+@pytest.fixture
+def three_pairs(tmp_path):
+    frames = [ground_pair(seed=s) for s in range(3)]
+    _write_frames(tmp_path / "L", [f[0] for f in frames])
+    _write_frames(tmp_path / "R", [f[1] for f in frames])
+    StereoRig.rectified(CAM, BASELINE).save(tmp_path / "rig.json")
+    return frames
+
+
+def test_cli_bad_files_are_refused_before_any_work(tmp_path, three_pairs, capsys):
+    bad = tmp_path / "R" / "0002.png"
+    good = bad.read_bytes()
+    bad.write_bytes(b"not an image")                    # unreadable: found by the header check
+    assert main(_sequence_args(tmp_path)) == 2
+    err = capsys.readouterr().err
+    assert "corrupt or unreadable image" in err and "0002.png" in err and err.count("\n") == 1
+    assert not (tmp_path / "seq.h5.partial").exists() and not (tmp_path / "seq.h5").exists()
+    cv2.imwrite(str(bad), np.zeros((200, 300, 3), np.uint8))   # another size than the rig's
+    assert main(_sequence_args(tmp_path)) == 2
+    err = capsys.readouterr().err
+    assert "0002.png" in err and "300x200" in err and "calibrated for 400x200" in err
+    # data truncated after a valid header: found when frame 2 is decoded; frames 0-1 are kept
+    bad.write_bytes(good[:len(good) // 2])
+    assert main(_sequence_args(tmp_path)) == 2
+    assert "0002.png" in capsys.readouterr().err
+    assert (tmp_path / "seq.h5.partial").exists()
+    bad.write_bytes(good)
+    assert main(_sequence_args(tmp_path)) == 0
+    assert "(2 resumed)" in capsys.readouterr().out
+
+
+def test_cli_unrectified_sequence_and_size_mismatch(tmp_path, three_pairs, capsys):
+    for f in (tmp_path / "R").iterdir():              # right view moved down by 12 rows
+        cv2.imwrite(str(f), np.roll(cv2.imread(str(f)), 12, axis=0))
+    assert main(_sequence_args(tmp_path)) == 2
+    err = capsys.readouterr().err
+    assert "not rectified" in err and "rig.json" in err
+    assert not (tmp_path / "seq.h5.partial").exists()
+    small = tmp_path / "small.png"
+    cv2.imwrite(str(small), np.zeros((100, 200, 3), np.uint8))
+    assert main(["stereo", "--rectified", "--left", str(tmp_path / "L" / "0000.png"), "--right",
+                 str(small), "--max-disparity", "64", "--disparity-out",
+                 str(tmp_path / "d.pfm")]) == 2
+    assert "left is 400x200 but right is 200x100" in capsys.readouterr().err
+
+
+def test_cli_stereo_on_a_capture_recording(tmp_path, capsys):
+    from staticdepth.capture.layout import read_recording
+    from staticdepth.capture.record import record
+    from staticdepth.capture.sources.synthetic import SyntheticSource
+    from staticdepth.dataset.h5 import SequenceReader
+
+    cam = Camera.from_intrinsics(100.0, 100.0, 79.5, 39.5, 160, 80)
+    rig = StereoRig.rectified(cam, 0.1)
+    root, _ = record(SyntheticSource(160, 80, fps=10, frames=3, disparity_px=16, seed=3),
+                     tmp_path / "cap", rig=rig)
+    out = tmp_path / "rec.h5"
+    args = ["stereo", "--recording", str(root), "--out", str(out), "--max-disparity", "20",
+            "--set", "border=none"]
+    assert main([*args[:3], "--left", "x", *args[3:]]) == 2
+    assert "not both" in capsys.readouterr().err
+    assert main(args) == 0                               # the recording's own rig
+    rec = read_recording(root)
+    with SequenceReader(out) as r:
+        assert len(r) == 3 and r.meta.gt_kind == "stereo"
+        np.testing.assert_allclose(r.timestamps(), [f.timestamp_s for f in rec.frames])
+        assert r.meta.provenance["input_rig"]["T"] == pytest.approx([-0.1, 0, 0])
+        left, right = SyntheticSource(160, 80, disparity_px=16, seed=3).make_pair(1)
+        grey3 = [np.repeat(a[..., None], 3, axis=2) for a in (left, right)]
+        conf = StereoConfig(num_disparities=32, options={"border": "none"})
+        ref = StereoPipeline(rig, conf).process(*grey3)
+        np.testing.assert_array_equal(r.depth(1), ref.depth)
+        d = ref.disparity[np.isfinite(ref.disparity)]
+        assert np.median(d) == pytest.approx(16, abs=0.5)   # the source's true disparity
+    (root / "manifest.json").write_text((root / "manifest.json").read_text()
+                                        .replace('"rig": {', '"rig_": {'))
+    assert main([*args[:3], "--out", str(tmp_path / "x.h5")]) == 2
+    assert "pass --rig" in capsys.readouterr().err
+
+
+def test_synthetic_scene_depth_matches_rendered_truth():
+    """Issue 3: on the generator's 800x400 scenes, stereo depth within 20 m has AbsRel < 0.05."""
+    from staticdepth.dataset.synth import SyntheticScene, preset
+
+    scene = SyntheticScene(preset("c1", seed=0))
+    fr = scene.render(10)
+    res = StereoPipeline(scene.rig, StereoConfig()).process(fr["left"], fr["right"])
+    near = np.isfinite(fr["depth"]) & (fr["depth"] < 20)
+    m = near & np.isfinite(res.depth)
+    assert m.sum() > 0.9 * near.sum()
+    assert np.mean(np.abs(res.depth[m] - fr["depth"][m]) / fr["depth"][m]) < 0.05
+
+
+def test_ply_holds_the_finite_points_and_colours(tmp_path):
+    from staticdepth.stereo.io import write_ply
+
+    P = np.array([[[0.5, -1.0, 2.0], [np.nan, 0, 1]], [[1.0, 2.0, 3.0], [4.0, 5.0, 6.5]]])
+    C = np.array([[[255, 0, 1], [9, 9, 9]], [[2, 3, 4], [5, 6, 7]]], np.uint8)
+    assert write_ply(tmp_path / "p.ply", P, C) == 3
+    raw = (tmp_path / "p.ply").read_bytes()
+    head, body = raw.split(b"end_header\n")
+    assert b"element vertex 3" in head and b"property uchar red" in head
+    rows = np.frombuffer(body, [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"),
+                                ("g", "u1"), ("b", "u1")])
+    assert rows["z"].tolist() == [2.0, 3.0, 6.5] and rows["r"].tolist() == [255, 2, 5]

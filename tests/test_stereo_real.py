@@ -16,7 +16,8 @@ from staticdepth.stereo.scores import disparity_scores
 
 PAIRS = {  # name: (left, right, ground truth, ground-truth scale)
     "aloe": ("opencv/aloe/aloeL.jpg", "opencv/aloe/aloeR.jpg", "opencv/aloe/aloeGT.png", 1.0),
-    "art": ("middlebury/Art/view1.png", "middlebury/Art/view5.png", "middlebury/Art/disp1.png", 3.0),
+    "art": ("middlebury/Art/view1.png", "middlebury/Art/view5.png", "middlebury/Art/disp1.png",
+            3.0),
     "midd1": ("middlebury/Midd1/view1.png", "middlebury/Midd1/view5.png",
               "middlebury/Midd1/disp1.png", 3.0),
 }

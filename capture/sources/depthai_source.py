@@ -7,8 +7,14 @@ The device's calibration is exported as the toolkit's :class:`StereoRig` (intrin
 output size, distortion, ``right_from_left`` extrinsics from calibration, not the board's spec
 translation), so a custom 27 cm bar is described by what was measured, not by its drawing.
 
-Without hardware the same sync-and-read path runs on a host-only pipeline (``dai.Pipeline(False)``)
-with a threaded host node playing frames (``host_outputs=``); see tests/test_capture_depthai.py.
+Testing status: this source has not been run on a real OAK device (none was available when it was
+written). What the tests cover without hardware (tests/test_capture_depthai.py, depthai 3.12):
+the sync-and-read path on a host-only pipeline (``dai.Pipeline(False)``) with a threaded host node
+playing frames (``host_outputs=``); ``open()``'s device branch against a stand-in for the device
+boundary (device search by id or name, ``readCalibration`` export, the ``Camera.build`` /
+``requestOutput`` / exposure settings, checked against depthai's own signatures); the calibration
+export from a real ``CalibrationHandler``; and the no-device error. Not covered: that a real device
+accepts those settings (sensor modes, the FPS/size combination) and its real timing.
 """
 from __future__ import annotations
 

@@ -58,8 +58,8 @@ class SyntheticSource(StereoSource):
         s = k % self.PAN_PERIOD
         d = self.disparity_px
         # A point at left column x appears at right column x - d (right camera to the right).
-        left = self._texture[:, s + d: s + d + self.width].copy()
-        right = self._texture[:, s: s + self.width].copy()
+        left = self._texture[:, s: s + self.width].copy()
+        right = self._texture[:, s + d: s + d + self.width].copy()
         stamp = np.frombuffer(int(k).to_bytes(8, "little"), dtype=np.uint8)
         for img in (left, right):
             img.reshape(-1)[:8] = stamp

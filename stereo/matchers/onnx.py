@@ -164,8 +164,8 @@ class OnnxMatcher:
         missing = [n for n in needed if n not in names]
         if missing:
             raise InputError(f"contract {self.contract.name!r} feeds the input(s) {missing} but "
-                             f"the model's inputs are {names} (choose another --contract or override "
-                             f"the names with --set)", path)
+                             f"the model's inputs are {names} (choose another --contract or "
+                             f"override the names with --set)", path)
         extra = [n for n in names if n not in needed]
         if extra:
             raise InputError(f"the model has input(s) {extra} that contract "
