@@ -23,6 +23,7 @@ COMMAND_MODULES = [
     "staticdepth.dataset.commands",  # pack, import-kitti, import-carla, export, publish
     "staticdepth.ground_plane",      # ground-plane
     "staticdepth.align",             # align
+    "staticdepth.adapt",             # adapt, train-builtin
     "staticdepth.baseline.cli",      # baseline train, baseline predict
     "staticdepth.evaluate",          # metrics, evaluate
     "staticdepth.report",            # report

@@ -1,0 +1,167 @@
+"""YOLOX (ONNX) boxes with masks from motion or GrabCut inside each box.
+
+Pre-processing as YOLOX's demo: letterbox to ``input_size`` (top-left aligned, scale r =
+min(S/H, S/W), pad 114), BGR 0-255 float32. Decoding: per anchor (cx, cy) = (raw + grid) x
+stride, (w, h) = exp(raw) x stride on the stride 8/16/32 grids; score = objectness x class
+probability (both already sigmoid in the export); class-wise NMS (``cv2.dnn.NMSBoxes``).
+Masks: the foreground (median background of the sequence) inside the box when it fills at least
+``min_fill`` of the box, else GrabCut initialised with the box (``mask="grabcut"`` always uses
+GrabCut, ``mask="box"`` the box itself).
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Iterable, Iterator, Sequence
+
+import cv2
+import numpy as np
+
+from staticdepth.dataset.schema import ACCESSORY_CLASSES, AGENT_CLASSES
+from staticdepth.detectors.base import Detector, rows_from_masks
+from staticdepth.detectors.motion import foreground_mask, median_background
+from staticdepth.errors import InputError
+
+STRIDES = (8, 16, 32)
+MASK_MODES = ("motion", "grabcut", "box")
+
+
+def letterbox(image_rgb: np.ndarray, size: int) -> tuple[np.ndarray, float]:
+    """(1, 3, S, S) float32 BGR 0-255 padded with 114, and the scale r applied to the image."""
+    h, w = image_rgb.shape[:2]
+    r = min(size / h, size / w)
+    nh, nw = int(h * r), int(w * r)
+    out = np.full((size, size, 3), 114, np.uint8)
+    out[:nh, :nw] = cv2.resize(np.ascontiguousarray(image_rgb[..., ::-1]), (nw, nh),
+                               interpolation=cv2.INTER_LINEAR)
+    return out.transpose(2, 0, 1)[None].astype(np.float32), r
+
+
+def decode(raw: np.ndarray, size: int, strides: Sequence[int] = STRIDES) -> np.ndarray:
+    """(A, 5 + C) raw head output -> (A, 5 + C) with boxes (cx, cy, w, h) in input pixels."""
+    grids, steps = [], []
+    for s in strides:
+        n = size // s
+        yv, xv = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+        grids.append(np.stack([xv, yv], -1).reshape(-1, 2))
+        steps.append(np.full((n * n, 1), s))
+    grid = np.concatenate(grids).astype(np.float32)
+    step = np.concatenate(steps).astype(np.float32)
+    if len(grid) != len(raw):
+        raise InputError(f"YOLOX output has {len(raw)} anchors; input {size} with strides "
+                         f"{tuple(strides)} gives {len(grid)}")
+    out = raw.astype(np.float32).copy()
+    out[:, :2] = (out[:, :2] + grid) * step
+    out[:, 2:4] = np.exp(out[:, 2:4]) * step
+    return out
+
+
+def boxes_from_output(decoded: np.ndarray, r: float, score_thr: float, nms_thr: float,
+                      classes: Iterable[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Boxes (N, 4) u0 v0 u1 v1 in image pixels, scores (N,), class ids (N,) after class-wise NMS."""
+    cls = decoded[:, 5:].argmax(1)
+    score = decoded[:, 4] * decoded[np.arange(len(decoded)), 5 + cls]
+    keep = (score >= score_thr) & np.isin(cls, list(classes))
+    d, cls, score = decoded[keep], cls[keep], score[keep]
+    xywh = np.stack([d[:, 0] - d[:, 2] / 2, d[:, 1] - d[:, 3] / 2, d[:, 2], d[:, 3]], 1) / r
+    boxes, scores, ids = [], [], []
+    for c in np.unique(cls):
+        sel = np.nonzero(cls == c)[0]
+        idx = cv2.dnn.NMSBoxes(xywh[sel].tolist(), score[sel].tolist(), score_thr, nms_thr)
+        for k in np.asarray(idx).reshape(-1):
+            x, y, w, h = xywh[sel[k]]
+            boxes.append((x, y, x + w, y + h))
+            scores.append(score[sel[k]])
+            ids.append(c)
+    order = np.argsort(-np.asarray(scores)) if scores else np.zeros(0, int)
+    return (np.asarray(boxes, np.float32).reshape(-1, 4)[order],
+            np.asarray(scores, np.float32)[order], np.asarray(ids, int)[order])
+
+
+def grabcut_mask(image_rgb: np.ndarray, box: Sequence[float], iters: int = 3,
+                 margin: int = 16) -> np.ndarray:
+    """GrabCut initialised with the box, run on a crop of the box plus ``margin`` pixels."""
+    h, w = image_rgb.shape[:2]
+    u0, v0 = max(int(box[0]), 0), max(int(box[1]), 0)
+    u1, v1 = min(int(np.ceil(box[2])), w - 1), min(int(np.ceil(box[3])), h - 1)
+    out = np.zeros((h, w), bool)
+    if u1 - u0 < 3 or v1 - v0 < 3:
+        out[v0:v1 + 1, u0:u1 + 1] = True
+        return out
+    cu0, cv0 = max(u0 - margin, 0), max(v0 - margin, 0)
+    cu1, cv1 = min(u1 + margin, w - 1), min(v1 + margin, h - 1)
+    crop = np.ascontiguousarray(image_rgb[cv0:cv1 + 1, cu0:cu1 + 1, ::-1])
+    m = np.zeros(crop.shape[:2], np.uint8)
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    try:
+        cv2.grabCut(crop, m, (u0 - cu0, v0 - cv0, u1 - u0, v1 - v0), bgd, fgd, iters,
+                    cv2.GC_INIT_WITH_RECT)
+        out[cv0:cv1 + 1, cu0:cu1 + 1] = (m == cv2.GC_FGD) | (m == cv2.GC_PR_FGD)
+    except cv2.error:
+        out[v0:v1 + 1, u0:u1 + 1] = True
+    return out
+
+
+@dataclass
+class YoloxDetector(Detector):
+    model: str = ""
+    input_size: int = 416
+    score_thr: float = 0.35
+    nms_thr: float = 0.45
+    mask: str = "motion"
+    min_fill: float = 0.15
+    classes: frozenset = field(default_factory=lambda: AGENT_CLASSES | ACCESSORY_CLASSES)
+    name: str = "yolox"
+
+    def __post_init__(self):
+        import onnxruntime as ort
+
+        if self.mask not in MASK_MODES:
+            raise InputError(f"yolox mask mode must be one of {MASK_MODES}, got {self.mask!r}")
+        if not self.model or not os.path.isfile(self.model):
+            raise InputError("YOLOX ONNX model not found (give --set detector.model=PATH.onnx, "
+                             "e.g. yolox_nano.onnx)", self.model or None)
+        try:
+            self.session = ort.InferenceSession(self.model, providers=["CPUExecutionProvider"])
+        except Exception as e:
+            raise InputError(f"onnxruntime cannot load it ({type(e).__name__})", self.model) from None
+        self.input_name = self.session.get_inputs()[0].name
+
+    def boxes(self, image_rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        x, r = letterbox(image_rgb, self.input_size)
+        raw = self.session.run(None, {self.input_name: x})[0]
+        raw = raw[0] if raw.ndim == 3 else raw
+        return boxes_from_output(decode(raw, self.input_size), r, self.score_thr, self.nms_thr,
+                                 self.classes)
+
+    def masks(self, image_rgb, boxes, fg: np.ndarray | None) -> list[np.ndarray]:
+        h, w = image_rgb.shape[:2]
+        out = []
+        for b in boxes:
+            u0, v0 = max(int(np.floor(b[0])), 0), max(int(np.floor(b[1])), 0)
+            u1, v1 = min(int(np.ceil(b[2])), w - 1), min(int(np.ceil(b[3])), h - 1)
+            inside = np.zeros((h, w), bool)
+            inside[v0:v1 + 1, u0:u1 + 1] = True
+            if self.mask == "box":
+                out.append(inside)
+                continue
+            if self.mask == "motion" and fg is not None:
+                m = fg & inside
+                if m.sum() >= self.min_fill * inside.sum():
+                    out.append(m)
+                    continue
+            out.append(grabcut_mask(image_rgb, b) & inside)
+        return out
+
+    def detect_sequence(self, images: Iterable[np.ndarray]
+                        ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        frames = images if isinstance(images, Sequence) else list(images)
+        bg = median_background(frames) if self.mask == "motion" and len(frames) >= 5 else None
+        for i, im in enumerate(frames):
+            boxes, scores, cls = self.boxes(im)
+            fg = None if bg is None else foreground_mask(im, bg)
+            masks = self.masks(im, boxes, fg)
+            # paint far (high) agents first so that nearer ones, lower in the image, win overlaps
+            order = np.argsort(boxes[:, 3]) if len(boxes) else np.zeros(0, int)
+            yield rows_from_masks(i, [masks[k] for k in order], cls[order], scores[order],
+                                  im.shape[:2])

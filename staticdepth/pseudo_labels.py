@@ -1,0 +1,81 @@
+"""Pseudo labels from a network's own prediction and agent masks (METHOD.md section 1).
+
+Each agent's label is the prediction at its ground contact, copied over its whole mask, in the
+network's native inverse-depth space (so labels share its per-image scale and shift). The contact
+is the lowest mask pixel (largest v; ties: the median column of that row), or with
+``contact="bottom_rows"`` the median over the mask's bottom rows. Riders take their vehicle's
+value, bags and umbrellas the nearest person's (:mod:`staticdepth.detectors.grouping`). Every other
+pixel keeps the prediction.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from staticdepth.dataset.schema import ACCESSORY_CLASSES, AGENT_CLASSES
+from staticdepth.detectors.grouping import label_sources
+from staticdepth.errors import InputError
+
+CONTACTS = ("lowest", "bottom_rows")
+
+
+@dataclass(frozen=True)
+class PseudoLabelConfig:
+    contact: str = "lowest"            # "lowest" pixel, or median over "bottom_rows"
+    bottom_rows: int = 4               # rows used by "bottom_rows" (METHOD.md: 3-5)
+    accessory_reach: float = 0.5       # bag-to-person distance limit, x the person's pixel height
+    classes: frozenset = field(default_factory=lambda: AGENT_CLASSES | ACCESSORY_CLASSES)
+
+    def __post_init__(self):
+        if self.contact not in CONTACTS:
+            raise InputError(f"pseudo-label contact must be one of {CONTACTS}, got {self.contact!r}")
+        if not 1 <= self.bottom_rows <= 50:
+            raise InputError(f"bottom_rows must be in 1..50, got {self.bottom_rows}")
+
+
+
+PRESETS = {"paper": PseudoLabelConfig(), "robust": PseudoLabelConfig(contact="bottom_rows")}
+
+
+def contact_value(inv_depth: np.ndarray, mask: np.ndarray, conf: PseudoLabelConfig = PRESETS["paper"]
+                  ) -> float:
+    """The prediction at the mask's ground contact (NaN for an empty mask)."""
+    vs, us = np.nonzero(mask)
+    if len(vs) == 0:
+        return float("nan")
+    v_low = vs.max()
+    if conf.contact == "lowest":
+        row_us = np.sort(us[vs == v_low])
+        return float(inv_depth[v_low, row_us[(len(row_us) - 1) // 2]])
+    sel = vs > v_low - conf.bottom_rows
+    return float(np.median(inv_depth[vs[sel], us[sel]]))
+
+
+def pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.ndarray,
+                 conf: PseudoLabelConfig = PRESETS["paper"]) -> tuple[np.ndarray, np.ndarray]:
+    """Label one frame.
+
+    Args:
+        inv_depth: (H, W) the network's relative inverse depth for this frame.
+        instances: (H, W) uint16 instance map (0 = background).
+        agents: this frame's AGENT_DTYPE rows (``instance_id``, ``class_id``).
+    Returns:
+        label (H, W) float32 and the boolean mask of relabelled (agent) pixels.
+    """
+    inv_depth = np.asarray(inv_depth, dtype=np.float32)
+    if inv_depth.shape != np.shape(instances):
+        raise InputError(f"prediction {inv_depth.shape} and instance map {np.shape(instances)} "
+                         "differ in size")
+    rows = agents[np.isin(agents["class_id"], list(conf.classes))]
+    sources = label_sources(instances, rows, accessory_reach=conf.accessory_reach)
+    label = inv_depth.copy()
+    agent_mask = np.zeros(inv_depth.shape, bool)
+    values: dict[int, float] = {}
+    for iid, src in sources.items():
+        if src not in values:
+            values[src] = contact_value(inv_depth, instances == src, conf)
+        m = instances == iid
+        label[m] = values[src]
+        agent_mask |= m
+    return label, agent_mask

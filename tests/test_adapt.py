@@ -1,0 +1,139 @@
+"""The adapt stage and command: outputs, summary, reproducibility, recipes, errors (tiny model)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from staticdepth.adapt import AdaptConfig, adapt, recipe_settings
+from staticdepth.cli import main
+from staticdepth.dataset.h5 import SequenceReader
+from staticdepth.dataset.synth_io import render_to_file
+from staticdepth.errors import InputError
+from staticdepth.models.tiny import TinyDepthNet, builtin_model, save_builtin
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning", "ignore::torch.jit.TracerWarning")
+
+SMALL = dict(enc_channels=(4, 8, 8, 16, 16), dec_channels=(16, 8, 8, 4))
+OUTPUTS = {"base", "ft", "align", "ft-align", "align-metric", "ft-align-metric"}
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory):
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp("model") / "tiny.pt"
+    save_builtin(path, builtin_model(TinyDepthNet(**SMALL), input_height=128, input_width=256))
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    path = tmp_path_factory.mktemp("seq") / "c1.h5"
+    render_to_file(path, preset_name="c1", n_frames=24, adapt_frames=16, seed=1,
+                   overrides={"width": 256, "height": 128})
+    return str(path)
+
+
+def _copy(src, dst):
+    dst.write_bytes(open(src, "rb").read())
+    return str(dst)
+
+
+def test_adapt_writes_every_stage_and_is_reproducible(tmp_path, sequence, tiny_model):
+    conf = AdaptConfig(model=f"builtin:{tiny_model}", detector="gt", epochs=1, lr=1e-3,
+                       min_height_px=8)
+    a, b = _copy(sequence, tmp_path / "a.h5"), _copy(sequence, tmp_path / "b.h5")
+    s = adapt(a, conf, log=lambda m: None)
+    adapt(b, conf, log=lambda m: None, summary_path=str(tmp_path / "b.json"))
+    with SequenceReader(a) as ra, SequenceReader(b) as rb:
+        assert set(ra.predictions()) == OUTPUTS
+        for name in OUTPUTS:
+            for i in (0, 20):
+                np.testing.assert_array_equal(ra.prediction(name, i), rb.prediction(name, i))
+        base = ra.prediction("base", 3)
+        assert base.dtype == np.float32 and base.shape == (128, 256) and np.all(base > 0)
+        # metric = relative aligned x one temporal anchor scale
+        ratio = ra.prediction("ft-align-metric", 5) / ra.prediction("ft-align", 5)
+        np.testing.assert_allclose(ratio[np.isfinite(ratio)], 5.4, rtol=1e-5)   # x H_c
+        assert s["scale"]["ft-align"] == pytest.approx(5.4) and s["anchor_scale"]["ft-align"] > 0
+        assert ra.prediction_attrs("ft")["config_hash"] == s["config_hash"]
+        assert not np.array_equal(ra.prediction("ft", 3), base)       # fine-tuning changed it
+    saved = json.load(open(s["summary_path"]))
+    assert saved["camera_height_m"] == pytest.approx(5.4)              # the sequence's height
+    assert saved["camera_height_source"] == "sequence"
+    assert len(saved["finetune"]) == 1 and saved["finetune"][0]["seconds"] > 0
+    assert set(saved["timings_s"]) >= {"base", "agents", "finetune", "align", "scale"}
+    # the plane's accuracy is tested with staticdepth.geometry.agent_plane; here: it is stored
+    assert np.linalg.norm(saved["plane"]["normal"]) == pytest.approx(1.0)
+    assert 0 < saved["plane"]["pitch_deg"] < 89
+    assert not list(tmp_path.glob("*.ckpt"))
+
+
+def test_adapt_command_with_recipe_and_overrides(tmp_path, sequence, tiny_model):
+    seq = _copy(sequence, tmp_path / "r.h5")
+    recipe = tmp_path / "r.yaml"
+    recipe.write_text(f"name: R\ncamera_height_m: 6.0\nstages:\n  adapt:\n"
+                      f"    sequence: {seq}\n    model: builtin:{tiny_model}\n"
+                      f"    detector: gt\n    epochs: 3\n    min_height_px: 8\n")
+    summary = tmp_path / "r.json"
+    rc = main(["adapt", "--recipe", str(recipe), "--epochs", "0", "--set", "erode_px=4",
+               "--summary", str(summary), "--device", "cpu"])
+    assert rc == 0
+    s = json.load(open(summary))
+    assert s["config"]["epochs"] == 0 and s["config"]["erode_px"] == 4.0      # flag, --set win
+    assert s["camera_height_m"] == 6.0 and s["camera_height_source"] == "given"
+    assert s["finetune"] == []
+    with SequenceReader(seq) as r:
+        np.testing.assert_array_equal(r.prediction("ft", 2), r.prediction("base", 2))
+
+
+def test_recipe_settings_formats(tmp_path):
+    p = tmp_path / "a.yaml"
+    p.write_text("camera_height_m: 9.7\nstages:\n  adapt:\n    command: adapt\n"
+                 "    args: {_: [x.h5], camera-height: 5.0, epochs: 2}\n")
+    assert recipe_settings(p) == {"sequence": "x.h5", "camera_height_m": 5.0, "epochs": 2}
+    p.write_text("camera_height_m: 9.7\nstages:\n  adapt: {detector: yolox}\n")
+    assert recipe_settings(p) == {"detector": "yolox", "camera_height_m": 9.7}
+    p.write_text("stages:\n  import: {kind: carla}\n")
+    with pytest.raises(InputError, match="no 'stages: {adapt"):
+        recipe_settings(p)
+
+
+def test_adapt_errors(tmp_path, sequence, tiny_model, capsys):
+    with pytest.raises(InputError, match="metric_scale must be"):
+        AdaptConfig(metric_scale="median")
+    assert main(["adapt", "--device", "cpu"]) == 2
+    assert "no sequence given" in capsys.readouterr().err
+    assert main(["adapt", sequence, "--set", "learning_rate=1"]) == 2
+    assert "unknown setting" in capsys.readouterr().err
+    assert main(["adapt", str(tmp_path / "none.h5"), "--model", f"builtin:{tiny_model}"]) == 2
+    onnx = tmp_path / "m.onnx"
+    net = builtin_model(TinyDepthNet(**SMALL), input_height=128, input_width=256).net.eval()
+    torch.onnx.export(net, (torch.zeros(1, 3, 128, 256),), str(onnx), dynamo=False,
+                      opset_version=17)
+    seq = _copy(sequence, tmp_path / "e.h5")
+    with pytest.raises(InputError, match="inference only"):
+        adapt(seq, AdaptConfig(model=f"onnx:{onnx}", detector="gt", epochs=1, min_height_px=8),
+              log=lambda m: None)
+    with pytest.raises(InputError, match="tracked agents"):
+        adapt(seq, AdaptConfig(model=f"onnx:{onnx}", detector="gt", epochs=0, min_height_px=500),
+              log=lambda m: None)
+    render_to_file(tmp_path / "noadapt.h5", preset_name="c1", n_frames=2, adapt_frames=0,
+                   overrides={"width": 64, "height": 32})
+    with pytest.raises(InputError, match="no adaptation split"):
+        adapt(str(tmp_path / "noadapt.h5"), AdaptConfig(model=f"builtin:{tiny_model}"),
+              log=lambda m: None)
+
+
+def test_adapt_with_the_motion_detector(tmp_path, tiny_model):
+    seq = tmp_path / "m.h5"
+    render_to_file(seq, preset_name="c1", n_frames=40, adapt_frames=30, seed=1,
+                   overrides={"width": 256, "height": 128})
+    s = adapt(str(seq), AdaptConfig(model=f"builtin:{tiny_model}", detector="motion", epochs=1,
+                                    lr=1e-3, min_height_px=8), log=lambda m: None)
+    assert s["pseudo_label_agent_pixels"] > 0
+    with SequenceReader(seq) as r:
+        assert set(r.predictions()) == OUTPUTS
+        assert np.isfinite(r.prediction("ft-align-metric", 35)).mean() > 0.9

@@ -1,0 +1,64 @@
+"""``staticdepth train-builtin``: its training set against closed-form geometry, the command, errors."""
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+
+from staticdepth.cli import main
+from staticdepth.errors import InputError
+from staticdepth.models import load_model
+from staticdepth.train_builtin import TrainBuiltinConfig, parse_size, render_training_set
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+
+
+def test_training_targets_are_inverse_depth_of_the_level_ground():
+    """A level camera at height H sees ground row v at Z = f H / (v - c_y): target (v - c_y)/(f H)."""
+    from staticdepth.dataset.synth import SyntheticScene, preset
+
+    conf = TrainBuiltinConfig(frames=2, width=128, height=64, pitch_range_deg=(0.0, 0.0),
+                              height_range_m=(1.6, 1.6))
+    images, targets = render_training_set(conf)
+    assert images.shape == (2, 64, 128, 3) and images.dtype == np.uint8
+    scene = SyntheticScene(preset("street", seed=0, width=128, height=64))
+    frame = scene.render(0)
+    ground = frame["ground_mask"]
+    f, cy = scene.camera.fy, scene.camera.cy
+    v = np.nonzero(ground)[0].astype(np.float64)
+    np.testing.assert_allclose(targets[0][ground], (v - cy) / (f * 1.6), rtol=2e-3, atol=1e-5)
+    sky = ~np.isfinite(frame["depth"])
+    assert sky.any() and np.all(targets[0][sky] == 0.0)     # the sky is at infinity
+
+
+def test_train_builtin_command_writes_loadable_weights(tmp_path, capsys):
+    out = tmp_path / "b.pt"
+    rc = main(["train-builtin", "--out", str(out), "--frames", "4", "--epochs", "1",
+               "--size", "64x32", "--batch-size", "2", "--device", "cpu"])
+    assert rc == 0 and "wrote" in capsys.readouterr().out
+    model = load_model(f"builtin:{out}")
+    assert model.info["train"]["frames"] == 4 and model.input_size(64, 128) == (32, 64)
+    assert model.predict(np.zeros((40, 70, 3), np.uint8)).shape == (40, 70)
+    assert not (tmp_path / "b.pt.ckpt").exists()
+
+
+def test_train_builtin_errors(tmp_path, capsys):
+    for bad in ("384", "384x100", "axb", "16x16"):
+        with pytest.raises(InputError, match="size"):
+            parse_size(bad)
+    assert parse_size("384x192") == (384, 192)
+    with pytest.raises(InputError, match="frames must be >= 1"):
+        render_training_set(TrainBuiltinConfig(frames=0))
+    assert main(["train-builtin", "--out", str(tmp_path / "no" / "b.pt"), "--frames", "1",
+                 "--epochs", "1", "--size", "64x32"]) == 2
+    assert "output folder does not exist" in capsys.readouterr().err
+
+
+def test_hf_without_transformers_is_a_clear_error(monkeypatch):
+    monkeypatch.setitem(sys.modules, "transformers", None)
+    with pytest.raises(InputError, match="optional dependency transformers"):
+        load_model("hf:Intel/dpt-large")
+    from staticdepth.detectors import make_detector
+    with pytest.raises(InputError, match="needs transformers"):
+        make_detector("mask2former", model="x")

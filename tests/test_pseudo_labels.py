@@ -1,0 +1,119 @@
+"""Pseudo labels: contact values, riders, accessories, untouched pixels (METHOD.md section 1)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from staticdepth.dataset.schema import COCO
+from staticdepth.detectors.base import rows_from_masks
+from staticdepth.detectors.grouping import label_sources
+from staticdepth.errors import InputError
+from staticdepth.geometry.camera import Camera, normal_from_pitch_roll
+from staticdepth.pseudo_labels import PRESETS, PseudoLabelConfig, contact_value, pseudo_label
+
+H, W = 120, 160
+
+
+def _rect(v0, v1, u0, u1):
+    m = np.zeros((H, W), bool)
+    m[v0:v1 + 1, u0:u1 + 1] = True
+    return m
+
+
+def _frame(masks, classes):
+    return rows_from_masks(0, masks, classes, [1.0] * len(masks), (H, W))
+
+
+def _ground_inverse_depth(scale=2.0, shift=0.05):
+    """D = s (n . r) / d + t: a tilted camera's ground in a network's relative inverse depth."""
+    cam = Camera.from_intrinsics(150, 150, W / 2, H / 2, W, H)
+    n = normal_from_pitch_roll(np.radians(25), 0.0)
+    u, v = np.meshgrid(np.arange(W), np.arange(H))
+    r = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones_like(u, float)], -1)
+    return (scale * (r @ n) / 5.0 + shift).astype(np.float32)
+
+
+def test_rows_from_masks_measures_feet_and_head():
+    m = _rect(30, 70, 40, 49)
+    m[70, 40:44] = False                    # lowest row covers columns 44..49: median 46.5
+    inst, rows = _frame([m], [COCO["person"]])
+    assert rows["foot_v"][0] == 70 and rows["top_v"][0] == 30 and rows["foot_u"][0] == 46.5
+    assert np.all(inst[m] == 1) and inst.max() == 1
+    # an instance fully covered by a later one disappears and ids are renumbered
+    inst, rows = _frame([_rect(10, 12, 10, 12), _rect(0, 50, 0, 50), _rect(60, 70, 60, 70)],
+                        [0, 2, 0])
+    assert list(rows["instance_id"]) == [1, 2] and list(rows["class_id"]) == [2, 0]
+    assert set(np.unique(inst)) == {0, 1, 2}
+
+
+def test_label_is_ground_value_at_the_lowest_pixel():
+    D = _ground_inverse_depth()
+    D_obj = D.copy()
+    person = _rect(40, 90, 70, 79)
+    D_obj[person] = 0.0                     # the network's own (wrong) value on the person
+    inst, rows = _frame([person], [COCO["person"]])
+    label, agent = pseudo_label(D_obj, inst, rows)
+    lowest = D_obj[90, 74]                  # lowest row 90, columns 70..79: lower median 74
+    assert np.all(label[person] == lowest)
+    np.testing.assert_array_equal(label[~person], D_obj[~person])
+    np.testing.assert_array_equal(agent, person)
+    # the robust option: median over the bottom rows
+    conf = PseudoLabelConfig(contact="bottom_rows", bottom_rows=3)
+    D2 = D.copy()
+    D2[90, 70:80] = 9.0                     # a blurred boundary row
+    assert contact_value(D2, person, conf) == pytest.approx(np.median(D2[88:91, 70:80]))
+    assert contact_value(D2, person) == 9.0
+    assert np.isnan(contact_value(D2, np.zeros((H, W), bool)))
+
+
+def test_rider_takes_vehicle_contact_and_pedestrian_keeps_its_own():
+    D = _ground_inverse_depth()
+    bike = _rect(70, 95, 50, 80)
+    rider = _rect(35, 80, 60, 70) & ~bike   # upper body above the bike, feet inside its box
+    walker = _rect(50, 100, 100, 108)       # stands beside, lower than the bike
+    walker2 = _rect(60, 96, 81, 86)         # touches the bike but stands on the ground (lower)
+    inst, rows = _frame([bike, rider, walker, walker2],
+                        [COCO["bicycle"], COCO["person"], COCO["person"], COCO["person"]])
+    src = label_sources(inst, rows)
+    assert src[2] == 1 and src[3] == 3 and src[4] == 4
+    label, _ = pseudo_label(D, inst, rows)
+    assert np.all(label[rider] == D[95, 65])
+    assert np.all(label[walker] == D[100, 104])
+    assert np.all(label[walker2] == D[96, 83])
+
+
+def test_accessory_takes_nearest_person_or_stands_alone():
+    D = _ground_inverse_depth()
+    p1, p2 = _rect(20, 80, 30, 40), _rect(30, 100, 90, 100)
+    bag = _rect(50, 60, 42, 46)             # 2 px right of person 1's box
+    far_bag = _rect(105, 115, 140, 150)     # far from everyone
+    inst, rows = _frame([p1, p2, bag, far_bag], [COCO["person"], COCO["person"],
+                                                COCO["handbag"], COCO["suitcase"]])
+    label, agent = pseudo_label(D, inst, rows)
+    assert np.all(label[bag] == D[80, 35])
+    assert np.all(label[far_bag] == D[115, 145])
+    assert agent[bag].all() and agent[far_bag].all()
+    # a bag carried by a rider follows the rider to the vehicle
+    bike = _rect(60, 90, 20, 50)
+    inst, rows = _frame([bike, p1 & ~bike, bag & ~bike],
+                        [COCO["bicycle"], COCO["person"], COCO["backpack"]])
+    label, _ = pseudo_label(D, inst, rows)
+    assert np.all(label[bag & ~bike] == D[90, 35])
+
+
+def test_other_classes_keep_the_prediction():
+    D = _ground_inverse_depth()
+    bench = _rect(80, 100, 10, 40)
+    inst, rows = _frame([bench], [13])      # COCO bench: not an agent
+    label, agent = pseudo_label(D, inst, rows)
+    np.testing.assert_array_equal(label, D)
+    assert not agent.any()
+
+
+def test_config_and_shape_errors():
+    with pytest.raises(InputError, match="contact must be one of"):
+        PseudoLabelConfig(contact="top")
+    with pytest.raises(InputError, match="bottom_rows"):
+        PseudoLabelConfig(bottom_rows=0)
+    with pytest.raises(InputError, match="differ in size"):
+        pseudo_label(np.zeros((4, 4)), np.zeros((5, 5), np.uint16), _frame([], [])[1], PRESETS["paper"])
