@@ -224,6 +224,16 @@ def adapt(seq_path: str | os.PathLike, conf: AdaptConfig = AdaptConfig(), *, dev
                "camera_height_source": plane.camera_height_source,
                "scale": scales, "anchor_scale": anchor_scales, "finetune": history, "timings_s": timings,
                "predictions": list(preds)}
+    # the paper's Table 2: depth of the bottom-centre anchor pixel from the agents' plane and the
+    # camera height, and the parallel-camera baseline f H_c / (v_a - c_y)
+    from staticdepth.geometry.scale import anchor_depth, anchor_depth_parallel, anchor_pixel
+
+    u_a, v_a = anchor_pixel(W, H)
+    summary["anchor_pixel"] = [u_a, v_a]
+    summary["anchor_depth_m"] = float(anchor_depth(K, plane.normal, plane.camera_height_m, u_a, v_a))
+    summary["anchor_depth_parallel_m"] = float(anchor_depth_parallel(K, plane.camera_height_m, v_a))
+    summary["planes"] = {"agents": {"normal": np.asarray(plane.normal).tolist(),
+                                    "d": float(plane.camera_height_m)}}
     summary_path = os.fspath(summary_path) if summary_path else f"{os.path.splitext(seq_path)[0]}.adapt.json"
     tmp = f"{summary_path}.tmp{os.getpid()}"
     with open(tmp, "w") as f:

@@ -68,6 +68,15 @@ def test_adapt_writes_every_stage_and_is_reproducible(tmp_path, sequence, tiny_m
     # the plane's accuracy is tested with staticdepth.geometry.agent_plane; here: it is stored
     assert np.linalg.norm(saved["plane"]["normal"]) == pytest.approx(1.0)
     assert 0 < saved["plane"]["pitch_deg"] < 89
+    # Table 2's anchor depths: H_c / (n . K^-1 [W/2, H-1, 1]) and f H_c / (H-1 - c_y)
+    with SequenceReader(s["sequence"]) as ra:
+        K = ra.camera.K
+    n = np.asarray(saved["plane"]["normal"])
+    ray = np.linalg.inv(K) @ np.array([128.0, 127.0, 1.0])
+    assert saved["anchor_pixel"] == [128.0, 127.0]
+    assert saved["anchor_depth_m"] == pytest.approx(5.4 / (n @ ray), rel=1e-9)
+    assert saved["anchor_depth_parallel_m"] == pytest.approx(K[1, 1] * 5.4 / (127 - K[1, 2]))
+    assert saved["planes"]["agents"]["d"] == pytest.approx(5.4)
     assert not list(tmp_path.glob("*.ckpt"))
 
 
