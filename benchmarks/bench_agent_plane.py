@@ -43,7 +43,7 @@ def main() -> None:
     ap_.add_argument("--bad", type=float, default=0.0, help="fraction of shrunk heights")
     args = ap_.parse_args()
     rng0 = np.random.default_rng(args.seed)
-    conf = ap.AgentPlaneConfig(bootstrap=0)
+    conf = ap.AgentPlaneConfig(bootstrap=0, column_weight=1.0)
     variants = {"rows": ap.AgentPlaneConfig(bootstrap=0, column_weight=0.0), "rows+cols": conf}
     table, times = [], []
     print("cam     f  pitch  roll    H | rows: est floor | rows+cols: est floor  (deg)")

@@ -86,24 +86,27 @@ def detect_agents(conf: AdaptConfig, reader, images: np.ndarray
     return np.stack([m for m, _ in out]), [r for _, r in out]
 
 
-def fit_ground(conf: AdaptConfig, K: np.ndarray, width: int, height: int,
-               instances: np.ndarray, rows: list[np.ndarray], adapt: range, gt: bool):
+def fit_ground(conf: AdaptConfig, K: np.ndarray, instances: np.ndarray, rows: list[np.ndarray],
+               adapt: range):
     """(plane, foot points (M, 2)) from the agents of the adaptation split."""
     from staticdepth.geometry.agent_plane import AgentPlaneConfig, fit_agent_plane
     from staticdepth import tracking
 
     tconf = tracking.TrackingConfig(min_height_px=conf.min_height_px,
                                     drop_collinear=conf.drop_collinear)
-    if gt and all(np.all(r["track_id"] >= 0) for r in rows[adapt.start:adapt.stop] if len(r)):
-        agents = np.concatenate([rows[i] for i in adapt])
-        obs = tracking.observations_from_agents(agents, width, height, tconf)
-    else:
-        obs = tracking.observations_from_instances([(instances[i], rows[i]) for i in adapt], tconf)
+    # Instance maps always: ground-truth track ids are kept, and the occlusion test (feet or head
+    # touching another instance: riders, people behind cars, umbrellas) needs the masks.
+    obs = tracking.observations_from_instances([(instances[i], rows[i]) for i in adapt], tconf)
     if len(obs) < 3:
         raise InputError(f"only {len(obs)} usable agent observations in the adaptation split: "
                          "the ground plane needs tracked agents (check the detector)")
     plane = fit_agent_plane(K, obs, AgentPlaneConfig(model=conf.plane_model, seed=conf.seed))
-    return plane, np.stack([obs["foot_u"], obs["foot_v"]], 1)
+    # The ground region covered by the agents' feet: every agent of the adaptation split (the plane
+    # fit keeps only clean person tracks; the region where the predicted plane is fitted should
+    # not shrink with that filter).
+    feet = np.concatenate([np.stack([r["foot_u"], r["foot_v"]], 1) for r in
+                           (rows[i][rows[i]["foot_v"] >= 0] for i in adapt) if len(r)])
+    return plane, feet
 
 
 def adapt(seq_path: str | os.PathLike, conf: AdaptConfig = AdaptConfig(), *, device=None,
@@ -178,7 +181,11 @@ def adapt(seq_path: str | os.PathLike, conf: AdaptConfig = AdaptConfig(), *, dev
         D_ft = D_base
     lap("finetune")
 
-    plane, feet = fit_ground(conf, K, W, H, instances, rows, adapt_split, conf.detector == "gt")
+    plane, feet = fit_ground(conf, K, instances, rows, adapt_split)
+    n_inlier_tracks = int(np.count_nonzero(plane.inliers))
+    if n_inlier_tracks < 5 or not np.isfinite(plane.normal_std_deg):
+        log(f"warning: the ground plane rests on {n_inlier_tracks} agent track(s) (uncertainty "
+            f"{plane.normal_std_deg:.2f} deg): use more adaptation frames or a better detector")
     if conf.camera_height_m is not None:
         plane = plane.with_camera_height(conf.camera_height_m, "given")
     elif seq_height is not None:

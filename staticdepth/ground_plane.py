@@ -125,6 +125,9 @@ def register(sub) -> None:
     p.add_argument("--radius", type=float, help="agent body radius in metres (default 0.2, 0 = "
                                                 "thin axis)")
     p.add_argument("--bootstrap", type=int, help="resamples for the uncertainty (default 20)")
+    p.add_argument("--column-weight", type=float,
+                   help="weight of the head-column residuals (default 0: rows only; 1 for masks "
+                        "whose top row is centred on the body's axis)")
     p.add_argument("--out", required=True, help="plane JSON to write")
     p.set_defaults(func=_ground_plane_cmd)
 
@@ -137,6 +140,8 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
         conf = replace(conf, radius_m=args.radius)
     if args.bootstrap is not None:
         conf = replace(conf, bootstrap=args.bootstrap)
+    if args.column_weight is not None:
+        conf = replace(conf, column_weight=args.column_weight)
     if args.agent_height is not None:
         conf = replace(conf, agent_height_m=args.agent_height)
     try:

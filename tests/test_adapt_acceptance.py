@@ -65,20 +65,16 @@ def test_alignment_improves_on_the_base_prediction(adapted):
     assert table["align"] < table["base"] and table["ft-align"] < table["base"]
 
 
-@pytest.mark.xfail(strict=True, reason="measured 0.155 vs 0.097 (1.60x, the issue asks <= 1.2x): "
-                   "the agents' ground plane fitted from this scene's ground-truth agent rows comes "
-                   "out pitched 29.3 deg instead of 25 (exact, affine and paper models alike), so "
-                   "the aligned depth is distorted; it was 1.15x while the fit was 1.5 deg off")
 def test_metric_scale_from_camera_height_is_close_to_median_scaling(adapted):
     table, summary = adapted
     assert summary["camera_height_m"] == pytest.approx(5.4)
     assert table["ft-align-metric"] <= 1.2 * table["ft-align"]
 
 
-@pytest.mark.xfail(strict=True, reason="measured ft-align / base = 0.097 / 0.133 = 0.73 with the "
-                   "built-in model at 256x128 (the issue asks for <= 0.6): the plane is 4.3 deg off "
-                   "and the model's ground is not affine enough in inverse depth (R^2 0.98) for "
-                   "Eq. 2 to remove the error; with the true plane it reaches 0.61")
+@pytest.mark.xfail(strict=True, reason="target not reached: measured ft-align / base = 0.096 / "
+                   "0.133 = 0.72 with the built-in model at 256x128 (the issue asks <= 0.6), with "
+                   "the agents' plane 0.4 deg off the truth; the small model's ground is not affine "
+                   "enough in inverse depth (R^2 0.98) for Eq. 2 to remove the rest of the error")
 def test_ft_align_at_most_60_percent_of_base(adapted):
     table, _ = adapted
     assert table["ft-align"] <= 0.6 * table["base"]

@@ -39,11 +39,11 @@ def _project(K, P):
 
 def people_observations(rng, K, w, h, n, cam_height, n_tracks=40, frames=(5, 12), radius=0.2,
                         noise_px=1.0, max_depth=40.0, heights=(1.7, 0.07),
-                        turn_sd=0.35) -> np.ndarray:
-    """Tracks of upright cylinders walking on ``n . P = cam_height``; observation table rows with
-    the silhouette's lowest point (foot_u, foot_v) and highest point (top_u, top_v), plus Gaussian
-    pixel noise on all four. ``turn_sd`` (rad) is the heading's random walk per step (0 = straight
-    walkers)."""
+                        turn_sd=0.35, head_radius=0.12) -> np.ndarray:
+    """Tracks of upright cylinders (foot disk ``radius``, head disk ``head_radius``, metres)
+    walking on ``n . P = cam_height``; observation table rows with the silhouette's lowest point
+    (foot_u, foot_v) and highest point (top_u, top_v), plus Gaussian pixel noise on all four.
+    ``turn_sd`` (rad) is the heading's random walk per step (0 = straight walkers)."""
     e1 = np.cross(n, [0, 0, 1.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(n, e1)
@@ -62,7 +62,7 @@ def people_observations(rng, K, w, h, n, cam_height, n_tracks=40, frames=(5, 12)
         for i in range(rng.integers(frames[0], frames[1] + 1)):
             heading += rng.normal(0, turn_sd) if turn_sd > 0 else 0.0
             A = A + 0.8 * (math.cos(heading) * e1 + math.sin(heading) * e2)
-            foot, head = A + radius * rim, A - H * n + radius * rim
+            foot, head = A + radius * rim, A - H * n + head_radius * rim
             if foot[:, 2].min() <= 0.1 or head[:, 2].min() <= 0.1:
                 break
             fu, fv = _project(K, foot)
@@ -105,16 +105,21 @@ def test_head_rows_match_dense_projection():
     rng = np.random.default_rng(3)
     K, w, h = camera_K(550.0)
     n = true_normal(38.0, 4.0)
-    obs = people_observations(rng, K, w, h, n, 6.0, n_tracks=8, noise_px=0.0, heights=(1.7, 0.0))
-    rays = np.linalg.solve(K, np.stack([obs["foot_u"], obs["foot_v"], np.ones(len(obs))])).T
-    s = np.full(len(obs), 1.7 / 6.0)
-    v = head_rows(K, n, rays, s, 0.2 / 1.7)
-    assert np.max(np.abs(v - obs["top_v"])) < 0.05
-    u, v2 = head_pixels(K, n, rays, s, 0.2 / 1.7)
-    np.testing.assert_array_equal(v2, v)
-    assert np.max(np.abs(u - obs["top_u"])) < 0.05
+    for head_r, ratio in ((0.2, 0.2 / 1.7), (0.12, (0.2 / 1.7, 0.12 / 1.7))):
+        obs = people_observations(rng, K, w, h, n, 6.0, n_tracks=8, noise_px=0.0,
+                                  heights=(1.7, 0.0), head_radius=head_r)
+        rays = np.linalg.solve(K, np.stack([obs["foot_u"], obs["foot_v"], np.ones(len(obs))])).T
+        s = np.full(len(obs), 1.7 / 6.0)
+        v = head_rows(K, n, rays, s, ratio)
+        assert np.max(np.abs(v - obs["top_v"])) < 0.05
+        u, v2 = head_pixels(K, n, rays, s, ratio)
+        np.testing.assert_array_equal(v2, v)
+        assert np.max(np.abs(u - obs["top_u"])) < 0.05
     thin = head_rows(K, n, rays, s, 0.0)        # ignoring the body's thickness biases the rows
     assert np.max(np.abs(thin - obs["top_v"])) > 1.0
+    # a head as wide as the body moves the top point's column by pixels
+    u_wide, _ = head_pixels(K, n, rays, s, 0.2 / 1.7)
+    assert np.max(np.abs(u_wide - obs["top_u"])) > 1.0
 
 
 @pytest.mark.parametrize("f,pitch,roll,height", CAMERAS)
@@ -123,10 +128,13 @@ def test_exact_model_recovers_normal_and_camera_height(f, pitch, roll, height):
     K, w, h = camera_K(f)
     n = true_normal(pitch, roll)
     obs = people_observations(rng, K, w, h, n, height)
-    plane = fit_agent_plane(K, obs, AgentPlaneConfig(bootstrap=0))
+    plane = fit_agent_plane(K, obs, AgentPlaneConfig(bootstrap=0, column_weight=1.0))
     paper = fit_agent_plane(K, obs, AgentPlaneConfig(model="paper", bootstrap=0))
     rows_only = fit_agent_plane(K, obs[[c for c in obs.dtype.names if c != "top_u"]],
                                 AgentPlaneConfig(bootstrap=0))       # boxes: no top column
+    # the default ignores the column (unbiased only on exact cylinders like these)
+    default = fit_agent_plane(K, obs, AgentPlaneConfig(bootstrap=0))
+    assert np.allclose(default.normal, rows_only.normal, atol=1e-9)
     err, err_paper = angle_between_deg(plane.normal, n), angle_between_deg(paper.normal, n)
     err_rows = angle_between_deg(rows_only.normal, n)
     cam_h = camera_height_from_prior(plane, 1.7)
@@ -173,8 +181,8 @@ def test_thin_model_on_thin_agents_and_bootstrap():
     rng = np.random.default_rng(7)
     K, w, h = camera_K(500.0)
     n = true_normal(30.0, -2.0)
-    obs = people_observations(rng, K, w, h, n, 5.0, n_tracks=25, radius=0.0)
-    plane = fit_agent_plane(K, obs, AgentPlaneConfig(radius_m=0.0, bootstrap=8))
+    obs = people_observations(rng, K, w, h, n, 5.0, n_tracks=25, radius=0.0, head_radius=0.0)
+    plane = fit_agent_plane(K, obs, AgentPlaneConfig(radius_m=0.0, head_radius_m=0.0, bootstrap=8))
     err = angle_between_deg(plane.normal, n)
     assert err < 1.0
     assert 0.0 < plane.normal_std_deg < 2.0
@@ -249,6 +257,8 @@ def test_config_and_prior_errors():
         AgentPlaneConfig(model="magic")
     with pytest.raises(InputError):
         AgentPlaneConfig(radius_m=-1.0)
+    with pytest.raises(InputError, match="head radius"):
+        AgentPlaneConfig(head_radius_m=-0.1)
     with pytest.raises(InputError, match="column weight"):
         AgentPlaneConfig(column_weight=-0.5)
     plane = AgentPlane(true_normal(20), np.array([0, 1.0, -10]), 3.0, np.array([1, 2]),
@@ -263,3 +273,25 @@ def test_config_and_prior_errors():
         AgentPlane.from_dict({"horizon": [0, 1, 0]}, "p.json")
     with pytest.raises(InputError, match="finite non-zero"):
         AgentPlane.from_dict({"normal": [0, 0, 0], "horizon": [0, 1, 0]}, "p.json")
+
+
+def test_only_the_modelled_classes_enter_the_fit():
+    """People (and rows of unknown class) by default; boxes of other classes only on request."""
+    rng = np.random.default_rng(5)
+    K, w, h = camera_K(600.0)
+    n = true_normal(30.0, 1.0)
+    people = people_observations(rng, K, w, h, n, 6.0, n_tracks=20)
+    cars = people_observations(rng, K, w, h, n, 6.0, n_tracks=10, radius=0.9, head_radius=0.9,
+                               heights=(1.5, 0.05))
+    cars["class_id"], cars["track"] = 2, cars["track"] + 100
+    both = np.concatenate([people, cars])
+    plane = fit_agent_plane(K, both, AgentPlaneConfig(bootstrap=0))
+    assert plane.n_observations == len(people)
+    assert set(plane.track_ids.tolist()) == set(np.unique(people["track"]).tolist())
+    every = fit_agent_plane(K, both, AgentPlaneConfig(bootstrap=0, classes=None))
+    assert every.n_observations == len(both)
+    with pytest.raises(InputError, match="no observation of the classes"):
+        fit_agent_plane(K, cars)
+    unknown = people.copy()
+    unknown["class_id"] = -1                      # a CSV without classes: taken as people
+    assert fit_agent_plane(K, unknown, AgentPlaneConfig(bootstrap=0)).n_observations == len(people)

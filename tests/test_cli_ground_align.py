@@ -273,8 +273,8 @@ def test_ground_plane_command_reads_top_columns(tmp_path):
                  ("frame", "track", "foot_u", "foot_v", "height_px", "top_u")):
         write_csv(tmp_path / "obs.csv", obs, cols)
         rc = main(["ground-plane", "--observations", str(tmp_path / "obs.csv"), "--intrinsics",
-                   str(tmp_path / "cam.json"), "--bootstrap", "0", "--out",
-                   str(tmp_path / "p.json")])
+                   str(tmp_path / "cam.json"), "--bootstrap", "0", "--column-weight", "1",
+                   "--out", str(tmp_path / "p.json")])
         assert rc == 0
         errs.append(angle_between_deg(json.loads((tmp_path / "p.json").read_text())["normal"], n))
     print(f"rows only {errs[0]:.2f} deg, rows + columns {errs[1]:.2f} deg")

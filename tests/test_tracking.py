@@ -62,8 +62,13 @@ def test_observations_from_instance_maps_track_and_filter():
         assert list(sel["frame"]) == list(range(6))
     a = obs[obs["foot_u"] < obs["foot_u"].mean()]   # A starts left
     first = a[a["frame"] == 0][0]
-    assert (first["foot_v"], first["top_v"], first["foot_u"], first["top_u"]) == (50, 10, 20, 20)
-    assert first["height_px"] == 40
+    # mask rows 10..50: the silhouette's extremes lie half a pixel beyond the extreme rows
+    assert (first["foot_v"], first["top_v"], first["foot_u"], first["top_u"]) == (50.5, 9.5, 20,
+                                                                                  20)
+    assert first["height_px"] == 41
+    raw = observations_from_instances(frames(), TrackingConfig(edge_px=0.0))
+    raw_a = raw[(raw["foot_u"] < raw["foot_u"].mean()) & (raw["frame"] == 0)][0]
+    assert (raw_a["foot_v"], raw_a["top_v"], raw_a["height_px"]) == (50, 10, 40)
 
 
 def test_low_score_and_small_agents_kept_when_allowed():
@@ -145,3 +150,81 @@ def test_collinear_rule_drops_straight_walkers_only_for_eq1_models():
     loose = TrackingConfig.for_model("exact", min_travel_px=0.3)
     assert set(observations(detections_from_agents(a, W, H), loose)["track"]) == {1, 2, 3}
     assert TrackingConfig.for_model("paper", min_frames=6).min_frames == 6
+
+
+def test_occluded_masks_are_flagged_and_dropped():
+    """A rider's lowest row sits on the bicycle, a walker's feet are hidden behind a car (the car's
+    mask right below them), an umbrella covers a head: all three are occluded; a walker on the
+    ground with a bag beside the body (not below the feet) is not."""
+    m = np.zeros((H, W), np.uint16)
+    m[10:41, 10:15] = 1           # rider: rows 10..40
+    m[41:55, 5:25] = 2            # bicycle right under the rider
+    m[20:61, 40:45] = 3           # walker whose feet are behind the car
+    m[61:75, 35:55] = 4           # car
+    m[22:60, 70:75] = 5           # walker under an umbrella
+    m[19:22, 66:80] = 6           # umbrella, just above the head
+    m[30:71, 95:100] = 7          # free walker
+    m[40:50, 101:105] = 8         # bag beside the walker's body, one column apart
+    rows = np.array([[i, 0, 0.9] for i in range(1, 9)])
+    d = detections_from_instances(m, rows)
+    occ = dict(zip(d["instance_id"].tolist(), d["occluded"].tolist()))
+    assert occ[1] and occ[3] and occ[5]
+    assert not occ[7] and not occ[8]
+    # the other side of each contact: the bicycle's and the car's top rows touch the person above,
+    # the umbrella's lowest row the head (a person in front of a car is dropped too: without depth
+    # the order is unknown)
+    assert occ[2] and occ[4] and occ[6]
+    assert not detections_from_instances(m, rows, contact_px=0)["occluded"].any()
+    # a gap of 3 rows between the walker's feet and the car: not in contact within 2 rows
+    m2 = m.copy()
+    m2[58:61, 40:45] = 0
+    d2 = detections_from_instances(m2, rows)
+    assert not d2["occluded"][d2["instance_id"] == 3][0]
+
+
+def _sequence_with_occlusion(n_frames=5):
+    """A free walker (id 1) and a walker whose feet touch a car below (id 2) in every frame;
+    AGENT rows with known track ids (10, 20, 30)."""
+    out = []
+    for f in range(n_frames):
+        m = np.zeros((H, W), np.uint16)
+        m[10 + f:50 + f, 20 + 3 * f:25 + 3 * f] = 1
+        m[20:60 - f, 60 + 2 * f:65 + 2 * f] = 2
+        m[60 - f:85, 50:100] = 3
+        rows = empty_agents(3)
+        rows["frame"], rows["instance_id"], rows["class_id"] = f, [1, 2, 3], [0, 0, 2]
+        rows["track_id"] = [10, 20, 30]
+        out.append((m, rows))
+    return out
+
+
+def test_instance_maps_keep_ground_truth_track_ids_and_drop_occluded():
+    conf = TrackingConfig(drop_collinear=False, min_travel_px=0.0)
+    obs = observations_from_instances(_sequence_with_occlusion(), conf)
+    assert set(obs["track"]) == {10}    # the walker on the car and the car's top are in contact
+    kept = observations_from_instances(_sequence_with_occlusion(),
+                                       TrackingConfig(drop_collinear=False, min_travel_px=0.0,
+                                                      drop_occluded=False))
+    assert set(kept["track"]) == {10, 20, 30}
+    # rows without track ids: linked by IoU, three tracks again
+    seq = [(m, r[["instance_id", "class_id", "score"]]) for m, r in _sequence_with_occlusion()]
+    relinked = observations_from_instances(seq, TrackingConfig(drop_collinear=False,
+                                                               min_travel_px=0.0,
+                                                               drop_occluded=False))
+    assert len(np.unique(relinked["track"])) == 3
+
+
+def test_agent_rows_visibility_and_side_border():
+    a = straight_and_static_agents()
+    vis = np.ones(len(a))
+    vis[a["track_id"] == 2] = 0.5                  # track 2 half hidden in every frame
+    conf = TrackingConfig.for_model("exact")
+    obs = observations_from_agents(a, W, H, conf, visibility=vis)
+    assert set(obs["track"]) == {1}
+    assert set(observations_from_agents(a, W, H, conf)["track"]) == {1, 2}   # unknown: kept
+    with pytest.raises(InputError, match="one value per agent row"):
+        observations_from_agents(a, W, H, conf, visibility=vis[:3])
+    # the top column at the image edge (a body cut by the side border) marks the row as border
+    a["top_u"] = 40.0
+    a["top_u"][a["track_id"] == 1] = W - 1
+    assert set(observations_from_agents(a, W, H, conf)["track"]) == {2}

@@ -1,9 +1,13 @@
 """The exact projective model of an agent: an upright cylinder standing on the ground plane.
 
 In units of the camera height d (plane ``n . P = 1``, camera frame, OpenCV axes) an agent of height
-``s = H / d`` and radius ``radius_ratio * s`` stands with its axis along ``-n``. Its silhouette's
-lowest point is the lowest point (largest image row) of the foot disk's rim, its highest point the
-highest point of the head disk's rim; both are found in closed form (:func:`extreme_rim`). Given the
+``s = H / d`` stands with its axis along ``-n``; its foot disk has radius ``foot_ratio * s`` and
+its head disk (the top of the silhouette) ``head_ratio * s``. A person's head is narrower than
+the body (about 0.12 m against 0.2 m): the top of the silhouette is the far edge of the head, and
+that edge's column in particular moves with the radius assumed. Functions take ``radius_ratio``
+as one number (both disks) or a ``(foot_ratio, head_ratio)`` pair. The silhouette's lowest point
+is the lowest point (largest image row) of the foot disk's rim, its highest point the highest
+point of the head disk's rim; both are found in closed form (:func:`extreme_rim`). Given the
 observed lowest point, the model predicts the top point's row and column (:func:`head_pixels`).
 
 :class:`AgentObservations` is the observation table prepared for the fit (rays, observed top
@@ -17,6 +21,16 @@ from dataclasses import dataclass
 import numpy as np
 
 _BIG = 1e3   # residual (px) that stands in for an impossible prediction (ray above the horizon)
+
+Ratio = float | tuple[float, float]   # one radius/height ratio, or (foot, head)
+
+
+def split_ratio(radius_ratio) -> tuple[float, float]:
+    """(foot_ratio, head_ratio) from one ratio (both disks) or a pair."""
+    if np.ndim(radius_ratio) == 0:
+        return float(radius_ratio), float(radius_ratio)
+    foot, head = radius_ratio
+    return float(foot), float(head)
 
 
 def extreme_rim(C: np.ndarray, n: np.ndarray, rho: np.ndarray, lowest: bool) -> np.ndarray:
@@ -47,26 +61,28 @@ def extreme_rim(C: np.ndarray, n: np.ndarray, rho: np.ndarray, lowest: bool) -> 
 
 
 def head_points(n: np.ndarray, rays: np.ndarray, s: np.ndarray,
-                radius_ratio: float) -> np.ndarray:
+                radius_ratio: Ratio) -> np.ndarray:
     """Highest silhouette points (N, 3) (over d) of upright cylinders whose lowest image point is
     on ``rays`` (N, 3); NaN rows where a ray does not meet the ground (n . r <= 0).
 
-    n: (3,) unit ground normal; s: (N,) agent height over camera height; radius = ratio * s.
+    n: (3,) unit ground normal; s: (N,) agent height over camera height; radius_ratio: foot and
+    head disk radius over the height, one number or a ``(foot, head)`` pair.
     """
+    foot_ratio, head_ratio = split_ratio(radius_ratio)
     nr = rays @ n
     with np.errstate(divide="ignore", invalid="ignore"):
         F = rays / nr[:, None]
     F[~(nr > 1e-9)] = np.nan
-    rho = radius_ratio * s
+    rho = foot_ratio * s
     A = F.copy()
-    if radius_ratio > 0:
+    if foot_ratio > 0:
         for _ in range(3):                      # axis foot A such that the lowest rim point is F
             A = A + (F - extreme_rim(A, n, rho, lowest=True))
-    return extreme_rim(A - s[:, None] * n, n, rho, lowest=False)
+    return extreme_rim(A - s[:, None] * n, n, head_ratio * s, lowest=False)
 
 
 def head_pixels(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray,
-                radius_ratio: float) -> tuple[np.ndarray, np.ndarray]:
+                radius_ratio: Ratio) -> tuple[np.ndarray, np.ndarray]:
     """Predicted top points (u (N,), v (N,)) in pixels; NaN where the foot ray misses the ground
     or the head lies behind the camera. See :func:`head_points`."""
     T = head_points(n, rays, s, radius_ratio)
@@ -81,11 +97,11 @@ def head_pixels(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray,
 
 
 def head_rows(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray,
-              radius_ratio: float) -> np.ndarray:
+              radius_ratio: Ratio) -> np.ndarray:
     """Predicted top rows (N,) of upright cylinders whose lowest image point is on ``rays`` (N,3).
 
-    n: unit ground normal; s: (N,) agent height over camera height; radius = radius_ratio * s.
-    NaN where a foot ray does not meet the ground (n . r <= 0).
+    n: unit ground normal; s: (N,) agent height over camera height; radius_ratio as in
+    :func:`head_points`. NaN where a foot ray does not meet the ground (n . r <= 0).
     """
     return head_pixels(K, n, rays, s, radius_ratio)[1]
 
@@ -134,7 +150,7 @@ class AgentObservations:
 
 
 def head_residuals(K: np.ndarray, obs: AgentObservations, n: np.ndarray, s: np.ndarray,
-                   radius_ratio: float) -> tuple[np.ndarray, np.ndarray]:
+                   radius_ratio: Ratio) -> tuple[np.ndarray, np.ndarray]:
     """Predicted minus observed top row and column (N,) each, in pixels, for per-track ``s``
     (J,). Row residuals are NaN where the prediction is impossible; column residuals are NaN there
     and where the top column is unknown."""
@@ -149,7 +165,7 @@ def observation_residual(r_v: np.ndarray, r_u: np.ndarray) -> np.ndarray:
     return np.maximum(r, np.where(np.isfinite(r_u), np.abs(r_u), 0.0))
 
 
-def solve_track_scales(K, obs: AgentObservations, n: np.ndarray, ratio: float,
+def solve_track_scales(K, obs: AgentObservations, n: np.ndarray, ratio: Ratio,
                        s0: np.ndarray | None = None, iters: int = 6,
                        huber_px: float = 3.0) -> np.ndarray:
     """Per-track s_j (J,) with the normal fixed: Gauss-Newton on each track's head-row residuals,

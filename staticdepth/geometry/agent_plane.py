@@ -4,13 +4,26 @@ Three models, selectable by name:
 - ``paper`` and ``affine``: Eq. 1 (:mod:`staticdepth.geometry.agent_plane_linear`);
 - ``exact`` (default): the exact projective model (:mod:`staticdepth.geometry.agent_cylinder`).
   Unknowns are the unit normal (pitch, roll) and per track ``s_j = H_j / d``; each agent is an
-  upright cylinder whose radius is ``radius_m / agent_height_m`` of its height, so the observed
-  bottom point is the lowest point of the foot disk's rim and the top point the highest point of
-  the head disk's rim. Residuals are the top point's reprojection errors in pixels: its row, and
-  its column where the table has ``top_u`` (the top of an upright cylinder projects to a known
-  column, which pins the roll and sharpens the pitch). RANSAC over tracks, a robust (soft-L1)
-  refinement of the normal and all s_j jointly on the inliers, least squares on the inlier
-  observations, and a bootstrap over tracks for the uncertainty.
+  upright cylinder with a foot disk of ``radius_m`` and a head disk of ``head_radius_m`` (both
+  relative to ``agent_height_m``), so the observed bottom point is the lowest point of the foot
+  disk's rim and the top point the highest point of the head disk's rim. Residuals are the top
+  point's reprojection errors in pixels: its row, and optionally (``column_weight`` > 0) its
+  column where the table has ``top_u``. RANSAC over tracks, a robust (soft-L1) refinement of the
+  normal and all s_j jointly on the inliers, least squares on the inlier observations, and a
+  bootstrap over tracks for the uncertainty.
+
+Only the classes the body model describes enter the fit (``classes``: people, and rows of unknown
+class, by default). Cars, buses, trucks and two-wheelers are boxes, not upright cylinders: on
+the synthetic scenes they pull the normal by degrees when few people are seen.
+
+Why the head column is off by default: the column of the top of a mask moves with the head's
+radius and with where the mask's top row cuts the head (its midpoint is not the rim's extreme
+point), and the tilt it implies is tiny (about 0.003 px per pixel off-centre per degree of
+pitch), so a 1 px systematic column error at the image edge is a degree of pitch. Measured on the
+rendered scenes (c1, c2, c3, demo, 400 frames, 400x200 and 800x400, benchmarks/
+bench_plane_on_synth.py): pitch errors of 3.8-6.2 degrees with ``column_weight`` 1 and a head as
+wide as the body, 0.0-0.15 degrees with rows only and ``head_radius_m`` 0.12 (c2 at 400x200,
+7 people 10-20 px tall: 0.5-1.8).
 
 Everything is in the camera frame (OpenCV), in units of the camera height d (plane ``n . P = 1``).
 Observations are the table of :data:`staticdepth.tracking.OBS_DTYPE` (or any structured array
@@ -46,10 +59,13 @@ class AgentPlaneConfig:
     """How to fit the ground plane from agents; see :data:`PRESETS`."""
 
     model: str = "exact"
-    radius_m: float = 0.2            # body radius of the cylinder model (0 = thin axis)
+    radius_m: float = 0.2            # body (foot disk) radius of the cylinder model (0 = thin axis)
+    head_radius_m: float = 0.12      # head disk radius: the top of the silhouette (0 = thin)
     agent_height_m: float = 1.7      # only sets the radius/height ratio of the cylinder model
     inlier_px: float = 3.0           # RANSAC: observation inlier threshold on the head point
-    column_weight: float = 1.0       # weight of the head-column residuals (0 = rows only)
+    column_weight: float = 0.0       # weight of the head-column residuals (0 = rows only; see
+    #                                  the module doc for why columns are off by default)
+    classes: tuple[int, ...] | None = PERSON_CLASSES   # class ids that enter the fit (None = all)
     ransac_iters: int = 60           # upper bound; stops early at 99% confidence
     loss: str = "soft_l1"            # robust refinement loss (scipy least_squares)
     f_scale_px: float = 1.5
@@ -62,15 +78,17 @@ class AgentPlaneConfig:
     def __post_init__(self):
         if self.model not in MODELS:
             raise InputError(f"unknown ground-plane model {self.model!r} (use {', '.join(MODELS)})")
-        if self.radius_m < 0 or self.agent_height_m <= 0:
-            raise InputError("agent radius must be >= 0 and agent height > 0")
+        if self.radius_m < 0 or self.head_radius_m < 0 or self.agent_height_m <= 0:
+            raise InputError("agent radius and head radius must be >= 0 and agent height > 0")
         if not self.column_weight >= 0:
             raise InputError(f"column weight must be >= 0, got {self.column_weight}")
 
 
 PRESETS: dict[str, AgentPlaneConfig] = {
     "exact": AgentPlaneConfig(),
-    "exact-thin": AgentPlaneConfig(radius_m=0.0),
+    "exact-thin": AgentPlaneConfig(radius_m=0.0, head_radius_m=0.0),
+    "exact-columns": AgentPlaneConfig(column_weight=1.0),
+    "exact-all-classes": AgentPlaneConfig(classes=None),
     "affine": AgentPlaneConfig(model="affine"),
     "paper": AgentPlaneConfig(model="paper"),
 }
@@ -160,11 +178,21 @@ def _num(x: float) -> float | None:
     return None if not math.isfinite(x) else float(x)
 
 
-def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact") -> AgentObservations:
-    """Validate the observation table and turn it into rays and track indices."""
+def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact",
+             classes: tuple[int, ...] | None = None) -> AgentObservations:
+    """Validate the observation table, keep the rows of ``classes`` (when the table has a
+    ``class_id`` column) and turn it into rays and track indices."""
     for f in ("track", "foot_u", "foot_v", "height_px"):
         if obs.dtype.names is None or f not in obs.dtype.names:
             raise InputError(f"observations need a {f!r} column")
+    if classes is not None and "class_id" in obs.dtype.names and len(obs):
+        of_class = np.isin(np.asarray(obs["class_id"]), list(classes))
+        if not of_class.any():
+            raise InputError(f"no observation of the classes the body model describes (class ids "
+                             f"{', '.join(map(str, classes))}; the table has "
+                             f"{', '.join(map(str, np.unique(obs['class_id'])))}): use classes="
+                             f"None to fit every class")
+        obs = obs[of_class]
     u, v, h = (np.asarray(obs[f], dtype=np.float64) for f in ("foot_u", "foot_v", "height_px"))
     ok = np.isfinite(u) & np.isfinite(v) & np.isfinite(h) & (h > 0)
     obs, u, v, h = obs[ok], u[ok], v[ok], h[ok]
@@ -194,8 +222,9 @@ def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact") -> AgentObser
 _Obs = AgentObservations      # the former private name
 
 
-def _ratio(conf: AgentPlaneConfig) -> float:
-    return conf.radius_m / conf.agent_height_m
+def _ratio(conf: AgentPlaneConfig) -> tuple[float, float]:
+    """(foot, head) disk radius over the agent height."""
+    return conf.radius_m / conf.agent_height_m, conf.head_radius_m / conf.agent_height_m
 
 
 def _normal(pitch_rad: float, roll_rad: float) -> np.ndarray:
@@ -294,13 +323,15 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     """Fit the ground plane to agents' observations (see module doc).
 
     K: (3, 3) intrinsics; observations: structured (N,) with ``track``, ``foot_u``, ``foot_v``
-    (lowest silhouette point, px), ``height_px`` (foot row - top row), optional ``top_u`` (column
-    of the highest silhouette point, NaN = unknown) and ``class_id``.
-    Raises InputError for a table without those columns, fewer than 3 usable observations or
-    tracks, collinear feet (all tracks together) or a nadir camera.
+    (lowest silhouette point, continuous pixel coordinates), ``height_px`` (its row minus the
+    highest silhouette point's row), optional ``top_u`` (column of the highest silhouette point,
+    NaN = unknown) and ``class_id`` (only ``conf.classes`` are used).
+    Raises InputError for a table without those columns, without rows of ``conf.classes``,
+    fewer than 3 usable observations or tracks, collinear feet (all tracks together) or a nadir
+    camera.
     """
     K = np.asarray(K, dtype=np.float64)
-    obs = _prepare(K, np.asarray(observations), conf.model)
+    obs = _prepare(K, np.asarray(observations), conf.model, conf.classes)
     rng = np.random.default_rng(conf.seed)
     if conf.model in LINEAR_MODELS:
         n, d_over_h = fit_linear(K, obs.u, obs.v, obs.h, conf.model)
