@@ -30,7 +30,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-QUICK = {"frames": "24", "adapt_frames": "10", "builtin_frames": "48", "builtin_epochs": "2",
+QUICK = {"frames": "30", "adapt_frames": "20", "builtin_frames": "48", "builtin_epochs": "2",
          "adapt_epochs": "2", "baseline_epochs": "2"}
 
 
