@@ -28,7 +28,7 @@ import numpy as np
 from staticdepth.dataset import schema
 from staticdepth.dataset.h5 import SequenceMeta
 from staticdepth.dataset.pack import (AuxStream, LoadedFrame, list_frames, match_streams,
-                                      read_image, read_rgb, write_frames)
+                                      read_image, read_left_right, write_frames)
 from staticdepth.errors import InputError
 from staticdepth.geometry.camera import Camera, Mounting, StereoRig, read_json
 
@@ -185,17 +185,7 @@ def _read_coded(path: str, size: tuple[int, int]) -> np.ndarray:
 
 def load_frame(task: CarlaTask) -> LoadedFrame:
     """Images, depth, instance map, agents and ground mask of one frame (pure in the task)."""
-    left = read_rgb(task.rgb)
-    if (left.shape[1], left.shape[0]) != task.size:
-        raise InputError(f"image is {left.shape[1]}x{left.shape[0]}, sensor.json says "
-                         f"{task.size[0]}x{task.size[1]}", task.rgb)
-    arrays = {"left": left}
-    if task.right is not None:
-        r = read_rgb(task.right)
-        if r.shape != left.shape:
-            raise InputError(f"right image is {r.shape[1]}x{r.shape[0]}, left {task.size}",
-                             task.right)
-        arrays["right"] = r
+    arrays = read_left_right(task.rgb, task.right, task.size, "sensor.json says")
     arrays["depth"] = depth_from_carla_rgb(_read_coded(task.depth, task.size))
     tags, ids = tags_ids_from_instance_rgb(_read_coded(task.instance, task.size))
     agent_tags = AGENT_TAGS_LEGACY if task.legacy_tags else AGENT_TAGS

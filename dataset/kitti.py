@@ -21,7 +21,8 @@ import cv2
 import numpy as np
 
 from staticdepth.dataset.h5 import SequenceMeta
-from staticdepth.dataset.pack import LoadedFrame, list_frames, match_streams, read_image, read_rgb
+from staticdepth.dataset.pack import (LoadedFrame, list_frames, match_streams, read_image,
+                                      read_left_right, read_rgb)
 from staticdepth.errors import InputError
 from staticdepth.geometry.camera import Camera, StereoRig
 
@@ -262,17 +263,7 @@ def drive_tasks(root: str | os.PathLike, drive: str, *, right: bool = False,
 def load_frame(task: KittiTask) -> LoadedFrame:
     """Image(s) and ground-truth depth of one frame (a pure function of the task)."""
     w, h = task.size
-    left = read_rgb(task.image)
-    if left.shape[:2] != (h, w):
-        raise InputError(f"image is {left.shape[1]}x{left.shape[0]}, the drive's first is {w}x{h}",
-                         task.image)
-    arrays = {"left": left}
-    if task.right is not None:
-        r = read_rgb(task.right)
-        if r.shape != left.shape:
-            raise InputError(f"right image is {r.shape[1]}x{r.shape[0]}, left is {w}x{h}",
-                             task.right)
-        arrays["right"] = r
+    arrays = read_left_right(task.image, task.right, (w, h), "the drive's first is")
     if task.depth_png is not None:
         if os.path.exists(task.depth_png):
             depth = read_depth_png(task.depth_png)

@@ -61,6 +61,25 @@ def read_rgb(path: str | os.PathLike) -> np.ndarray:
     return np.ascontiguousarray(img[..., ::-1])
 
 
+def read_left_right(left_path: str | os.PathLike, right_path: str | os.PathLike | None,
+                    size: tuple[int, int], size_source: str) -> dict[str, np.ndarray]:
+    """``{"left": rgb[, "right": rgb]}``; the left image must be ``size`` = (W, H) (which
+    ``size_source`` states, for the error) and the right image the left's size."""
+    left = read_rgb(left_path)
+    w, h = size
+    if (left.shape[1], left.shape[0]) != (w, h):
+        raise InputError(f"image is {left.shape[1]}x{left.shape[0]}, {size_source} {w}x{h}",
+                         left_path)
+    arrays = {"left": left}
+    if right_path is not None:
+        r = read_rgb(right_path)
+        if r.shape != left.shape:
+            raise InputError(f"right image is {r.shape[1]}x{r.shape[0]}, left is {w}x{h}",
+                             right_path)
+        arrays["right"] = r
+    return arrays
+
+
 def list_frames(folder: str | os.PathLike, ext: str = ".png") -> list[str]:
     """Sorted file names (not paths) with extension ``ext`` in ``folder`` (which must exist)."""
     folder = os.fspath(folder)
