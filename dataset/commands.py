@@ -92,60 +92,46 @@ def register(sub) -> None:
     p.set_defaults(func=_publish)
 
 
-def _executor(args: argparse.Namespace):
+def _write_with_executor(args: argparse.Namespace, write, *pos, **kw) -> int:
+    """Run a writer (``import_kitti``, ``import_carla``, ``pack_recording``) with the executor the
+    options ask for, close the executor, print the report."""
     from staticdepth.dataset.executors import make_executor
+    from staticdepth.dataset.pack import format_report
 
-    return make_executor(args.executor, args.workers, args.address)
+    ex = make_executor(args.executor, args.workers, args.address)
+    try:
+        rep = write(*pos, skip_bad=args.skip_bad, resume=args.resume, overwrite=args.overwrite,
+                    executor=ex, **kw)
+    finally:
+        ex.close()
+    print(format_report(rep))
+    return 0
 
 
 def _import_kitti(args: argparse.Namespace) -> int:
     from staticdepth.dataset.kitti import import_kitti
-    from staticdepth.dataset.pack import format_report
 
-    ex = _executor(args)
-    try:
-        rep = import_kitti(args.root, args.drives, args.out, name=args.name,
-                           adapt_frames=args.adapt_frames, right=args.right,
-                           depth_maps=args.depth_maps, camera_height_m=args.camera_height,
-                           skip_bad=args.skip_bad, resume=args.resume, overwrite=args.overwrite,
-                           executor=ex)
-    finally:
-        ex.close()
-    print(format_report(rep))
-    return 0
+    return _write_with_executor(args, import_kitti, args.root, args.drives, args.out,
+                                name=args.name, adapt_frames=args.adapt_frames, right=args.right,
+                                depth_maps=args.depth_maps, camera_height_m=args.camera_height)
 
 
 def _import_carla(args: argparse.Namespace) -> int:
     from staticdepth.dataset.carla import import_carla
-    from staticdepth.dataset.pack import format_report
 
-    ex = _executor(args)
-    try:
-        rep = import_carla(args.dir, args.out, name=args.name, adapt_frames=args.adapt_frames,
-                           legacy_tags=args.legacy_tags, skip_bad=args.skip_bad,
-                           resume=args.resume, overwrite=args.overwrite, executor=ex)
-    finally:
-        ex.close()
-    print(format_report(rep))
-    return 0
+    return _write_with_executor(args, import_carla, args.dir, args.out, name=args.name,
+                                adapt_frames=args.adapt_frames, legacy_tags=args.legacy_tags)
 
 
 def _pack(args: argparse.Namespace) -> int:
     from staticdepth.cli import parse_overrides
-    from staticdepth.dataset.pack import format_report, pack_recording
+    from staticdepth.dataset.pack import pack_recording
 
-    ex = _executor(args)
-    try:
-        rep = pack_recording(args.recording, args.rig, args.out, camera_height_m=args.camera_height,
-                             adapt_frames=args.adapt_frames, matcher=args.matcher,
-                             model=args.model, overrides=parse_overrides(args.set),
-                             store_right=not args.no_right, name=args.name,
-                             skip_bad=args.skip_bad, resume=args.resume,
-                             overwrite=args.overwrite, executor=ex)
-    finally:
-        ex.close()
-    print(format_report(rep))
-    return 0
+    return _write_with_executor(args, pack_recording, args.recording, args.rig, args.out,
+                                camera_height_m=args.camera_height,
+                                adapt_frames=args.adapt_frames, matcher=args.matcher,
+                                model=args.model, overrides=parse_overrides(args.set),
+                                store_right=not args.no_right, name=args.name)
 
 
 def _export(args: argparse.Namespace) -> int:
