@@ -20,7 +20,7 @@ from staticdepth.errors import InputError
 from staticdepth.evaluate import default_protocol, evaluate_sequence
 from staticdepth.geometry.plane import plane_depth_map
 from staticdepth.metrics import apply_protocol, valid_mask
-from staticdepth.tables import Table, table1, table2, table3, write_tables
+from staticdepth.tables import Table, table1, table2, table3, table_regions, write_tables
 
 PLANE_COLOURS = {"true": (40, 220, 40), "agents": (255, 160, 0), "predicted": (230, 40, 230)}
 
@@ -176,7 +176,7 @@ def build_report(sequences: Mapping[str, str], out_dir: str | os.PathLike,
             raise InputError("no predictions to report (run adapt / baseline first)", seq)
         evals[scene] = evaluate_sequence(seq, names, protocols=protos)["results"]
     anchors = {scene: anchor_row(seq, summaries.get(scene)) for scene, seq in sequences.items()}
-    tables = [table1(evals), table2(anchors), table3(evals)]
+    tables = [table1(evals), table2(anchors), table3(evals), table_regions(evals)]
     paths = write_tables(tables, out_dir)
     for scene, seq in sequences.items():
         figs = sequence_figures(seq, summaries.get(scene))

@@ -103,6 +103,24 @@ def table3(evals: Mapping[str, Mapping[str, Any]]) -> Table:
                  ["scene", "method"] + [LABELS[k] for k in TABLE1_METRICS], rows)
 
 
+def table_regions(evals: Mapping[str, Mapping[str, Any]], key: str = "abs_rel") -> Table:
+    """AbsRel (or ``key``) per stage and region: all pixels, agents, ground, distance bands."""
+    regions: list[str] = []
+    for res in evals.values():
+        for by_prot in res.values():
+            for regs in by_prot.values():
+                regions += [r for r in regs if r not in regions]
+    from staticdepth.evaluate import default_protocol
+
+    rows = []
+    for scene, res in evals.items():
+        for name in res:
+            prot = default_protocol(name)  # relative predictions: median; metric ones: metric
+            rows.append([scene, name, prot] + [_metric(res, name, prot, key, r) for r in regions])
+    return Table(f"Regions: {LABELS.get(key, key)} by region (evaluation split)",
+                 ["scene", "prediction", "protocol"] + regions, rows)
+
+
 def write_tables(tables: Sequence[Table], out_dir: str | os.PathLike, stem: str = "tables") -> list[str]:
     """Write ``<stem>.md`` (all tables) and ``<stem>_<i>.csv`` per table; returns the paths."""
     os.makedirs(out_dir, exist_ok=True)

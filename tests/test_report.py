@@ -55,6 +55,11 @@ def test_report_writes_three_tables_and_offline_html(seq, tmp_path, capsys):
     gt_anchor = float(np.median(gt[35:40, 38:43]))
     assert float(t2[1]) == pytest.approx(gt_anchor, rel=1e-5)
     assert float(t2[5]) == pytest.approx(abs(5.5 - gt_anchor), rel=1e-5)
+    regions = (out / "tables_4.csv").read_text().splitlines()
+    assert regions[0].startswith("scene,prediction,protocol,all,")
+    assert "0-10m" in regions[0]
+    align = next(r for r in regions if r.startswith("S1,align,median"))
+    assert float(align.split(",")[3]) == pytest.approx(0, abs=1e-6)
     html = (out / "report_S1.html").read_text()
     assert html.count("<img src='data:image/png;base64,") >= 10
     assert not re.search(r"src=['\"]http", html)  # viewable offline
