@@ -49,6 +49,8 @@ class AdaptConfig:
     drop_collinear: bool = False          # tracking: straight walkers still constrain the plane
     erode_px: float | None = None         # ground mask: feet hull eroded by this (None: W/80 px)
     eps: float = 1e-6                     # depth = 1 / max(D, eps)
+    agents_at_contact: bool = True        # aligned agents take the plane depth at their contact
+    #                                       (False: the paper's Eq. 2 for every pixel)
     metric_scale: str = "plane"           # "plane": x H_c (aligned maps are in units of the
     #                                       camera height); "anchor": METHOD.md 5 anchor pixel
 
@@ -118,7 +120,8 @@ def adapt(seq_path: str | os.PathLike, conf: AdaptConfig = AdaptConfig(), *, dev
     from staticdepth.dataset.h5 import SequenceReader, add_prediction
     from staticdepth.finetune import finetune
     from staticdepth.geometry.agent_plane import camera_height_from_prior
-    from staticdepth.geometry.alignment import align_depth, depth_from_inverse, ground_mask_from_feet
+    from staticdepth.geometry.alignment import (agents_at_contact, align_depth, depth_from_inverse,
+                                                 ground_mask_from_feet)
     from staticdepth.geometry.scale import scale_from_anchor, temporal_scale
     from staticdepth.models import TorchDepthModel, load_model
     from staticdepth.pseudo_labels import PseudoLabelConfig, pseudo_label
@@ -203,6 +206,10 @@ def adapt(seq_path: str | os.PathLike, conf: AdaptConfig = AdaptConfig(), *, dev
     for name, src in (("align", "base"), ("ft-align", "ft")):
         preds[name] = np.stack([align_depth(preds[src][i], K, plane.normal, 1.0, ground,
                                             agent_mask=agent_masks[i]).depth for i in range(n)])
+        if conf.agents_at_contact:
+            preds[name] = np.stack([agents_at_contact(preds[name][i], K, plane.normal, 1.0,
+                                                      instances[i], rows[i], pl_conf)[0]
+                                    for i in range(n)])
     lap("align")
 
     scales, anchor_scales = {}, {}

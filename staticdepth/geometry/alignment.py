@@ -207,6 +207,33 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
     return Alignment(out.astype(np.float32, copy=False), n_p, d_p, r, int(fb.sum()), False)
 
 
+def agents_at_contact(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, instances: np.ndarray,
+                      rows: np.ndarray, conf=None) -> tuple[np.ndarray, np.ndarray]:
+    """Give each agent the agents' plane depth ``d_g / (n_g . r)`` at its ground contact pixel.
+
+    Eq. 2 moves every point within its depth slice onto the predicted plane, which distorts
+    upright agents; like the pseudo labels (METHOD.md section 1: contact pixel, riders take their
+    vehicle's value, accessories the nearest person's) every pixel of an agent takes one depth,
+    here the plane's at the contact. depth: (H, W) aligned map in units of d_g; instances: (H, W)
+    instance ids; rows: the frame's AGENT_DTYPE rows; conf: a PseudoLabelConfig (default paper).
+    Agents whose contact lies above the agents' horizon keep their depth. Returns the new map and
+    the (H, W) bool mask of changed pixels.
+    """
+    from staticdepth.pseudo_labels import PRESETS, pseudo_label
+
+    Z = np.asarray(depth, dtype=np.float32)
+    h, w = Z.shape
+    n_g = np.asarray(n_g, dtype=np.float64)
+    inv_plane = (ray_grid(np.asarray(K, dtype=np.float64), w, h) @ (n_g / (np.linalg.norm(n_g) * d_g))
+                 ).astype(np.float32)
+    label, mask = pseudo_label(inv_plane, instances, rows, conf or PRESETS["paper"])
+    mask &= label > 0
+    out = Z.copy()
+    out[mask] = 1.0 / label[mask]
+    out[~np.isfinite(Z)] = np.nan
+    return out, mask & np.isfinite(Z)
+
+
 def _median_ratio(ratio: np.ndarray, where: np.ndarray, max_points: int = 20000) -> float:
     vals = ratio[where]
     if len(vals) > max_points:
