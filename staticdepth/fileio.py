@@ -1,0 +1,215 @@
+"""The one atomic writer and the one output lock.
+
+Every command that writes a file goes through here:
+
+- :func:`atomic_path` yields a temporary path beside the output; only when the ``with`` block ends
+  without an exception is the file fsynced and renamed onto the output (``os.replace``), so the
+  output is either the previous complete file or the new complete one, never a half-written one.
+  The temporary file is removed on any error. Temporaries are named ``<out>.tmp-<pid>-<tag>`` and
+  :func:`remove_stale_temporaries` deletes those whose process is gone.
+- :func:`atomic_write_text` / :func:`atomic_write_bytes` / :func:`atomic_write_json` for small
+  outputs.
+- :func:`exclusive_lock` takes an exclusive, non-blocking ``fcntl`` lock on ``<out>.lock`` for the
+  whole time a process writes ``out`` (or adds to it); a second writer gets one clear error line.
+  The kernel drops the lock when the process dies (also on SIGKILL), so a crash never leaves a
+  stale lock behind; the lock file itself is left in place (removing it would race).
+- :func:`os_error` turns an ``OSError`` into an :class:`InputError` naming the path and the
+  problem (disk full, read-only, permission denied, is a folder, ...).
+"""
+from __future__ import annotations
+
+import contextlib
+import errno
+import glob
+import json
+import os
+import re
+from typing import Any, Iterator
+
+from staticdepth.errors import InputError
+
+_TMP_RE = re.compile(r"\.tmp-(\d+)-[A-Za-z0-9_]*$")
+
+_PROBLEMS = {
+    errno.ENOSPC: "no space left on the device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EROFS: "read-only file system",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.EISDIR: "is a folder, not a file",
+    errno.ENOTDIR: "a parent of the path is not a folder",
+    errno.ENOENT: "no such file or folder",
+    errno.EFBIG: "file too large (file-size limit reached)",
+    errno.ENAMETOOLONG: "file name too long",
+    errno.EEXIST: "already exists",
+}
+
+
+def os_error(e: OSError, path: str | os.PathLike | None = None) -> InputError:
+    """An :class:`InputError` for ``e``: ``<path>: <problem>``."""
+    where = path if path is not None else (e.filename or None)
+    problem = _PROBLEMS.get(e.errno or -1) or (e.strerror or str(e))
+    return InputError(problem, where)
+
+
+def _fsync_dir(path: str) -> None:
+    try:
+        fd = os.open(os.path.dirname(os.path.abspath(path)) or ".", os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def fsync_file(path: str | os.PathLike) -> None:
+    """fsync a file and its folder (the folder entry matters for a rename to survive a crash)."""
+    path = os.fspath(path)
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    _fsync_dir(path)
+
+
+def temporary_path(path: str | os.PathLike, tag: str = "") -> str:
+    """``<path>.tmp-<pid>-<tag>``: beside the output (same file system, so the rename is atomic)."""
+    return f"{os.fspath(path)}.tmp-{os.getpid()}-{tag}"
+
+
+def _check_output_path(path: str) -> None:
+    if os.path.isdir(path):
+        raise InputError("is a folder, not a file (give a file name)", path)
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise InputError("its folder does not exist", path)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, tag: str = "", *, fsync: bool = True) -> Iterator[str]:
+    """Yield a temporary path; on success it is fsynced and renamed onto ``path``.
+
+    On any exception the temporary file is removed and ``path`` is untouched; an ``OSError`` is
+    re-raised as an :class:`InputError` naming ``path``.
+    """
+    path = os.fspath(path)
+    _check_output_path(path)
+    tmp = temporary_path(path, tag)
+    try:
+        yield tmp
+        if fsync:
+            fd = os.open(tmp, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        os.replace(tmp, path)
+        if fsync:
+            _fsync_dir(path)
+    except OSError as e:
+        raise os_error(e, path) from None
+    finally:
+        if os.path.lexists(tmp):
+            with contextlib.suppress(OSError):
+                os.remove(tmp)
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            f.write(data)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> None:
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_json(path: str | os.PathLike, obj: Any, *, indent: int = 2) -> None:
+    atomic_write_text(path, json.dumps(obj, indent=indent, sort_keys=False) + "\n")
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def remove_stale_temporaries(path: str | os.PathLike) -> list[str]:
+    """Delete ``<path>.tmp-<pid>-*`` files (or folders) whose process no longer exists."""
+    import shutil
+
+    removed = []
+    for p in glob.glob(glob.escape(os.fspath(path)) + ".tmp-*"):
+        m = _TMP_RE.search(p)
+        if not m or _pid_alive(int(m.group(1))):
+            continue
+        with contextlib.suppress(OSError):
+            if os.path.isdir(p) and not os.path.islink(p):
+                shutil.rmtree(p)
+            else:
+                os.remove(p)
+            removed.append(p)
+    return removed
+
+
+class OutputLocked(InputError):
+    """Another process holds the output's lock."""
+
+
+@contextlib.contextmanager
+def exclusive_lock(path: str | os.PathLike, *, what: str = "writing") -> Iterator[None]:
+    """Hold an exclusive lock on ``<path>.lock`` for the block; fail at once if another holds it.
+
+    Re-entrant within one process for the same path (a command that locks an output and then
+    calls a library function that locks it again does not deadlock itself).
+    """
+    import fcntl
+
+    path = os.path.abspath(os.fspath(path))
+    if path in _HELD:
+        _HELD[path] += 1
+        try:
+            yield
+        finally:
+            _HELD[path] -= 1
+        return
+    lock = path + ".lock"
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as e:
+        raise os_error(e, lock) from None
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            try:
+                holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+            except OSError:
+                holder = "?"
+            raise OutputLocked(f"another staticdepth process (pid {holder}) is {what} this file; "
+                               "wait for it to finish or stop it", path) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        _HELD[path] = 1
+        try:
+            yield
+        finally:
+            del _HELD[path]
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, 0)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+    finally:
+        os.close(fd)
+
+
+_HELD: dict[str, int] = {}

@@ -1,0 +1,107 @@
+"""The one atomic writer and the one output lock (staticdepth.fileio)."""
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from staticdepth.errors import InputError
+from staticdepth.fileio import (OutputLocked, atomic_path, atomic_write_text, exclusive_lock,
+                                remove_stale_temporaries)
+
+
+def test_atomic_write_replaces_only_on_success(tmp_path):
+    out = tmp_path / "a.txt"
+    atomic_write_text(out, "old")
+    with pytest.raises(RuntimeError):
+        with atomic_path(out) as tmp:
+            with open(tmp, "w") as f:
+                f.write("half")
+            raise RuntimeError("killed")
+    assert out.read_text() == "old"
+    assert sorted(os.listdir(tmp_path)) == ["a.txt"]
+    atomic_write_text(out, "new")
+    assert out.read_text() == "new"
+
+
+def test_atomic_write_onto_folder_is_one_error(tmp_path):
+    with pytest.raises(InputError, match="is a folder"):
+        atomic_write_text(tmp_path, "x")
+    assert os.listdir(tmp_path) == []
+
+
+def test_os_errors_become_one_line():
+    import errno
+    from staticdepth.fileio import os_error
+    e = os_error(OSError(errno.ENOSPC, "No space left on device"), "/x/seq.h5")
+    assert str(e) == "/x/seq.h5: no space left on the device"
+    assert "read-only" in str(os_error(OSError(errno.EROFS, "ro"), "/x"))
+
+
+def test_file_size_limit_keeps_previous_output(tmp_path):
+    """A real EFBIG (RLIMIT_FSIZE) mid-write: one error, the old file intact, no temporary left."""
+    out = tmp_path / "big.bin"
+    out.write_bytes(b"old")
+    code = textwrap.dedent(f"""
+        import resource, signal, sys
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+        from staticdepth.errors import InputError
+        from staticdepth.fileio import atomic_write_bytes
+        try:
+            atomic_write_bytes({str(out)!r}, b"x" * 100000)
+        except InputError as e:
+            print(e); sys.exit(2)
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 2 and "file too large" in r.stdout, r.stdout + r.stderr
+    assert out.read_bytes() == b"old"
+    assert os.listdir(tmp_path) == ["big.bin"]
+
+
+def test_lock_refuses_a_second_process(tmp_path):
+    out = tmp_path / "seq.h5"
+    code = textwrap.dedent(f"""
+        import sys
+        from staticdepth.fileio import exclusive_lock, OutputLocked
+        try:
+            with exclusive_lock({str(out)!r}):
+                pass
+        except OutputLocked as e:
+            print(e); sys.exit(3)
+    """)
+    with exclusive_lock(out):
+        with exclusive_lock(out):  # re-entrant in one process
+            r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 3 and f"pid {os.getpid()}" in r.stdout
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_lock_released_when_holder_is_killed(tmp_path):
+    out = tmp_path / "seq.h5"
+    p = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
+        import time
+        from staticdepth.fileio import exclusive_lock
+        with exclusive_lock({str(out)!r}):
+            print('locked', flush=True); time.sleep(60)
+    """)], stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "locked"
+    with pytest.raises(OutputLocked):
+        with exclusive_lock(out):
+            pass
+    p.kill(); p.wait()
+    with exclusive_lock(out):
+        pass
+
+
+def test_stale_temporaries_removed(tmp_path):
+    out = tmp_path / "seq.h5"
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True).stdout.strip()
+    stale = tmp_path / f"seq.h5.tmp-{dead}-pred"
+    mine = tmp_path / f"seq.h5.tmp-{os.getpid()}-pred"
+    stale.write_text("x"); mine.write_text("y")
+    assert remove_stale_temporaries(out) == [str(stale)]
+    assert mine.exists() and not stale.exists()
