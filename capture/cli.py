@@ -165,8 +165,9 @@ def _capture(args: argparse.Namespace) -> int:
                                on_frame=lambda n, rec: bar.update(1))
     print(format_summary(root, summary))
     if args.summary_json:
-        with open(args.summary_json, "w") as f:
-            json.dump({"recording": str(root), **summary}, f, indent=2)
+        from staticdepth.fileio import atomic_write_json
+
+        atomic_write_json(args.summary_json, {"recording": str(root), **summary})
     if summary["status"] in ("disk_full", "write_error"):
         print(f"staticdepth capture: error: recording stopped: {summary['detail']}",
               file=sys.stderr)

@@ -243,7 +243,8 @@ def carla_tasks(folder: str | os.PathLike, *, legacy_tags: bool = False
 
 def import_carla(folder: str | os.PathLike, out: str | os.PathLike, *, name: str | None = None,
                  adapt_frames: int = 0, legacy_tags: bool = False, skip_bad: bool = False,
-                 resume: bool = False, overwrite: bool = False, executor=None):
+                 resume: bool = False, overwrite: bool = False, executor=None,
+                 restart: bool = False):
     """Import a CARLA export folder into one sequence file; returns the write report."""
     tasks, labels, sensor = carla_tasks(folder, legacy_tags=legacy_tags)
     has_right = tasks[0].right is not None
@@ -263,7 +264,7 @@ def import_carla(folder: str | os.PathLike, out: str | os.PathLike, *, name: str
                else ("left", "depth", "instances"))
     return write_frames(out, meta, streams, tasks, load_frame, labels=labels, skip_bad=skip_bad,
                         resume=resume, overwrite=overwrite, aux=(AuxStream("ground"),),
-                        executor=executor, desc="import-carla")
+                        executor=executor, desc="import-carla", restart=restart)
 
 
 def write_carla_frame(folder: str | os.PathLike, index: int, rgb: np.ndarray, depth: np.ndarray,

@@ -21,6 +21,10 @@ def register(sub) -> None:
                    help="override a scene setting, e.g. --set camera_height_m=6")
     p.add_argument("--out", required=True, help="output sequence file (.h5)")
     p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run (<out>.partial)")
+    p.add_argument("--restart", action="store_true",
+                   help="discard an interrupted run's <out>.partial and start over")
     p.set_defaults(func=_synth)
 
     p = sub.add_parser("inspect", help="summarise and check a sequence file",
@@ -44,7 +48,8 @@ def _synth(args: argparse.Namespace) -> int:
 
     info = render_to_file(args.out, preset_name=args.preset, n_frames=args.frames,
                           adapt_frames=args.adapt_frames, seed=args.seed,
-                          overrides=parse_overrides(args.set), overwrite=args.overwrite)
+                          overrides=parse_overrides(args.set), overwrite=args.overwrite,
+                          resume=args.resume, restart=args.restart)
     print(f"wrote {info['frames']} frames ({info['size']}, adapt {info['adapt_frames']}) "
           f"to {args.out} in {info['seconds']:.1f} s")
     return 0
@@ -61,8 +66,9 @@ def _inspect(args: argparse.Namespace) -> int:
             write_png(args.sheet, thumbnail_sheet(r))
             print(f"  sheet            {args.sheet}")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(info, f, indent=2, default=str)
+        from staticdepth.fileio import atomic_write_text
+
+        atomic_write_text(args.json, json.dumps(info, indent=2, default=str) + "\n")
     return 0
 
 

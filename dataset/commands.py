@@ -14,6 +14,8 @@ def _writer_options(p: argparse.ArgumentParser, executors: bool = True) -> None:
                    help="skip unreadable frames (listed and counted) instead of stopping")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted run (<out>.partial)")
+    p.add_argument("--restart", action="store_true",
+                   help="discard an interrupted run's <out>.partial and start over")
     p.add_argument("--overwrite", action="store_true")
     if executors:
         p.add_argument("--workers", type=int, default=1, help="local worker processes")
@@ -98,10 +100,12 @@ def _write_with_executor(args: argparse.Namespace, write, *pos, **kw) -> int:
     from staticdepth.dataset.executors import make_executor
     from staticdepth.dataset.pack import format_report
 
+    if args.resume and args.restart:
+        raise InputError("give --resume or --restart, not both")
     ex = make_executor(args.executor, args.workers, args.address)
     try:
         rep = write(*pos, skip_bad=args.skip_bad, resume=args.resume, overwrite=args.overwrite,
-                    executor=ex, **kw)
+                    executor=ex, restart=args.restart, **kw)
     finally:
         ex.close()
     print(format_report(rep))

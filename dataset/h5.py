@@ -11,13 +11,17 @@ This module alone talks to h5py. Guarantees:
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import re
 import shutil
+import signal
+import threading
 import time
 import zlib
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Iterator, Mapping
+from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 import h5py
 import numpy as np
@@ -116,6 +120,19 @@ def _frame_checksum(a: np.ndarray) -> int:
     return zlib.crc32(np.ascontiguousarray(a).view(np.uint8).data) & 0xFFFFFFFF
 
 
+def _write_error(e: BaseException, path: str) -> InputError:
+    """An HDF5 or OS write error as one line (HDF5 hides the errno in its message)."""
+    from staticdepth.fileio import os_error
+
+    code = getattr(e, "errno", None)
+    if code is None:
+        m = re.search(r"errno = (\d+)", str(e))
+        code = int(m.group(1)) if m else None
+    if code is not None:
+        return os_error(OSError(code, os.strerror(code)), path)
+    return InputError(f"cannot write: {str(e).splitlines()[0][:160]}", path)
+
+
 class SequenceWriter:
     """Append frames to a new sequence file; finish atomically.
 
@@ -128,7 +145,16 @@ class SequenceWriter:
 
     def __init__(self, path: str | os.PathLike, meta: SequenceMeta,
                  streams: Iterable[str] = ("left", "depth"), *, resume: bool = False,
-                 overwrite: bool = False, aux: Mapping[str, Any] | None = None):
+                 overwrite: bool = False, aux: Mapping[str, Any] | None = None,
+                 restart: bool = False, settings: Mapping[str, Any] | None = None,
+                 inputs: Sequence[str] | None = None, labels: Sequence[str] | None = None,
+                 warn=print):
+        """``settings``: what else changes the output (beside ``meta``); ``inputs``: one identity
+        per input frame (:func:`staticdepth.dataset.resume.task_identity`), ``labels`` their names;
+        both are stored and a ``resume`` with others is refused (see :mod:`.resume`)."""
+        from staticdepth.dataset import resume as rs
+        from staticdepth.fileio import exclusive_lock, remove_stale_temporaries
+
         self.path = os.fspath(path)
         self.partial = self.path + PARTIAL_SUFFIX
         self.meta = meta
@@ -145,14 +171,48 @@ class SequenceWriter:
             raise InputError("output folder does not exist", parent)
         self._f: h5py.File | None = None
         self.n = 0
-        if resume and os.path.exists(self.partial):
-            self._open_resume()
-        else:
-            self._create()
+        self.resumed_from = 0
+        self._fingerprint = rs.settings_fingerprint(meta.to_attrs(), self.streams, self.aux,
+                                                    settings)
+        self._inputs = None if inputs is None else list(inputs)
+        self._lock = contextlib.ExitStack()
+        self._lock.enter_context(exclusive_lock(self.path, what="writing"))
+        try:
+            remove_stale_temporaries(self.path)
+            if os.path.exists(self.partial) and not (resume or restart):
+                raise InputError("an interrupted run left this file: --resume continues it, "
+                                 "--restart starts over", self.partial)
+            f = rs.open_partial(self.partial, warn) if resume and os.path.exists(
+                self.partial) else None
+            if f is not None:
+                self._resume(f, rs, labels)
+            else:
+                self._create()
+            self._install_sigterm()
+        except BaseException:
+            if self._f is not None:
+                self._f.close()
+                self._f = None
+            self._lock.close()
+            raise
 
     # -- setup ----------------------------------------------------------------------------------
     def _create(self) -> None:
-        f = h5py.File(self.partial, "w", libver="latest")
+        from staticdepth.dataset import resume as rs
+
+        try:
+            f = h5py.File(self.partial, "w", libver=rs.LIBVER)
+        except OSError as e:
+            raise _write_error(e, self.partial) from None
+        self._f = f
+        try:
+            self._layout(f)
+            rs.store(f, self._fingerprint, self._inputs)
+            f.flush()
+        except OSError as e:
+            self._fail(e)
+
+    def _layout(self, f: h5py.File) -> None:
         w, h = self.meta.camera.width, self.meta.camera.height
         for name in self.streams:
             shape = (h, w, 3) if name in ("left", "right") else (h, w)
@@ -165,6 +225,8 @@ class SequenceWriter:
         for name, dt in self.aux.items():
             f.create_dataset(f"aux/{name}", shape=(0, h, w), maxshape=(None, h, w),
                              chunks=(1, h, w), dtype=dt, **_compression("int"))
+            f.create_dataset(f"crc32/aux/{name}", shape=(0,), maxshape=(None,), dtype=np.uint32,
+                             chunks=(4096,))
         f.create_dataset("timestamps", shape=(0,), maxshape=(None,), dtype=np.float64,
                          chunks=(4096,))
         f.create_dataset("agents", shape=(0,), maxshape=(None,), dtype=schema.AGENT_DTYPE,
@@ -177,36 +239,79 @@ class SequenceWriter:
         f.attrs["n_written"] = 0
         f.attrs["streams"] = json.dumps(list(self.streams))
         f.attrs["aux"] = json.dumps(sorted(self.aux))
-        self._f = f
 
-    def _open_resume(self) -> None:
+    def _resume(self, f: h5py.File, rs, labels) -> None:
+        self._f = f
         try:
-            f = h5py.File(self.partial, "a")
             n = int(f.attrs["n_written"])
             stored = tuple(json.loads(f.attrs["streams"]))
             stored_aux = json.loads(f.attrs.get("aux", "[]"))
-        except (OSError, KeyError, ValueError):
-            # The partial file itself was damaged by the interruption: start it again.
-            os.remove(self.partial)
-            self._create()
-            return
+        except (OSError, KeyError, ValueError) as e:
+            raise InputError(f"cannot resume: the partial file is damaged ({e}); --restart "
+                             "starts over", self.partial) from None
         if (stored != self.streams or stored_aux != sorted(self.aux)
                 or int(f.attrs["width"]) != self.meta.camera.width):
-            f.close()
             raise InputError(f"cannot resume: the partial file has streams {stored} and aux "
                              f"{stored_aux}, not {self.streams} and {sorted(self.aux)}",
                              self.partial)
+        diff = rs.differences(f, self._fingerprint, self._inputs, labels)
+        if diff:
+            raise rs.refuse(self.partial, diff)
+        rs.store(f, self._fingerprint, self._inputs)
+        n = rs.last_complete(f, n, _frame_checksum,
+                             list(self.streams) + [f"aux/{a}" for a in self.aux])
         for name in self.streams:
             f[name].resize(n, axis=0)
             f[f"crc32/{name}"].resize(n, axis=0)
         for name in self.aux:
             f[f"aux/{name}"].resize(n, axis=0)
+            f[f"crc32/aux/{name}"].resize(n, axis=0)
         f["timestamps"].resize(n, axis=0)
         agents = f["agents"]
         keep = int(np.count_nonzero(agents["frame"][:] < n)) if len(agents) else 0
         agents.resize(keep, axis=0)
-        self._f = f
-        self.n = n
+        f.attrs["n_written"] = n
+        runs = json.loads(f.attrs.get("resumed_after", "[]"))
+        f.attrs["resumed_after"] = json.dumps(runs + [n])
+        f.flush()
+        self.n = self.resumed_from = n
+
+    def _install_sigterm(self) -> None:
+        """SIGTERM ends the run like Ctrl-C: the partial is flushed and closed for ``--resume``."""
+        self._old_term = None
+        if threading.current_thread() is not threading.main_thread():
+            return
+        if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+            return
+
+        def on_term(signum, frame):
+            raise SystemExit(f"terminated (SIGTERM): {self.partial} keeps {self.n} frames; "
+                             "run again with --resume to continue")
+
+        self._old_term = signal.signal(signal.SIGTERM, on_term)
+
+    def _restore_sigterm(self) -> None:
+        if getattr(self, "_old_term", None) is not None:
+            signal.signal(signal.SIGTERM, self._old_term)
+            self._old_term = None
+
+    def _fail(self, e: BaseException) -> None:
+        """A write failed (disk full, read-only, file-size limit): close, keep or remove the
+        partial, release the lock, and raise one line."""
+        n = self.n
+        with contextlib.suppress(Exception):
+            self._f.close()
+        self._f = None
+        self._restore_sigterm()
+        err = _write_error(e, self.partial)
+        if n == 0:
+            with contextlib.suppress(OSError):
+                os.remove(self.partial)
+            self._lock.close()
+            raise InputError(f"{err.problem}; nothing was kept", self.partial) from None
+        self._lock.close()
+        raise InputError(f"{err.problem}; the {n} frames written are kept: make room and run "
+                         "again with --resume (or delete the file)", self.partial) from None
 
     # -- writing --------------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -241,37 +346,43 @@ class SequenceWriter:
         if missing or extra:
             raise InputError(f"frame {self.n}: expected streams {self.streams}, got {sorted(frames)}")
         i = self.n
+        arrays = {}
         for name in self.streams:
             a = np.asarray(frames[name])
             ds = f[name]
             if a.shape != ds.shape[1:]:
                 raise InputError(f"frame {i}: {name} has shape {a.shape}, expected {ds.shape[1:]}")
-            a = a.astype(ds.dtype, copy=False)
-            ds.resize(i + 1, axis=0)
-            ds[i] = a
-            crc = f[f"crc32/{name}"]
-            crc.resize(i + 1, axis=0)
-            crc[i] = _frame_checksum(a)
+            arrays[name] = a.astype(ds.dtype, copy=False)
         for name in self.aux:
             a = np.asarray(aux[name])
             ds = f[f"aux/{name}"]
             if a.shape != ds.shape[1:]:
                 raise InputError(f"frame {i}: aux {name} has shape {a.shape}, "
                                  f"expected {ds.shape[1:]}")
-            ds.resize(i + 1, axis=0)
-            ds[i] = a.astype(ds.dtype, copy=False)
-        ts = f["timestamps"]
-        ts.resize(i + 1, axis=0)
-        ts[i] = float(i) if timestamp is None else float(timestamp)
-        if agents is not None and len(agents):
-            rows = np.asarray(agents).astype(schema.AGENT_DTYPE)
-            rows["frame"] = i
-            ds = f["agents"]
-            k = len(ds)
-            ds.resize(k + len(rows), axis=0)
-            ds[k:] = rows
+            arrays[f"aux/{name}"] = a.astype(ds.dtype, copy=False)
+        try:
+            for key, a in arrays.items():
+                ds = f[key]
+                ds.resize(i + 1, axis=0)
+                ds[i] = a
+                crc = f[f"crc32/{key}"]
+                crc.resize(i + 1, axis=0)
+                crc[i] = _frame_checksum(a)
+            ts = f["timestamps"]
+            ts.resize(i + 1, axis=0)
+            ts[i] = float(i) if timestamp is None else float(timestamp)
+            if agents is not None and len(agents):
+                rows = np.asarray(agents).astype(schema.AGENT_DTYPE)
+                rows["frame"] = i
+                ds = f["agents"]
+                k = len(ds)
+                ds.resize(k + len(rows), axis=0)
+                ds[k:] = rows
+            f.attrs["n_written"] = i + 1
+            f.flush()  # every frame on disk: a killed run's partial reopens (see resume.py)
+        except OSError as e:
+            self._fail(e)
         self.n = i + 1
-        f.attrs["n_written"] = self.n
         return i
 
     def flush(self) -> None:
@@ -287,28 +398,45 @@ class SequenceWriter:
             f.close()
             self._f = None
             os.remove(self.partial)
+            self.abort()
             raise InputError("no frames were written", self.path)
         if self.meta.adapt_frames > self.n:
             f.close()
             self._f = None
+            self.abort()
             raise InputError(f"adapt_frames = {self.meta.adapt_frames} exceeds the "
                              f"{self.n} frames written", self.path)
-        f.attrs["n_frames"] = self.n
-        f.attrs["complete"] = True
-        f.flush()
-        f.close()
-        self._f = None
-        _fsync_path(self.partial)
-        os.replace(self.partial, self.path)
-        _fsync_path(self.path)
+        try:
+            for key in ("timestamps", "agents"):  # whole-dataset checksums (verify reads them)
+                f[key].attrs["crc32"] = _frame_checksum(f[key][:])
+            f.attrs["n_frames"] = self.n
+            f.attrs["complete"] = True
+            f.flush()
+            f.close()
+            self._f = None
+            _fsync_path(self.partial)
+            os.replace(self.partial, self.path)
+            _fsync_path(self.path)
+        except OSError as e:
+            self.n = max(self.n, 1)
+            self._fail(e)
+        finally:
+            self._restore_sigterm()
+            self._lock.close()
         return self.path
 
     def abort(self) -> None:
         """Close without finishing: the ``.partial`` file stays for a later ``resume``."""
-        if self._f is not None:
-            self._f.flush()
-            self._f.close()
-            self._f = None
+        try:
+            if self._f is not None:
+                with contextlib.suppress(Exception):
+                    self._f.flush()
+                with contextlib.suppress(Exception):
+                    self._f.close()
+                self._f = None
+        finally:
+            self._restore_sigterm()
+            self._lock.close()
 
     def __enter__(self) -> "SequenceWriter":
         return self

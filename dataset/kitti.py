@@ -299,7 +299,7 @@ def import_kitti(root: str | os.PathLike, drives: Sequence[str], out: str | os.P
                  depth_maps: str | None = None, camera_height_m: float = KITTI_CAMERA_HEIGHT_M,
                  skip_bad: bool = False, resume: bool = False, overwrite: bool = False,
                  max_diff: float = 12.0, max_shift_px: float = 2.0, executor=None,
-                 warn=print):
+                 warn=print, restart: bool = False):
     """Concatenate ``drives`` (in order) into one sequence file; returns the write report.
 
     Grouped drives must share one camera pose: their median images are compared and ``warn``
@@ -345,4 +345,5 @@ def import_kitti(root: str | os.PathLike, drives: Sequence[str], out: str | os.P
                     "licence": "CC BY-NC-SA 3.0 (KITTI)"})
     streams = ("left", "right", "depth") if right else ("left", "depth")
     return write_frames(out, meta, streams, tasks, load_frame, labels=labels, skip_bad=skip_bad,
-                        resume=resume, overwrite=overwrite, executor=executor, desc="import-kitti")
+                        resume=resume, overwrite=overwrite, executor=executor, desc="import-kitti",
+                        restart=restart)

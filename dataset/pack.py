@@ -153,13 +153,17 @@ def write_frames(out: str | os.PathLike, meta: SequenceMeta, streams: Sequence[s
                  tasks: Sequence[Any], load: Callable[[Any], LoadedFrame], *,
                  labels: Sequence[str] | None = None, skip_bad: bool = False,
                  resume: bool = False, overwrite: bool = False, aux: Sequence[AuxStream] = (),
-                 executor=None, desc: str = "pack") -> WriteReport:
+                 executor=None, desc: str = "pack", restart: bool = False,
+                 settings: Mapping[str, Any] | None = None) -> WriteReport:
     """Load every task's frame and write the sequence ``out`` atomically; see the module doc.
 
     ``labels[i]`` names task i in skip lists and errors (default: its index). ``executor`` maps
-    the loader over tasks in order (default: serial, in this process).
+    the loader over tasks in order (default: serial, in this process). Every task's identity
+    (its fields and its files' size and mtime) and ``settings`` are stored, so that ``resume``
+    with other inputs is refused (``restart`` starts over).
     """
     from staticdepth.dataset.executors import SerialExecutor
+    from staticdepth.dataset.resume import callable_identity, task_identity
 
     labels = [str(i) for i in range(len(tasks))] if labels is None else list(labels)
     if len(labels) != len(tasks):
@@ -168,7 +172,9 @@ def write_frames(out: str | os.PathLike, meta: SequenceMeta, streams: Sequence[s
         raise InputError("no frames to write", out)
     executor = executor or SerialExecutor()
     w = SequenceWriter(out, meta, streams, resume=resume, overwrite=overwrite,
-                       aux={a.name: a.dtype for a in aux})
+                       aux={a.name: a.dtype for a in aux}, restart=restart,
+                       settings={"loader": callable_identity(load), **dict(settings or {})},
+                       inputs=[task_identity(t) for t in tasks], labels=labels)
     try:
         skipped: list[dict[str, str]] = json.loads(w.get_attr("skipped", "[]")) if len(w) else []
         done_skips = {s["frame"] for s in skipped}
@@ -307,7 +313,7 @@ def pack_recording(recording: str | os.PathLike, rig_path: str | os.PathLike | N
                    adapt_frames: int = 0, matcher: str = "sgbm", model: str | None = None,
                    overrides: Mapping[str, Any] | None = None, store_right: bool = True,
                    name: str | None = None, skip_bad: bool = False, resume: bool = False,
-                   overwrite: bool = False, executor=None) -> WriteReport:
+                   overwrite: bool = False, executor=None, restart: bool = False) -> WriteReport:
     """Stereo depth for every pair of a recording, written as one sequence file (see module doc).
 
     Stored images are the rectified pair, the camera is the rectified left camera, and depth is
@@ -355,4 +361,5 @@ def pack_recording(recording: str | os.PathLike, rig_path: str | os.PathLike | N
                           store_right)
     streams = ("left", "right", "depth") if store_right else ("left", "depth")
     return write_frames(out, meta, streams, tasks, loader, labels=labels, skip_bad=skip_bad,
-                        resume=resume, overwrite=overwrite, executor=executor, desc="pack")
+                        resume=resume, overwrite=overwrite, executor=executor, desc="pack",
+                        restart=restart)

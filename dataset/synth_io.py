@@ -13,7 +13,7 @@ from staticdepth.progress import progress
 def render_to_file(out: str | os.PathLike, *, preset_name: str = "demo", n_frames: int = 60,
                    adapt_frames: int | None = None, seed: int = 0,
                    overrides: Mapping[str, Any] | None = None, overwrite: bool = False,
-                   resume: bool = False) -> dict[str, Any]:
+                   resume: bool = False, restart: bool = False) -> dict[str, Any]:
     """Render ``n_frames`` of a preset scene to ``out``; returns a small summary dict."""
     from staticdepth.dataset.synth import SyntheticScene, preset
 
@@ -32,7 +32,10 @@ def render_to_file(out: str | os.PathLike, *, preset_name: str = "demo", n_frame
                                     "overrides": dict(overrides or {}),
                                     "config": scene.config_dict()})
     with SequenceWriter(out, meta, streams=("left", "right", "depth", "instances"),
-                        overwrite=overwrite, resume=resume) as w:
+                        overwrite=overwrite, resume=resume, restart=restart,
+                        settings={"frames": n_frames}) as w:
+        if w.resumed_from:
+            print(f"resuming after frame {w.resumed_from}")
         for i in progress(range(len(w), n_frames), total=n_frames - len(w), desc="render",
                           unit="frame"):
             fr = scene.render(i)

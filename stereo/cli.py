@@ -38,9 +38,13 @@ def register(sub) -> None:
     p.add_argument("--right", help="right frames: folder, glob, video or one image")
     p.add_argument("--recording", help="a recorded sequence instead of --left/--right: a "
                                        "`staticdepth capture` folder or DIR/left, DIR/right")
-    p.add_argument("--out", help="sequence file to write (.h5); resumes a killed run")
+    p.add_argument("--out", help="sequence file to write (.h5)")
     p.add_argument("--name", help="sequence name (default: the output's stem)")
     p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run (<out>.partial) with the same inputs")
+    p.add_argument("--restart", action="store_true",
+                   help="discard an interrupted run's <out>.partial and start over")
     p.add_argument("--rectified", action="store_true", help="one already rectified pair, no rig")
     p.add_argument("--max-disparity", type=int, help="disparity range in px, rounded up to 16 "
                                                      "(sequences: default from --min-depth)")
@@ -134,6 +138,8 @@ def cmd_stereo(args: argparse.Namespace) -> int:
         raise InputError("give either --recording or --left/--right, not both")
     if not args.recording and not (args.left and args.right):
         raise InputError("stereo needs --left and --right (or --recording DIR)")
+    if args.resume and args.restart:
+        raise InputError("give --resume or --restart, not both")
     if args.rectified:
         return _stereo_pair(args)
     if not (args.rig or args.recording) or not args.out:
@@ -185,6 +191,10 @@ class _Frames:
     right_files: list[str] | None = None
     timestamps: list[float] | None = None
     rig: StereoRig | None = None        # a recording's own rig
+
+    def labels(self) -> list[str]:
+        return ([os.path.basename(f) for f in self.left_files] if self.left_files
+                else [str(i) for i in range(self.count)])
 
 
 def _stream(spec: str):
@@ -255,8 +265,9 @@ def _stereo_sequence(args) -> int:
                         rig=StereoRig.rectified(pipe.camera, pipe.baseline_m),
                         mounting=_rectified_mounting(rig),
                         provenance={**pipe.provenance(), "input_rig": rig.to_dict()})
-    writer = SequenceWriter(args.out, meta, streams=("left", "right", "depth"), resume=True,
-                            overwrite=args.overwrite)
+    writer = SequenceWriter(args.out, meta, streams=("left", "right", "depth"),
+                            resume=args.resume, restart=args.restart, overwrite=args.overwrite,
+                            inputs=_input_identities(frames, args), labels=frames.labels())
     start = len(writer)
     try:
         pairs = frames.pairs(start)
@@ -275,6 +286,16 @@ def _stereo_sequence(args) -> int:
     out = writer.close()
     print(f"{frames.count} frames ({start} resumed) -> {out}")
     return 0
+
+
+def _input_identities(frames: _Frames, args) -> list[str]:
+    """One identity per input pair (file paths with size and mtime; a video's by frame index)."""
+    from staticdepth.dataset.resume import task_identity
+
+    if frames.left_files and frames.right_files:
+        return [task_identity((a, b)) for a, b in zip(frames.left_files, frames.right_files)]
+    whole = task_identity((args.left, args.right))
+    return [task_identity((whole, str(i))) for i in range(frames.count)]
 
 
 def _rectified_mounting(rig: StereoRig):

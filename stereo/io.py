@@ -108,9 +108,10 @@ def write_pfm(path: str | os.PathLike, image: np.ndarray) -> None:
         header = "PF"
     else:
         raise InputError(f"PFM stores (H, W) or (H, W, 3) images, got {a.shape}", path)
-    with open(path, "wb") as f:
-        f.write(f"{header}\n{a.shape[1]} {a.shape[0]}\n-1.0\n".encode("ascii"))
-        f.write(np.ascontiguousarray(a[::-1]).astype("<f4").tobytes())
+    from staticdepth.fileio import atomic_write_bytes
+
+    atomic_write_bytes(path, f"{header}\n{a.shape[1]} {a.shape[0]}\n-1.0\n".encode("ascii")
+                       + np.ascontiguousarray(a[::-1]).astype("<f4").tobytes())
 
 
 def read_pfm(path: str | os.PathLike) -> np.ndarray:
@@ -139,7 +140,12 @@ def read_pfm(path: str | os.PathLike) -> np.ndarray:
 
 
 def write_disparity(path: str | os.PathLike, disparity: np.ndarray) -> None:
-    """Write a disparity map (float32, NaN = invalid) by extension: .pfm, .png (x256) or .npy."""
+    """Write a disparity map (float32, NaN = invalid) by extension: .pfm, .png (x256) or .npy,
+    atomically (the previous file stays whole until the new one is complete)."""
+    import io
+
+    from staticdepth.fileio import atomic_write_bytes
+
     path = os.fspath(path)
     d = np.asarray(disparity, dtype=np.float32)
     ext = os.path.splitext(path)[1].lower()
@@ -150,10 +156,14 @@ def write_disparity(path: str | os.PathLike, disparity: np.ndarray) -> None:
             raise InputError("disparity above 255.99 px does not fit a uint16 x256 PNG "
                              "(write .pfm or .npy)", path)
         q = np.where(np.isfinite(d) & (d > 0), np.round(d * 256), 0).astype(np.uint16)
-        if not cv2.imwrite(path, q):
-            raise InputError("cannot write PNG", path)
+        ok, data = cv2.imencode(".png", q)
+        if not ok:
+            raise InputError("cannot encode PNG", path)
+        atomic_write_bytes(path, data.tobytes())
     elif ext == ".npy":
-        np.save(path, d)
+        buf = io.BytesIO()
+        np.save(buf, d)
+        atomic_write_bytes(path, buf.getvalue())
     else:
         raise InputError("disparity output must end in .pfm, .png or .npy", path)
 
@@ -198,8 +208,8 @@ def write_ply(path: str | os.PathLike, points: np.ndarray, colors: np.ndarray | 
     rows["x"], rows["y"], rows["z"] = P[:, 0], P[:, 1], P[:, 2]
     if colors is not None:
         rows["r"], rows["g"], rows["b"] = C[:, 0], C[:, 1], C[:, 2]
-    with open(path, "wb") as f:
-        f.write(f"ply\nformat binary_little_endian 1.0\nelement vertex {len(P)}\n{props}"
-                "end_header\n".encode("ascii"))
-        f.write(rows.tobytes())
+    from staticdepth.fileio import atomic_write_bytes
+
+    atomic_write_bytes(path, f"ply\nformat binary_little_endian 1.0\nelement vertex {len(P)}\n"
+                       f"{props}end_header\n".encode("ascii") + rows.tobytes())
     return len(P)

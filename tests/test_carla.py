@@ -162,7 +162,7 @@ def test_bad_input(tmp_path, capsys):
     assert main(["import-carla", str(src), "--out", str(out)]) == 2
     assert "instance/000001.png: corrupt or unreadable image" in capsys.readouterr().err
     assert not out.exists()
-    assert main(["import-carla", str(src), "--out", str(out), "--skip-bad"]) == 0
+    assert main(["import-carla", str(src), "--out", str(out), "--skip-bad", "--resume"]) == 0
     assert "skipped 1 bad frame" in capsys.readouterr().out
     with SequenceReader(out) as r:
         assert len(r) == 2 and r.meta.provenance["skipped"][0]["frame"] == "000001"

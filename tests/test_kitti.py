@@ -192,7 +192,7 @@ def test_bad_input_is_named(kitti_root, tmp_path, capsys):
     assert e.value.path == str(scan)
     assert not out.exists()
     rc = main(["import-kitti", "--root", str(root), "--drives", DRIVE, "--out", str(out),
-               "--skip-bad"])
+               "--skip-bad", "--resume"])
     text = capsys.readouterr().out
     assert rc == 0 and "wrote 2 frames" in text and "skipped 1 bad frame" in text
     assert "0000000001" in text

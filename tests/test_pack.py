@@ -171,7 +171,7 @@ def test_pack_bad_input(plain_recording, tmp_path, capsys):
     (rec / "right" / "0002.png").write_bytes(b"broken")
     assert _pack(rec, out) == 2
     assert "right/0002.png: corrupt or unreadable image" in capsys.readouterr().err
-    assert _pack(rec, out, "--skip-bad") == 0
+    assert _pack(rec, out, "--skip-bad", "--resume") == 0
     assert "skipped 1 bad frame" in capsys.readouterr().out
     with SequenceReader(out) as r:
         assert len(r) == 3

@@ -223,7 +223,7 @@ def test_cli_sequence_resume_and_errors(tmp_path, capsys):
     finally:
         StereoPipeline.process = real
     assert (tmp_path / "seq.h5.partial").exists() and not out.exists()
-    assert main(args) == 0 and "(2 resumed)" in capsys.readouterr().out
+    assert main(args + ["--resume"]) == 0 and "(2 resumed)" in capsys.readouterr().out
     with h5py.File(out) as f:
         assert f["depth"].shape == (3, 200, 400) and f.attrs["gt_kind"] == "stereo"
         depth = f["depth"][2]
@@ -274,7 +274,9 @@ def test_cli_bad_files_are_refused_before_any_work(tmp_path, three_pairs, capsys
     assert "0002.png" in capsys.readouterr().err
     assert (tmp_path / "seq.h5.partial").exists()
     bad.write_bytes(good)
-    assert main(_sequence_args(tmp_path)) == 0
+    assert main(_sequence_args(tmp_path)) == 2          # a partial is never resumed unasked
+    assert "--resume continues it" in capsys.readouterr().err
+    assert main(_sequence_args(tmp_path) + ["--resume"]) == 0
     assert "(2 resumed)" in capsys.readouterr().out
 
 

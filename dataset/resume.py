@@ -1,0 +1,190 @@
+"""Resuming a sequence writer safely: the input fingerprint, and reopening a killed run's partial.
+
+A writer stores in its ``<out>.partial`` file
+
+- ``fingerprint`` (root attribute, JSON): one entry per setting that changes the output (every
+  sequence attribute, the provenance's entries, the streams, the aux maps and the caller's extra
+  settings such as the frame count), short values kept as they are, long ones as a digest;
+- ``fingerprint/inputs`` (dataset): one digest per input frame: the frame's task (paths, numbers)
+  with each input file's size and modification time. Only the frames already used (written or
+  skipped) must match: a broken input file after them may be repaired before resuming.
+
+``--resume`` compares both with the new run's and refuses with one line naming what differs; a
+partial without a fingerprint (written by an older version) is refused too.
+
+Reopening: the file is written with HDF5's version-1.8 superblock (no "file is open for write"
+consistency flag, which the newer superblock leaves set after SIGKILL and h5py cannot clear) and
+flushed after every frame, so a killed run's partial opens again (measured: 6 of 6 reopen with
+flushes, 0 of 6 without; see tests/test_crash_resume.py). The last frames are checked against
+their stored CRC-32 and dropped back to the last complete one. A partial that cannot be opened at
+all is renamed aside (``<partial>.damaged-<time>``) and the user told, never deleted.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import time
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+import h5py
+import numpy as np
+
+from staticdepth.errors import InputError
+
+#: Superblock v0..v2 (HDF5 1.8 format): reopenable after a kill; read by every HDF5 since 1.8.
+LIBVER = ("earliest", "v108")
+INPUTS = "fingerprint/inputs"
+_SHORT = 60
+
+
+def _digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
+def file_identity(path: str) -> str:
+    """``size:mtime_ns`` of an existing file (``missing`` otherwise)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return "missing"
+    return f"{st.st_size}:{st.st_mtime_ns}"
+
+
+def task_identity(task: Any) -> str:
+    """A digest of one frame's task: every field, and size/mtime of every file it names."""
+    parts: list[str] = []
+
+    def walk(v: Any) -> None:
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            for f in dataclasses.fields(v):
+                parts.append(f.name)
+                walk(getattr(v, f.name))
+        elif isinstance(v, (str, os.PathLike)):
+            s = os.fspath(v)
+            parts.append(s)
+            if os.path.isfile(s):
+                parts.append(file_identity(s))
+        elif isinstance(v, np.ndarray):
+            parts.append(_digest(np.ascontiguousarray(v).tobytes()) + str(v.shape) + str(v.dtype))
+        elif isinstance(v, (list, tuple)):
+            for x in v:
+                walk(x)
+        else:
+            parts.append(repr(v))
+
+    walk(task)
+    return _digest("\0".join(parts).encode())
+
+
+def callable_identity(fn: Any) -> str:
+    """A function's module and name, or a dataclass instance's fields (no memory addresses)."""
+    if dataclasses.is_dataclass(fn) and not isinstance(fn, type):
+        return repr(fn)
+    return f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', type(fn).__qualname__)}"
+
+
+def settings_fingerprint(meta_attrs: Mapping[str, Any], streams: Sequence[str],
+                         aux: Iterable[str], extra: Mapping[str, Any] | None = None
+                         ) -> dict[str, str]:
+    """``{setting: value or digest}`` for every setting that changes the output."""
+    items: dict[str, Any] = {}
+    for k, v in meta_attrs.items():
+        if k == "provenance":
+            prov = json.loads(v) if isinstance(v, str) else dict(v)
+            for pk, pv in prov.items():
+                items[f"provenance.{pk}"] = pv
+        else:
+            items[k] = v.item() if isinstance(v, np.generic) else v
+    items["streams"] = list(streams)
+    items["aux"] = sorted(aux)
+    items.update(dict(extra or {}))
+    out = {}
+    for k, v in items.items():
+        s = json.dumps(v, sort_keys=True, default=str)
+        out[k] = s if len(s) <= _SHORT else "sha256:" + _digest(s.encode())
+    return out
+
+
+def store(f: h5py.File, fingerprint: Mapping[str, str], inputs: Sequence[str] | None) -> None:
+    f.attrs["fingerprint"] = json.dumps(dict(fingerprint), sort_keys=True)
+    if inputs is not None:
+        if INPUTS in f:
+            del f[INPUTS]
+        f.create_dataset(INPUTS, data=np.array([s.encode() for s in inputs], dtype="S16"))
+
+
+def differences(f: h5py.File, fingerprint: Mapping[str, str], inputs: Sequence[str] | None,
+                labels: Sequence[str] | None = None) -> list[str]:
+    """What differs between the partial ``f`` and the new run (empty: resumable)."""
+    if "fingerprint" not in f.attrs:
+        return ["the partial has no input fingerprint (written by an older version)"]
+    old = json.loads(f.attrs["fingerprint"])
+    diff = []
+    for k in sorted(set(old) | set(fingerprint)):
+        a, b = old.get(k), fingerprint.get(k)
+        if a == b:
+            continue
+        if a is None or b is None:
+            diff.append(f"{k} {'added' if a is None else 'removed'}")
+        elif a.startswith("sha256:") or b.startswith("sha256:"):
+            diff.append(f"{k} differs")
+        else:
+            diff.append(f"{k}: {a} in the partial, {b} now")
+    if inputs is not None:
+        stored = [s.decode() for s in f[INPUTS][:]] if INPUTS in f else None
+        consumed = int(f.attrs.get("n_written", 0)) + len(json.loads(f.attrs.get("skipped", "[]")))
+        if stored is None:
+            diff.append("the partial has no per-frame input identities")
+        elif len(inputs) < consumed:
+            diff.append(f"the input has {len(inputs)} frames, the partial already used {consumed}")
+        else:
+            bad = [i for i in range(consumed) if stored[i] != inputs[i]]
+            if bad:
+                name = labels[bad[0]] if labels is not None else str(bad[0])
+                diff.append(f"input frame {name} (and {len(bad) - 1} more) changed"
+                            if len(bad) > 1 else f"input frame {name} changed")
+    return diff
+
+
+def open_partial(partial: str, warn: Callable[[str], Any]) -> h5py.File | None:
+    """Open a killed run's partial for appending; None (renamed aside, told) when impossible."""
+    try:
+        return h5py.File(partial, "a", libver=LIBVER, locking=False)
+    except (OSError, ValueError, RuntimeError) as e:
+        aside = f"{partial}.damaged-{time.strftime('%Y%m%d-%H%M%S')}"
+        os.replace(partial, aside)
+        warn(f"warning: {partial} cannot be reopened ({str(e).splitlines()[0][:120]}); "
+             f"kept it as {aside} and starting over")
+        return None
+
+
+def last_complete(f: h5py.File, n: int, checksum: Callable[[np.ndarray], int],
+                  keys: Sequence[str]) -> int:
+    """The number of leading frames whose every ``key`` matches its stored ``crc32/<key>``.
+
+    Only the last frames are checked (a kill can cut the newest frame only); steps back while the
+    newest is incomplete. Frames are flushed in order, so the older ones were on disk first.
+    """
+    while n > 0:
+        ok = "timestamps" in f and len(f["timestamps"]) >= n
+        for key in keys:
+            if not ok:
+                break
+            crc = f"crc32/{key}"
+            try:
+                ok = (key in f and crc in f and len(f[key]) >= n and len(f[crc]) >= n
+                      and checksum(f[key][n - 1]) == int(f[crc][n - 1]))
+            except (OSError, ValueError, RuntimeError, KeyError):
+                ok = False
+        if ok:
+            return n
+        n -= 1
+    return 0
+
+
+def refuse(partial: str, diff: Sequence[str]) -> InputError:
+    return InputError("cannot resume: the partial was written with other inputs or settings ("
+                      + "; ".join(diff[:3]) + (f"; {len(diff) - 3} more" if len(diff) > 3 else "")
+                      + "); --restart starts over", partial)
