@@ -17,6 +17,7 @@ import os
 import re
 import shutil
 import signal
+import sys
 import threading
 import time
 import zlib
@@ -285,8 +286,9 @@ class SequenceWriter:
             return
 
         def on_term(signum, frame):
-            raise SystemExit(f"terminated (SIGTERM): {self.partial} keeps {self.n} frames; "
-                             "run again with --resume to continue")
+            print(f"terminated (SIGTERM): {self.partial} keeps {self.n} frames; run again with "
+                  "--resume to continue", file=sys.stderr, flush=True)
+            raise SystemExit(128 + signal.SIGTERM)
 
         self._old_term = signal.signal(signal.SIGTERM, on_term)
 
