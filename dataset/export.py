@@ -6,15 +6,16 @@ Layout written (one file per frame, in frame order, numbered ``0000000000``):
 depth benchmark), ``instances/*.png`` (uint16 instance ids, when stored), ``timestamps.txt``
 (seconds, one per line), ``calib_cam_to_cam.txt`` (``S_rect_02``, ``P_rect_02``, ``R_rect_00`` and,
 with a rig, ``P_rect_03``), ``calib.json`` (camera, rig, mounting, camera height) and
-``splits/{adapt,eval}.txt`` (frame numbers). The folder appears atomically (built beside it, then
-renamed).
+``splits/{adapt,eval}.txt`` (frame numbers) and ``.staticdepth-export.json`` (marks the folder as
+ours). The folder appears atomically (built beside it, then renamed); ``--overwrite`` replaces only
+a folder holding that marker, and only once the new export is complete.
 """
 from __future__ import annotations
 
 import json
 import os
 import shutil
-from typing import Any
+from typing import Any, Callable
 
 import cv2
 import numpy as np
@@ -23,6 +24,7 @@ from staticdepth.dataset.h5 import SequenceReader
 from staticdepth.errors import InputError
 from staticdepth.progress import progress
 
+EXPORT_FORMAT = "staticdepth.kitti-export/1"
 DEPTH_SCALE = 256.0
 MAX_DEPTH_M = 65535 / DEPTH_SCALE
 
@@ -45,17 +47,47 @@ def _write(path: str, img: np.ndarray) -> None:
         raise InputError("cannot write image", path)
 
 
-def replace_dir(tmp: str, out: str, overwrite: bool) -> None:
-    """Move the finished folder ``tmp`` onto ``out`` (replacing ``out`` only with ``overwrite``)."""
-    if os.path.exists(out):
-        if not overwrite:
-            raise InputError("output exists (use --overwrite to replace it)", out)
-        old = f"{out}.old{os.getpid()}"
-        os.replace(out, old)
-        os.replace(tmp, out)
-        shutil.rmtree(old)
-    else:
-        os.replace(tmp, out)
+MARKER = ".staticdepth-export.json"  # written into every export: what --overwrite may replace
+
+
+def is_export(path: str) -> bool:
+    """A KITTI-style export written by this toolkit (it holds our marker file)."""
+    try:
+        with open(os.path.join(path, MARKER)) as f:
+            return json.load(f).get("format") == EXPORT_FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def check_replaceable(out: str, overwrite: bool, ours: Callable[[str], bool], what: str) -> None:
+    """Refuse (one line, ``out`` untouched) unless ``out`` is absent, or ``overwrite`` is given and
+    ``out`` is a folder of our own kind (``ours``)."""
+    if not os.path.lexists(out):
+        return
+    if not overwrite:
+        raise InputError("output exists (use --overwrite to replace it)", out)
+    if os.path.islink(out) or not os.path.isdir(out) or not ours(out):
+        raise InputError(f"exists and is not {what}; --overwrite replaces only that, so it is "
+                         "left untouched (move it away yourself)", out)
+
+
+def replace_dir(tmp: str, out: str, overwrite: bool, ours: Callable[[str], bool] = is_export,
+                what: str = "a staticdepth export") -> None:
+    """Move the finished folder ``tmp`` onto ``out`` (replacing ``out`` only with ``overwrite``
+    and only when it is of our own kind)."""
+    from staticdepth.fileio import os_error, temporary_path
+
+    check_replaceable(out, overwrite, ours, what)
+    try:
+        if os.path.lexists(out):
+            old = temporary_path(out, "old")
+            os.replace(out, old)
+            os.replace(tmp, out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, out)
+    except OSError as e:
+        raise os_error(e, out) from None
 
 
 def _calib_txt(reader: SequenceReader) -> str:
@@ -75,15 +107,22 @@ def _calib_txt(reader: SequenceReader) -> str:
 def export_kitti(seq: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool = False
                  ) -> dict[str, Any]:
     """Write ``seq`` as KITTI-style folders under ``out``; returns a summary dict."""
+    from staticdepth.fileio import exclusive_lock
+
     out = os.fspath(out)
     parent = os.path.dirname(os.path.abspath(out))
     if not os.path.isdir(parent):
         raise InputError("output folder's parent does not exist", parent)
-    if os.path.exists(out) and not overwrite:
-        raise InputError("output exists (use --overwrite to replace it)", out)
-    tmp = f"{out}.partial{os.getpid()}"
-    if os.path.exists(tmp):
-        shutil.rmtree(tmp)
+    check_replaceable(out, overwrite, is_export, "a staticdepth export")
+    with exclusive_lock(out, what="writing"):
+        return _export(seq, out, overwrite)
+
+
+def _export(seq, out: str, overwrite: bool) -> dict[str, Any]:
+    from staticdepth.fileio import os_error, remove_stale_temporaries, temporary_path
+
+    remove_stale_temporaries(out)
+    tmp = temporary_path(out, "export")
     far_total = 0
     try:
         with SequenceReader(seq) as r:
@@ -120,7 +159,11 @@ def export_kitti(seq: str | os.PathLike, out: str | os.PathLike, *, overwrite: b
                 with open(os.path.join(tmp, "splits", f"{split}.txt"), "w") as f:
                     f.writelines(f"{i:010d}\n" for i in r.split(split))
             n = len(r)
+            with open(os.path.join(tmp, MARKER), "w") as f:
+                json.dump({"format": EXPORT_FORMAT, "source_file": calib["source_file"]}, f)
         replace_dir(tmp, out, overwrite)
+    except OSError as e:
+        raise os_error(e, out) from None
     finally:
         if os.path.exists(tmp):
             shutil.rmtree(tmp)

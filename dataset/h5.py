@@ -20,7 +20,6 @@ import signal
 import sys
 import threading
 import time
-import zlib
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Iterator, Mapping, Sequence
 
@@ -118,7 +117,9 @@ class SequenceMeta:
 
 
 def _frame_checksum(a: np.ndarray) -> int:
-    return zlib.crc32(np.ascontiguousarray(a).view(np.uint8).data) & 0xFFFFFFFF
+    from staticdepth.dataset.integrity import checksum
+
+    return checksum(a)
 
 
 def _write_error(e: BaseException, path: str) -> InputError:
@@ -132,6 +133,24 @@ def _write_error(e: BaseException, path: str) -> InputError:
     if code is not None:
         return os_error(OSError(code, os.strerror(code)), path)
     return InputError(f"cannot write: {str(e).splitlines()[0][:160]}", path)
+
+
+def check_replaceable_sequence(path: str) -> None:
+    """``--overwrite`` replaces only a sequence file (one this toolkit can open); anything else
+    is refused and left untouched."""
+    why = None
+    if os.path.islink(path) or not os.path.isfile(path):
+        why = "is not a regular file"
+    else:
+        try:
+            with h5py.File(path, "r") as f:
+                if f.attrs.get("format") != schema.FORMAT:
+                    why = "is not a staticdepth sequence file"
+        except OSError:
+            why = "is not a readable HDF5 file"
+    if why:
+        raise InputError(f"exists and {why}; --overwrite replaces only a sequence file, so it "
+                         "is left untouched (move it away yourself)", path)
 
 
 class SequenceWriter:
@@ -165,8 +184,10 @@ class SequenceWriter:
         if unknown or "left" not in self.streams:
             raise InputError(f"streams must include 'left' and be among {schema.FRAME_STREAMS}, "
                              f"got {self.streams}")
-        if os.path.exists(self.path) and not overwrite:
+        if os.path.lexists(self.path) and not overwrite:
             raise InputError("output exists (use --overwrite to replace it)", self.path)
+        if os.path.lexists(self.path):
+            check_replaceable_sequence(self.path)
         parent = os.path.dirname(os.path.abspath(self.path))
         if not os.path.isdir(parent):
             raise InputError("output folder does not exist", parent)
@@ -468,10 +489,15 @@ class SequenceReader:
             raise
 
     def _check(self) -> None:
+        from staticdepth.dataset.integrity import link_problems
+
         f, p = self._f, self.path
         if f.attrs.get("format") != schema.FORMAT:
             raise InputError(f"not a staticdepth sequence (format attribute "
                              f"{f.attrs.get('format')!r})", p)
+        outside = link_problems(f)
+        if outside:
+            raise InputError(outside[0], p)
         for k in schema.REQUIRED_ATTRS:
             if k not in f.attrs:
                 raise InputError(f"missing attribute {k!r}", p)
@@ -611,27 +637,11 @@ class SequenceReader:
         return dict(self._f[f"pred/{name}"].attrs)
 
     def checksum_errors(self) -> list[str]:
-        """Recompute every frame's CRC-32; return a line per mismatch (empty when intact)."""
-        bad = []
-        for name in self.streams():
-            key = f"crc32/{name}"
-            if key not in self._f:
-                bad.append(f"{name}: no checksums stored")
-                continue
-            stored = self._f[key][:]
-            if len(stored) != self.n_frames:
-                bad.append(f"{name}: {len(stored)} checksums for {self.n_frames} frames")
-                continue
-            ds = self._f[name]
-            for i in range(self.n_frames):
-                try:
-                    a = ds[i]
-                except (OSError, ValueError) as e:
-                    bad.append(f"{name}[{i}]: unreadable ({e})")
-                    continue
-                if _frame_checksum(a) != int(stored[i]):
-                    bad.append(f"{name}[{i}]: checksum mismatch")
-        return bad
+        """Recompute the checksum of every dataset (frames, timestamps, agents, aux maps,
+        predictions); a line per mismatch or dataset without one (empty when intact)."""
+        from staticdepth.dataset.integrity import checksum_problems
+
+        return checksum_problems(self._f)
 
 
 def add_prediction(path: str | os.PathLike, name: str, depth_maps: Iterable[np.ndarray],
@@ -668,6 +678,11 @@ def add_prediction(path: str | os.PathLike, name: str, depth_maps: Iterable[np.n
                 ds[k - 1] = d
             if k != n:
                 raise InputError(f"prediction {name!r} has {k} frames, the sequence {n}", path)
+            crc_key = f"crc32/{key}/depth"  # per-frame checksums, read by verify
+            if crc_key in f:
+                del f[crc_key]
+            f.create_dataset(crc_key, data=np.array([_frame_checksum(ds[i]) for i in range(n)],
+                                                    np.uint32))
             for a, v in (attrs or {}).items():
                 g.attrs[a] = v if isinstance(v, (int, float, str, np.number)) else json.dumps(v)
         _fsync_path(tmp)

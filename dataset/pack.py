@@ -308,6 +308,24 @@ def _rectified_mounting(rig, camera_height_m: float | None):
     return Mounting(camera_height_m or m.height_m, m.normal, m.source)
 
 
+def check_rig_rectifies(pipe, tasks: Sequence[StereoTask], rig_name: str, skip_bad: bool) -> None:
+    """Before any work, as ``stereo`` does: the rig must rectify the first readable pair (rows of
+    matched features agree), else its depth would be garbage."""
+    from staticdepth.stereo.rectify import check_rectified
+
+    for t in tasks[:10]:
+        try:
+            left, right = read_rgb(t.left), read_rgb(t.right)
+            pipe.check_frame(left, right, t.left)
+        except InputError:
+            if skip_bad:
+                continue
+            raise
+        rl, rr = pipe.rectifier.rectify(left, right)
+        check_rectified(rl, rr, source=f"{rig_name} (after rectifying {t.left})")
+        return
+
+
 def pack_recording(recording: str | os.PathLike, rig_path: str | os.PathLike | None,
                    out: str | os.PathLike, *, camera_height_m: float | None = None,
                    adapt_frames: int = 0, matcher: str = "sgbm", model: str | None = None,
@@ -344,6 +362,8 @@ def pack_recording(recording: str | os.PathLike, rig_path: str | os.PathLike | N
         values["options"] = options
     config = StereoConfig.from_dict(values, source="--set")
     pipe = StereoPipeline(rig, config)  # validates the settings once, before any work
+    check_rig_rectifies(pipe, tasks, os.fspath(rig_path) if rig_path else
+                        f"{os.fspath(recording)} (its rig)", skip_bad)
     if camera_height_m is not None and not camera_height_m > 0:
         raise InputError(f"--camera-height must be positive, got {camera_height_m}")
     tasks = [StereoTask(t.left, t.right, float(i) if t.timestamp is None else t.timestamp)

@@ -114,18 +114,36 @@ def publish(files: Sequence[str | os.PathLike], out: str | os.PathLike, *,
             title: str | None = None, licence: str = "unspecified", citation: str | None = None,
             export: bool = True, overwrite: bool = False) -> dict[str, Any]:
     """Build the release folder ``out`` (atomically: beside it, then renamed)."""
+    from staticdepth.dataset.export import check_replaceable
+    from staticdepth.fileio import exclusive_lock
+
     out = os.fspath(out)
-    if os.path.exists(out) and not overwrite:
-        raise InputError("output exists (use --overwrite to replace it)", out)
+    check_replaceable(out, overwrite, is_release, "a staticdepth release folder")
     if not files:
         raise InputError("publish needs at least one sequence file")
     stems = [os.path.splitext(os.path.basename(os.fspath(f)))[0] for f in files]
     dup = sorted({s for s in stems if stems.count(s) > 1})
     if dup:
         raise InputError(f"two input files share the name {dup[0]!r}")
-    tmp = f"{out}.partial{os.getpid()}"
-    if os.path.exists(tmp):
-        shutil.rmtree(tmp)
+    with exclusive_lock(out, what="writing"):
+        return _publish(files, stems, out, title, licence, citation, export, overwrite)
+
+
+def is_release(path: str) -> bool:
+    """A release folder written by :func:`publish` (manifest and dataset card present)."""
+    try:
+        with open(os.path.join(path, CARD_JSON)) as f:
+            card = json.load(f)
+        return os.path.isfile(os.path.join(path, MANIFEST)) and "sequences" in card
+    except (OSError, ValueError):
+        return False
+
+
+def _publish(files, stems, out, title, licence, citation, export, overwrite) -> dict[str, Any]:
+    from staticdepth.fileio import os_error, remove_stale_temporaries, temporary_path
+
+    remove_stale_temporaries(out)
+    tmp = temporary_path(out, "publish")
     try:
         os.makedirs(os.path.join(tmp, "sequences"))
         cards = []
@@ -153,7 +171,9 @@ def publish(files: Sequence[str | os.PathLike], out: str | os.PathLike, *,
         with open(os.path.join(tmp, MANIFEST), "w") as fh:
             for rel in progress(listed, total=len(listed), desc="sha256", unit="file"):
                 fh.write(f"{sha256_file(os.path.join(tmp, rel))}  {rel}\n")
-        replace_dir(tmp, out, overwrite)
+        replace_dir(tmp, out, overwrite, is_release, "a staticdepth release folder")
+    except OSError as e:
+        raise os_error(e, out) from None
     finally:
         if os.path.exists(tmp):
             shutil.rmtree(tmp)

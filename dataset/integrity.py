@@ -1,0 +1,97 @@
+"""What ``verify`` checks in a sequence file (and what the reader refuses): links and checksums.
+
+Checksum convention (every writer follows it):
+
+- a per-frame dataset ``D`` (frames along axis 0: ``left``, ``depth``, ``aux/ground``,
+  ``pred/<name>/depth``, a prediction file's ``depth``) has ``crc32/D``: one CRC-32 per frame;
+- any other dataset (``timestamps``, ``agents``) has an attribute ``crc32`` over all its bytes.
+
+:func:`checksum_problems` recomputes them all and names every dataset without one ("not covered
+by a checksum": a file of an older version), so nothing passes unchecked.
+
+Links: a sequence file must be self-contained. External links, datasets whose data lives in
+external files, virtual datasets with sources in other files, and soft links that do not resolve
+to an object of this file are refused (:func:`link_problems`), by ``verify`` and by
+``SequenceReader`` (so that ``export`` never copies another file's images).
+"""
+from __future__ import annotations
+
+import zlib
+
+import h5py
+import numpy as np
+
+#: Bookkeeping datasets that are not data (the checksums themselves, the resume fingerprint).
+BOOKKEEPING = ("crc32/", "fingerprint/")
+
+
+def checksum(a: np.ndarray) -> int:
+    """CRC-32 of an array's bytes (C order)."""
+    return zlib.crc32(np.ascontiguousarray(a).view(np.uint8).data) & 0xFFFFFFFF
+
+
+def link_problems(f: h5py.File) -> list[str]:
+    """Every link or dataset of ``f`` that points outside it (empty when self-contained)."""
+    problems: list[str] = []
+
+    def visit(name: str, link) -> None:
+        if isinstance(link, h5py.ExternalLink):
+            problems.append(f"{name}: external link to {link.filename}:{link.path} (refused: a "
+                            "sequence file must hold its own data)")
+        elif isinstance(link, h5py.SoftLink):
+            target = f.get(link.path, getlink=True)
+            if not isinstance(target, h5py.HardLink):
+                problems.append(f"{name}: soft link to {link.path}, which is not an object of "
+                                "this file (refused)")
+        else:
+            obj = f.get(name)
+            if isinstance(obj, h5py.Dataset):
+                if obj.external:
+                    problems.append(f"{name}: its data is stored in external file(s) "
+                                    f"{sorted({e[0] for e in obj.external})} (refused)")
+                if obj.is_virtual:
+                    files = sorted({m.file_name for m in obj.virtual_sources()} - {"."})
+                    if files:
+                        problems.append(f"{name}: virtual dataset reading {files} (refused)")
+
+    f.visititems_links(visit)
+    return problems
+
+
+def _datasets(f: h5py.File) -> list[str]:
+    names: list[str] = []
+    f.visititems(lambda k, v: names.append(k) if isinstance(v, h5py.Dataset) else None)
+    return sorted(n for n in names if not n.startswith(BOOKKEEPING))
+
+
+def checksum_problems(f: h5py.File, limit: int = 100) -> list[str]:
+    """Recompute every dataset's stored checksums; a line per mismatch or uncovered dataset."""
+    bad: list[str] = []
+    for name in _datasets(f):
+        ds = f[name]
+        crc_key = f"crc32/{name}"
+        try:
+            if crc_key in f:
+                stored = f[crc_key][:]
+                if len(stored) != len(ds):
+                    bad.append(f"{name}: {len(stored)} checksums for {len(ds)} frames")
+                    continue
+                for i in range(len(ds)):
+                    try:
+                        a = ds[i]
+                    except (OSError, ValueError) as e:
+                        bad.append(f"{name}[{i}]: unreadable ({e})")
+                        continue
+                    if checksum(a) != int(stored[i]):
+                        bad.append(f"{name}[{i}]: checksum mismatch")
+            elif "crc32" in ds.attrs:
+                if checksum(ds[()]) != int(ds.attrs["crc32"]):
+                    bad.append(f"{name}: checksum mismatch")
+            else:
+                bad.append(f"{name}: not covered by a checksum (written by an older version; "
+                           "not verified)")
+        except (OSError, ValueError) as e:
+            bad.append(f"{name}: unreadable ({e})")
+        if len(bad) >= limit:
+            break
+    return bad
