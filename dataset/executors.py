@@ -11,6 +11,7 @@ from __future__ import annotations
 import collections
 import multiprocessing
 import os
+import sys
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Callable, Iterator, Sequence
 
@@ -21,6 +22,36 @@ EXECUTORS = ("serial", "process", "ray")
 
 def _apply(fn: Callable[[Any], Any], x: Any) -> Any:
     return fn(x)
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """Worker initializer: end this worker when its parent dies (also by SIGKILL), so that a
+    killed ``pack --workers N`` leaves no processes behind.
+
+    Linux: ``prctl(PR_SET_PDEATHSIG, SIGKILL)``; everywhere: a thread that exits the worker once
+    its parent is gone (checked every 0.5 s).
+    """
+    import signal
+    import threading
+    import time
+
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:  # died before the line above ran
+        os._exit(1)
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="die-with-parent").start()
 
 
 class SerialExecutor:
@@ -51,7 +82,9 @@ class ProcessExecutor:
     def map(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[Any]:
         if self._pool is None:
             self._pool = ProcessPoolExecutor(self.workers,
-                                             mp_context=multiprocessing.get_context("spawn"))
+                                             mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=die_with_parent,
+                                             initargs=(os.getpid(),))
         pending: collections.deque = collections.deque()
         it = iter(items)
         for x in it:

@@ -231,7 +231,7 @@ class SequenceWriter:
             self._layout(f)
             rs.store(f, self._fingerprint, self._inputs)
             f.flush()
-        except OSError as e:
+        except (OSError, RuntimeError) as e:  # h5py raises RuntimeError for some write errors
             self._fail(e)
 
     def _layout(self, f: h5py.File) -> None:
@@ -403,7 +403,7 @@ class SequenceWriter:
                 ds[k:] = rows
             f.attrs["n_written"] = i + 1
             f.flush()  # every frame on disk: a killed run's partial reopens (see resume.py)
-        except OSError as e:
+        except (OSError, RuntimeError) as e:  # h5py raises RuntimeError for some write errors
             self._fail(e)
         self.n = i + 1
         return i
@@ -440,7 +440,7 @@ class SequenceWriter:
             _fsync_path(self.partial)
             os.replace(self.partial, self.path)
             _fsync_path(self.path)
-        except OSError as e:
+        except (OSError, RuntimeError) as e:
             self.n = max(self.n, 1)
             self._fail(e)
         finally:
