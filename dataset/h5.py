@@ -192,6 +192,7 @@ class SequenceWriter:
         if not os.path.isdir(parent):
             raise InputError("output folder does not exist", parent)
         self._f: h5py.File | None = None
+        self._io = None  # the partial's UndoableFile (see resume.py)
         self.n = 0
         self.resumed_from = 0
         self._fingerprint = rs.settings_fingerprint(meta.to_attrs(), self.streams, self.aux,
@@ -204,17 +205,16 @@ class SequenceWriter:
             if os.path.exists(self.partial) and not (resume or restart):
                 raise InputError("an interrupted run left this file: --resume continues it, "
                                  "--restart starts over", self.partial)
-            f = rs.open_partial(self.partial, warn) if resume and os.path.exists(
+            opened = rs.open_partial(self.partial, warn) if resume and os.path.exists(
                 self.partial) else None
-            if f is not None:
-                self._resume(f, rs, labels)
+            if opened is not None:
+                self._f, self._io = opened
+                self._resume(self._f, rs, labels)
             else:
                 self._create()
             self._install_sigterm()
         except BaseException:
-            if self._f is not None:
-                self._f.close()
-                self._f = None
+            self._close_file()
             self._lock.close()
             raise
 
@@ -223,14 +223,14 @@ class SequenceWriter:
         from staticdepth.dataset import resume as rs
 
         try:
-            f = h5py.File(self.partial, "w", libver=rs.LIBVER)
+            self._f, self._io = f, _ = rs.create_partial(self.partial)
         except OSError as e:
             raise _write_error(e, self.partial) from None
-        self._f = f
         try:
             self._layout(f)
             rs.store(f, self._fingerprint, self._inputs)
             f.flush()
+            self._commit()
         except (OSError, RuntimeError) as e:  # h5py raises RuntimeError for some write errors
             self._fail(e)
 
@@ -296,6 +296,7 @@ class SequenceWriter:
         runs = json.loads(f.attrs.get("resumed_after", "[]"))
         f.attrs["resumed_after"] = json.dumps(runs + [n])
         f.flush()
+        self._commit()
         self.n = self.resumed_from = n
 
     def _install_sigterm(self) -> None:
@@ -322,9 +323,10 @@ class SequenceWriter:
         """A write failed (disk full, read-only, file-size limit): close, keep or remove the
         partial, release the lock, and raise one line."""
         n = self.n
-        with contextlib.suppress(Exception):
-            self._f.close()
-        self._f = None
+        if self._io is not None:
+            with contextlib.suppress(OSError):
+                self._io.rollback()  # back to the file as it was after the last complete frame
+        self._close_file()
         self._restore_sigterm()
         err = _write_error(e, self.partial)
         if n == 0:
@@ -335,6 +337,23 @@ class SequenceWriter:
         self._lock.close()
         raise InputError(f"{err.problem}; the {n} frames written are kept: make room and run "
                          "again with --resume (or delete the file)", self.partial) from None
+
+    def _commit(self) -> None:
+        """After a flush: the file is complete as it is, unless a write failed (then raise)."""
+        if self._io.failed is not None:
+            raise self._io.failed
+        self._io.commit()
+
+    def _close_file(self) -> None:
+        """Close the HDF5 file and its file object (errors ignored: used on the error paths)."""
+        if self._f is not None:
+            with contextlib.suppress(Exception):
+                self._f.close()
+            self._f = None
+        if self._io is not None:
+            with contextlib.suppress(Exception):
+                self._io.close()
+            self._io = None
 
     # -- writing --------------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -403,6 +422,7 @@ class SequenceWriter:
                 ds[k:] = rows
             f.attrs["n_written"] = i + 1
             f.flush()  # every frame on disk: a killed run's partial reopens (see resume.py)
+            self._commit()
         except (OSError, RuntimeError) as e:  # h5py raises RuntimeError for some write errors
             self._fail(e)
         self.n = i + 1
@@ -418,14 +438,11 @@ class SequenceWriter:
         if f is None:
             return self.path
         if self.n == 0:
-            f.close()
-            self._f = None
+            self._close_file()
             os.remove(self.partial)
             self.abort()
             raise InputError("no frames were written", self.path)
         if self.meta.adapt_frames > self.n:
-            f.close()
-            self._f = None
             self.abort()
             raise InputError(f"adapt_frames = {self.meta.adapt_frames} exceeds the "
                              f"{self.n} frames written", self.path)
@@ -435,8 +452,12 @@ class SequenceWriter:
             f.attrs["n_frames"] = self.n
             f.attrs["complete"] = True
             f.flush()
+            self._commit()
             f.close()
             self._f = None
+            self._commit()
+            self._io.close()
+            self._io = None
             _fsync_path(self.partial)
             os.replace(self.partial, self.path)
             _fsync_path(self.path)
@@ -454,9 +475,7 @@ class SequenceWriter:
             if self._f is not None:
                 with contextlib.suppress(Exception):
                     self._f.flush()
-                with contextlib.suppress(Exception):
-                    self._f.close()
-                self._f = None
+            self._close_file()
         finally:
             self._restore_sigterm()
             self._lock.close()

@@ -22,7 +22,9 @@ all is renamed aside (``<partial>.damaged-<time>``) and the user told, never del
 from __future__ import annotations
 
 import dataclasses
+import errno
 import hashlib
+import io
 import json
 import os
 import time
@@ -148,11 +150,25 @@ def differences(f: h5py.File, fingerprint: Mapping[str, str], inputs: Sequence[s
     return diff
 
 
-def open_partial(partial: str, warn: Callable[[str], Any]) -> h5py.File | None:
-    """Open a killed run's partial for appending; None (renamed aside, told) when impossible."""
+def create_partial(partial: str) -> tuple[h5py.File, "UndoableFile"]:
+    io_ = UndoableFile(partial, create=True)
     try:
-        return h5py.File(partial, "a", libver=LIBVER, locking=False)
+        return h5py.File(io_, "w", libver=LIBVER), io_
+    except BaseException:
+        io_.close()
+        raise
+
+
+def open_partial(partial: str, warn: Callable[[str], Any]
+                 ) -> tuple[h5py.File, "UndoableFile"] | None:
+    """Open a killed run's partial for appending; None (renamed aside, told) when impossible."""
+    io_ = None
+    try:
+        io_ = UndoableFile(partial, create=False)
+        return h5py.File(io_, "r+", libver=LIBVER), io_
     except (OSError, ValueError, RuntimeError) as e:
+        if io_ is not None:
+            io_.close()
         aside = f"{partial}.damaged-{time.strftime('%Y%m%d-%H%M%S')}"
         os.replace(partial, aside)
         warn(f"warning: {partial} cannot be reopened ({str(e).splitlines()[0][:120]}); "
@@ -188,3 +204,97 @@ def refuse(partial: str, diff: Sequence[str]) -> InputError:
     return InputError("cannot resume: the partial was written with other inputs or settings ("
                       + "; ".join(diff[:3]) + (f"; {len(diff) - 3} more" if len(diff) > 3 else "")
                       + "); --restart starts over", partial)
+
+
+class UndoableFile(io.RawIOBase):
+    """The partial file as h5py sees it (driver ``fileobj``): writes since the last
+    :meth:`commit` can be undone.
+
+    HDF5 cannot recover from a failed write (disk full, file-size limit): its flush has already
+    rewritten part of the file's metadata, the file no longer opens, and closing it crashes the
+    process at exit (measured: ``synth`` under a file-size limit segfaulted). Here a failed write
+    is recorded in :attr:`failed` (the writer checks it after every flush) and HDF5 is not told:
+    it finishes its flush or close normally while the rest is discarded. Every write over bytes
+    that existed at the last commit first keeps the old bytes (only metadata is rewritten: a few
+    kB per frame), so :meth:`rollback` restores the file exactly as it was after the last
+    complete frame.
+    """
+
+    def __init__(self, path: str, create: bool):
+        self._f = open(path, "w+b" if create else "r+b", buffering=0)
+        self._fd = self._f.fileno()
+        self._size = os.fstat(self._fd).st_size
+        self._undo: list[tuple[int, bytes]] = []
+        self.failed: OSError | None = None
+
+    def readable(self) -> bool:
+        return True
+
+    def writable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def readinto(self, b) -> int:
+        return self._f.readinto(b)
+
+    def seek(self, pos: int, whence: int = 0) -> int:
+        return self._f.seek(pos, whence)
+
+    def tell(self) -> int:
+        return self._f.tell()
+
+    def _keep(self, off: int, end: int) -> None:
+        end = min(end, self._size)
+        if off < end:
+            self._undo.append((off, os.pread(self._fd, end - off, off)))
+
+    def write(self, b) -> int:
+        if self.failed is not None:
+            return len(b)
+        mv = memoryview(b).cast("B")
+        off = self._f.tell()
+        self._keep(off, off + len(mv))
+        done = 0
+        try:
+            while done < len(mv):
+                k = self._f.write(mv[done:])
+                if not k:
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                done += k
+        except OSError as e:  # kept for the writer; HDF5 is told nothing (see the class doc)
+            self.failed = e
+        return len(mv)
+
+    def truncate(self, size: int | None = None) -> int:
+        size = self._f.tell() if size is None else size
+        if self.failed is not None:
+            return size
+        self._keep(size, self._size)
+        try:
+            return self._f.truncate(size)
+        except OSError as e:
+            self.failed = e
+            return size
+
+    def flush(self) -> None:
+        pass  # unbuffered: every write is with the OS already
+
+    def commit(self) -> None:
+        """The file as it is now is complete (called after each frame's flush)."""
+        if self.failed is None:
+            self._undo.clear()
+            self._size = os.fstat(self._fd).st_size
+
+    def rollback(self) -> None:
+        """Put back the bytes of the last commit (after a failed write)."""
+        for off, old in reversed(self._undo):
+            os.pwrite(self._fd, old, off)
+        os.ftruncate(self._fd, self._size)
+        self._undo.clear()
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.close()
+        super().close()
