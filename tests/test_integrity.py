@@ -1,0 +1,422 @@
+"""Data integrity: resume with other inputs, one writer per output, --overwrite of foreign outputs,
+full disk / file-size limit / read-only folder, verify of every dataset, links out of the file,
+pack's rectification check, workers that die with their parent, stale temporaries."""
+from __future__ import annotations
+
+import json
+import os
+import resource
+import signal
+import subprocess
+import sys
+import time
+
+import cv2
+import h5py
+import numpy as np
+import pytest
+
+from staticdepth.cli import main
+from staticdepth.dataset.h5 import SequenceReader
+
+CLI = "import sys; from staticdepth.cli import main; sys.exit(main(sys.argv[1:]))"
+
+
+def synth_args(out, frames=30, *extra):
+    return ["synth", "--frames", str(frames), "--set", "width=160", "--set", "height=80",
+            "--out", str(out), *extra]
+
+
+def frames_written(partial) -> int:
+    try:
+        with h5py.File(partial, "r", locking=False) as f:
+            return int(f.attrs["n_written"])
+    except Exception:
+        return -1
+
+
+def one_error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    from staticdepth.dataset.synth import SyntheticScene, preset
+
+    d = tmp_path_factory.mktemp("rec")
+    scene = SyntheticScene(preset("demo", width=192, height=96, seed=1))
+    for sub in ("left", "right"):
+        (d / sub).mkdir()
+    for i in range(6):
+        fr = scene.render(i)
+        cv2.imwrite(str(d / "left" / f"{i:04d}.png"), fr["left"][..., ::-1])
+        cv2.imwrite(str(d / "right" / f"{i:04d}.png"), fr["right"][..., ::-1])
+    scene.rig.save(d / "rig.json")
+    return d
+
+
+def pack_args(rec, out, *extra):
+    return ["pack", "--recording", str(rec), "--rig", str(rec / "rig.json"), "--set",
+            "num_disparities=32", "--out", str(out), *extra]
+
+
+# -- resume with other inputs or settings ------------------------------------------------------
+def _interrupted_pack(rec, out, monkeypatch):
+    """A pack run stopped (Ctrl-C) after frame 3: <out>.partial holds 3 frames."""
+    from staticdepth.dataset import h5 as h5mod
+
+    real = h5mod.SequenceWriter.append
+
+    def stop_at_three(self, **kw):
+        if self.n == 3:
+            raise KeyboardInterrupt
+        return real(self, **kw)
+
+    monkeypatch.setattr(h5mod.SequenceWriter, "append", stop_at_three)
+    assert main(pack_args(rec, out)) == 130
+    monkeypatch.setattr(h5mod.SequenceWriter, "append", real)
+    assert frames_written(str(out) + ".partial") == 3
+
+
+def test_resume_with_other_inputs_or_settings_is_refused(recording, tmp_path, monkeypatch,
+                                                         capsys):
+    out = tmp_path / "p.h5"
+    _interrupted_pack(recording, out, monkeypatch)
+    partial = str(out) + ".partial"
+    before = open(partial, "rb").read()
+    # another recording (same frame names and sizes, other images)
+    other = tmp_path / "other"
+    for sub in ("left", "right"):
+        (other / sub).mkdir(parents=True)
+        for p in sorted((recording / sub).iterdir()):
+            img = cv2.imread(str(p))
+            cv2.imwrite(str(other / sub / p.name), np.ascontiguousarray(img[:, ::-1]))
+    (other / "rig.json").write_text((recording / "rig.json").read_text())
+    capsys.readouterr()
+    assert main(pack_args(other, out, "--resume")) == 2
+    line = one_error_line(capsys)
+    assert "cannot resume" in line and "provenance.recording" in line and "--restart" in line
+    # the same recording with another setting
+    assert main(pack_args(recording, out, "--resume", "--adapt-frames", "2")) == 2
+    line = one_error_line(capsys)
+    assert "adapt_frames: 0 in the partial, 2 now" in line
+    # an input frame already packed was replaced
+    img = recording / "left" / "0001.png"
+    saved = img.read_bytes()
+    stat = os.stat(img)
+    try:
+        img.write_bytes(saved)
+        os.utime(img, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
+        assert main(pack_args(recording, out, "--resume")) == 2
+        assert "input frame 0001 changed" in one_error_line(capsys)
+    finally:
+        os.utime(img, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    assert open(partial, "rb").read() == before  # refusals leave the partial untouched
+    # the same inputs and settings resume; --restart starts over
+    assert main(pack_args(recording, out, "--resume")) == 0
+    assert "resumed after frame 3" in capsys.readouterr().out
+    assert main(pack_args(other, tmp_path / "q.h5")) == 0
+    with SequenceReader(out) as a, SequenceReader(tmp_path / "q.h5") as b:
+        assert not np.array_equal(a.left(0), b.left(0))
+
+
+def test_synth_resume_with_other_settings_is_refused(tmp_path, capsys):
+    out = tmp_path / "s.h5"
+    proc = subprocess.Popen([sys.executable, "-c", CLI, *synth_args(out, 200)])
+    while frames_written(str(out) + ".partial") < 2:
+        assert proc.poll() is None
+        time.sleep(0.01)
+    proc.kill()
+    proc.wait()
+    assert main(synth_args(out, 200, "--resume", "--seed", "3")) == 2
+    line = one_error_line(capsys)
+    assert "cannot resume" in line and "seed: 0 in the partial, 3 now" in line
+    assert main(synth_args(out, 20, "--resume")) == 2
+    assert "frames: 200 in the partial, 20 now" in one_error_line(capsys)
+    assert main(synth_args(out, 20, "--restart")) == 0
+    with SequenceReader(out) as r:
+        assert len(r) == 20 and "resumed_after" not in r.attrs
+
+
+# -- one writer per output -------------------------------------------------------------------------
+def test_second_writer_is_refused_and_the_first_finishes_intact(tmp_path, capsys):
+    out = tmp_path / "s.h5"
+    proc = subprocess.Popen([sys.executable, "-c", CLI, *synth_args(out, 60)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        while frames_written(str(out) + ".partial") < 2:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.01)
+        for extra in ([], ["--resume"], ["--restart"], ["--overwrite"]):
+            assert main(synth_args(out, 60, *extra)) == 2
+            line = one_error_line(capsys)
+            assert f"pid {proc.pid}" in line and "is writing this file" in line
+        stdout, stderr = proc.communicate(timeout=300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, stderr
+    assert main(["verify", str(out)]) == 0
+    assert main(synth_args(tmp_path / "ref.h5", 60)) == 0
+    with SequenceReader(out) as a, SequenceReader(tmp_path / "ref.h5") as b:
+        assert len(a) == 60
+        for i in (0, 30, 59):
+            np.testing.assert_array_equal(a.left(i), b.left(i))
+
+
+def test_stale_temporaries_of_dead_processes_are_removed(tmp_path):
+    from staticdepth.dataset.export import export_kitti
+
+    seq = tmp_path / "s.h5"
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    junk = tmp_path / f"s.h5.tmp-{dead.pid}-x"
+    junk.write_bytes(b"0" * 1000)
+    assert main(synth_args(seq, 3)) == 0
+    assert not junk.exists()
+    stale_dir = tmp_path / f"kitti.tmp-{dead.pid}-export"
+    stale_dir.mkdir()
+    (stale_dir / "a.png").write_bytes(b"x")
+    mine = tmp_path / f"kitti.tmp-{os.getpid()}-other"  # a live process's: kept
+    mine.mkdir()
+    export_kitti(seq, tmp_path / "kitti")
+    assert not stale_dir.exists() and mine.exists()
+
+
+# -- --overwrite replaces only our own kind ---------------------------------------------------------
+def _tree(path):
+    out = {}
+    for d, _, names in os.walk(path):
+        for n in names:
+            out[os.path.relpath(os.path.join(d, n), path)] = open(os.path.join(d, n), "rb").read()
+    return out
+
+
+def test_overwrite_refuses_foreign_folders_and_files(tmp_path, capsys):
+    seq = tmp_path / "s.h5"
+    assert main(synth_args(seq, 3)) == 0
+    foreign = tmp_path / "photos"
+    (foreign / "2020").mkdir(parents=True)
+    (foreign / "2020" / "me.jpg").write_bytes(b"precious")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("precious")
+    before = _tree(foreign)
+    capsys.readouterr()
+    for cmd in (["export", str(seq)], ["publish", str(seq)]):
+        for target in (foreign, notes):
+            assert main(cmd + ["--out", str(target), "--overwrite"]) == 2
+            line = one_error_line(capsys)
+            assert "left untouched" in line and str(target) in line
+    assert _tree(foreign) == before and notes.read_text() == "precious"
+    # a sequence output onto a file that is not a sequence
+    assert main(synth_args(notes, 3, "--overwrite")) == 2
+    assert "is not a readable HDF5 file" in one_error_line(capsys)
+    assert main(synth_args(foreign, 3, "--overwrite")) == 2
+    capsys.readouterr()
+    assert notes.read_text() == "precious" and _tree(foreign) == before
+    # our own outputs are replaced, only once the new one is complete
+    assert main(["export", str(seq), "--out", str(tmp_path / "k")]) == 0
+    assert main(["export", str(seq), "--out", str(tmp_path / "k"), "--overwrite"]) == 0
+    assert main(["publish", str(seq), "--out", str(tmp_path / "rel")]) == 0
+    assert main(["publish", str(seq), "--out", str(tmp_path / "rel"), "--overwrite"]) == 0
+    assert main(["verify", str(tmp_path / "rel")]) == 0
+    assert main(synth_args(seq, 4, "--overwrite")) == 0
+    with SequenceReader(seq) as r:
+        assert len(r) == 4
+
+
+# -- full disk, file-size limit, read-only folder -------------------------------------------------
+def _limited(limit_bytes):
+    def pre():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+    return pre
+
+
+def test_file_size_limit_one_line_previous_output_intact_then_resume(tmp_path, capsys):
+    out = tmp_path / "s.h5"
+    assert main(synth_args(out, 2)) == 0
+    before = out.read_bytes()
+    r = subprocess.run([sys.executable, "-c", CLI, *synth_args(out, 30, "--overwrite")],
+                       preexec_fn=_limited(1_000_000), capture_output=True, text=True)
+    assert r.returncode == 2, r.stderr
+    err = r.stderr.strip().splitlines()
+    assert len(err) == 1 and "file too large" in err[0] and "--resume" in err[0], err
+    assert out.read_bytes() == before  # the previous output is intact
+    k = frames_written(str(out) + ".partial")
+    assert 0 < k < 30
+    assert os.path.getsize(str(out) + ".partial") <= 1_000_000
+    # after making room the resumed run equals an uninterrupted one
+    assert main(synth_args(out, 30, "--overwrite", "--resume")) == 0
+    assert f"resuming after frame {k}" in capsys.readouterr().out
+    assert main(synth_args(tmp_path / "ref.h5", 30)) == 0
+    with SequenceReader(out) as a, SequenceReader(tmp_path / "ref.h5") as b:
+        for i in range(30):
+            for s in ("left", "right", "depth", "instances"):
+                np.testing.assert_array_equal(a.read(s, i), b.read(s, i))
+        np.testing.assert_array_equal(a.timestamps(), b.timestamps())
+    assert main(["verify", str(out)]) == 0
+
+
+def test_file_size_limit_before_the_first_frame_leaves_nothing(tmp_path):
+    out = tmp_path / "s.h5"
+    r = subprocess.run([sys.executable, "-c", CLI, *synth_args(out, 30)],
+                       preexec_fn=_limited(20_000), capture_output=True, text=True)
+    assert r.returncode == 2, r.stderr
+    err = r.stderr.strip().splitlines()
+    assert len(err) == 1 and "file too large" in err[0] and "nothing was kept" in err[0], err
+    assert not os.path.exists(str(out) + ".partial") and not out.exists()
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root ignores folder permissions")
+def test_read_only_folder(tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        assert main(synth_args(ro / "s.h5", 3)) == 2
+        assert "permission denied" in one_error_line(capsys)
+        assert os.listdir(ro) == []
+    finally:
+        ro.chmod(0o755)
+
+
+# -- verify covers every dataset; links out of the file are refused --------------------------------
+@pytest.mark.parametrize("dataset", ["timestamps", "agents", "aux/ground", "pred/base/depth",
+                                     "left", "instances"])
+def test_verify_detects_tampering_of_every_dataset(tmp_path, capsys, dataset):
+    from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter, add_prediction
+    from staticdepth.dataset import schema
+    from staticdepth.geometry import Camera
+
+    p = tmp_path / "s.h5"
+    cam = Camera.from_fov(32, 16, 90)
+    rng = np.random.default_rng(0)
+    with SequenceWriter(p, SequenceMeta("t", cam), streams=("left", "depth", "instances"),
+                        aux={"ground": bool}) as w:
+        for i in range(3):
+            ag = schema.empty_agents(2)
+            ag["instance_id"] = [1, 2]
+            w.append(left=rng.integers(0, 255, (16, 32, 3), dtype=np.uint8),
+                     depth=rng.uniform(1, 9, (16, 32)).astype(np.float32),
+                     instances=rng.integers(0, 3, (16, 32)).astype(np.uint16),
+                     aux={"ground": rng.random((16, 32)) > 0.5}, agents=ag, timestamp=0.1 * i)
+    add_prediction(p, "base", [np.full((16, 32), i + 1.0, np.float32) for i in range(3)])
+    assert main(["verify", str(p)]) == 0
+    with h5py.File(p, "a") as f:
+        ds = f[dataset]
+        a = ds[()]
+        if dataset == "agents":
+            a["instance_id"][1] += 1
+        elif a.dtype == bool:
+            a[1, 0, 0] = ~a[1, 0, 0]
+        elif a.dtype.kind == "f":
+            a.flat[1] += 0.5
+        else:
+            a.flat[1] ^= 1
+        ds[...] = a
+    capsys.readouterr()
+    assert main(["verify", str(p)]) == 2
+    out = capsys.readouterr().out
+    assert f"{dataset}" in out and "checksum mismatch" in out
+
+
+def test_legacy_dataset_without_checksum_is_not_covered(tmp_path, capsys):
+    p = tmp_path / "s.h5"
+    assert main(synth_args(p, 2)) == 0
+    with h5py.File(p, "a") as f:
+        del f["timestamps"].attrs["crc32"]
+    capsys.readouterr()
+    assert main(["verify", str(p)]) == 2
+    assert "timestamps: not covered by a checksum" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("how", ["external_link", "external_storage", "virtual"])
+def test_data_from_another_file_is_refused(tmp_path, capsys, how):
+    p, other = tmp_path / "s.h5", tmp_path / "other.h5"
+    assert main(synth_args(p, 2)) == 0
+    assert main(synth_args(other, 2, "--seed", "5")) == 0
+    with h5py.File(p, "a") as f:
+        shape, dtype = f["left"].shape, f["left"].dtype
+        del f["left"]
+        if how == "external_link":
+            f["left"] = h5py.ExternalLink(str(other), "/left")
+        elif how == "external_storage":
+            raw = tmp_path / "raw.bin"
+            with SequenceReader(other) as r:
+                raw.write_bytes(np.stack([r.left(i) for i in range(2)]).tobytes())
+            f.create_dataset("left", shape=shape, dtype=dtype,
+                             external=[(str(raw), 0, h5py.h5f.UNLIMITED)])
+        else:
+            layout = h5py.VirtualLayout(shape=shape, dtype=dtype)
+            layout[:] = h5py.VirtualSource(str(other), "left", shape=shape)
+            f.create_virtual_dataset("left", layout)
+    capsys.readouterr()
+    assert main(["verify", str(p)]) == 2
+    assert "refused" in capsys.readouterr().out
+    assert main(["export", str(p), "--out", str(tmp_path / "k")]) == 2
+    assert "refused" in one_error_line(capsys)
+    assert not (tmp_path / "k").exists()
+
+
+# -- pack checks rectification like stereo ------------------------------------------------------
+def test_pack_refuses_a_rig_that_does_not_rectify(tmp_path, capsys):
+    from staticdepth.dataset.synth import SyntheticScene, preset
+
+    rec = tmp_path / "rec"
+    scene = SyntheticScene(preset("demo", width=320, height=160, seed=1))
+    for sub in ("left", "right"):
+        (rec / sub).mkdir(parents=True)
+    for i in range(2):
+        fr = scene.render(i)
+        cv2.imwrite(str(rec / "left" / f"{i:04d}.png"), fr["left"][..., ::-1])
+        cv2.imwrite(str(rec / "right" / f"{i:04d}.png"), fr["right"][..., ::-1])
+    rig = scene.rig.to_dict()
+    rig["right"]["cy"] += 8.0  # a calibration 8 px off vertically: rows no longer agree
+    rig["right"]["K"][1][2] += 8.0
+    (rec / "rig.json").write_text(json.dumps(rig))
+    assert main(pack_args(rec, tmp_path / "p.h5")) == 2
+    assert "not rectified" in one_error_line(capsys)
+    assert not os.path.exists(tmp_path / "p.h5.partial")
+    scene.rig.save(rec / "rig.json")  # the true rig packs
+    assert main(pack_args(rec, tmp_path / "p.h5")) == 0
+
+
+# -- workers die with their parent ---------------------------------------------------------------
+def _children(pid):
+    kids = []
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            try:
+                with open(f"/proc/{d}/stat") as f:
+                    if int(f.read().rsplit(")", 1)[1].split()[1]) == pid:
+                        kids.append(int(d))
+            except (OSError, IndexError, ValueError):
+                pass
+    return kids
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_pack_workers_die_with_their_parent(recording, tmp_path):
+    out = tmp_path / "p.h5"
+    proc = subprocess.Popen([sys.executable, "-c", CLI,
+                             *pack_args(recording, out, "--workers", "2")])
+    try:
+        t0 = time.monotonic()
+        while len(_children(proc.pid)) < 2 and time.monotonic() - t0 < 120:
+            assert proc.poll() is None
+            time.sleep(0.05)
+        kids = _children(proc.pid)
+        assert len(kids) >= 2
+    finally:
+        proc.kill()
+        proc.wait()
+    t0 = time.monotonic()
+    alive = kids
+    while alive and time.monotonic() - t0 < 10:
+        time.sleep(0.1)
+        alive = [k for k in alive if os.path.exists(f"/proc/{k}")
+                 and open(f"/proc/{k}/stat").read().rsplit(")", 1)[1].split()[0] != "Z"]
+    assert alive == [], "worker processes outlived their parent"
