@@ -178,3 +178,50 @@ def test_killed_writer_resumes_to_the_uninterrupted_result(kind, sig, inputs, tm
     assert main(ref_args) == 0
     assert_same_sequence(out, ref)
     assert main(["verify", str(out)]) == 0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM], ids=["SIGKILL", "SIGTERM"])
+def test_killed_capture_keeps_its_complete_frames_and_packs(sig, tmp_path):
+    """``capture`` records a live source, so it is not resumed: a killed recording keeps every
+    frame committed before the kill (images exact) and is packed like a finished one."""
+    from staticdepth.capture import layout
+    from staticdepth.capture.sources.synthetic import SyntheticSource
+    from staticdepth.geometry import Camera
+    from staticdepth.geometry.camera import StereoRig
+
+    rec = tmp_path / "rec"
+    proc = subprocess.Popen([sys.executable, "-c", CLI, "capture", "--source", "synthetic",
+                             "--size", "320x200", "--fps", "30", "--frames", "100000",
+                             "--out", str(rec)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    at = random.Random(f"capture{sig}").randint(3, 12)
+    csv = rec / "seg_0000" / "timestamps.csv"
+    t0 = time.monotonic()
+    try:
+        while not (csv.exists() and csv.read_text().count("\n") > at):
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() - t0 < 120, "capture made no progress"
+            time.sleep(0.02)
+        proc.send_signal(sig)
+        proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    r = layout.read_recording(rec)
+    n = len(r.frames)
+    assert n >= at and [f.frame for f in r.frames] == list(range(n))
+    assert r.status == ("recording" if sig == signal.SIGKILL else "stopped")
+    src = SyntheticSource(320, 200)
+    for f in r.frames:
+        left, right = src.make_pair(f.frame)
+        np.testing.assert_array_equal(cv2.imread(str(f.left_path), cv2.IMREAD_UNCHANGED), left)
+        np.testing.assert_array_equal(cv2.imread(str(f.right_path), cv2.IMREAD_UNCHANGED), right)
+    cam = Camera.from_fov(320, 200, 70)
+    StereoRig.rectified(cam, 0.1).save(tmp_path / "rig.json")
+    out = tmp_path / "p.h5"
+    assert main(["pack", "--recording", str(rec), "--rig", str(tmp_path / "rig.json"),
+                 "--set", "num_disparities=32", "--out", str(out)]) == 0
+    with SequenceReader(out) as s:
+        assert len(s) == n
+    assert main(["verify", str(out)]) == 0
