@@ -420,3 +420,24 @@ def test_pack_workers_die_with_their_parent(recording, tmp_path):
         alive = [k for k in alive if os.path.exists(f"/proc/{k}")
                  and open(f"/proc/{k}/stat").read().rsplit(")", 1)[1].split()[0] != "Z"]
     assert alive == [], "worker processes outlived their parent"
+
+
+def test_disparity_out_keeps_the_previous_file_when_the_write_fails(tmp_path):
+    from staticdepth.dataset.synth import SyntheticScene, preset
+
+    fr = SyntheticScene(preset("demo", width=320, height=160, seed=1)).render(0)
+    for side in ("left", "right"):
+        cv2.imwrite(str(tmp_path / f"{side}.png"), fr[side][..., ::-1])
+    out = tmp_path / "d.npy"
+    out.write_bytes(b"the previous disparity")
+    args = ["stereo", "--rectified", "--left", str(tmp_path / "left.png"), "--right",
+            str(tmp_path / "right.png"), "--max-disparity", "32", "--disparity-out", str(out)]
+    r = subprocess.run([sys.executable, "-c", CLI, *args], preexec_fn=_limited(50_000),
+                       capture_output=True, text=True)  # the new map (200 kB) does not fit
+    assert r.returncode == 2, r.stderr
+    err = r.stderr.strip().splitlines()
+    assert len(err) == 1 and "file too large" in err[0], err
+    assert out.read_bytes() == b"the previous disparity"
+    assert sorted(os.listdir(tmp_path)) == ["d.npy", "left.png", "right.png"]
+    assert main(args) == 0
+    assert np.load(out).shape == (160, 320)
