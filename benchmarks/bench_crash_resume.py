@@ -58,8 +58,8 @@ def throughput(w: int, h: int, frames: int, folder: str) -> tuple[float, float]:
     left = rng.integers(0, 255, (h, w, 3), dtype=np.uint8)
     depth = rng.uniform(1, 80, (h, w)).astype(np.float32)
     t0 = time.perf_counter()
-    with SequenceWriter(os.path.join(folder, "new.h5"), SequenceMeta("b", Camera.from_fov(w, h, 90)),
-                        streams=("left", "depth")) as sw:
+    meta = SequenceMeta("b", Camera.from_fov(w, h, 90))
+    with SequenceWriter(os.path.join(folder, "new.h5"), meta, streams=("left", "depth")) as sw:
         for i in range(frames):
             sw.append(left=np.roll(left, i, axis=1), depth=depth + i)
     new = frames / (time.perf_counter() - t0)

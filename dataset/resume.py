@@ -16,9 +16,9 @@ Reopening: the file is written with HDF5's version-1.8 superblock (no "file is o
 consistency flag, which the newer superblock leaves set after SIGKILL and h5py cannot clear) and
 flushed after every frame, so a killed run's partial opens again (benchmarks/bench_crash_resume.py:
 12 of 12 partials killed at random moments reopened and resumed to verified files; 0 of 12 with
-the old settings, ``libver="latest"`` without flushes; throughput ratio 0.95-1.07 at 800x400). The last frames are checked against
-their stored CRC-32 and dropped back to the last complete one. A partial that cannot be opened at
-all is renamed aside (``<partial>.damaged-<time>``) and the user told, never deleted.
+the old settings, ``libver="latest"`` without flushes; throughput ratio 0.95-1.07 at 800x400).
+The last frames are checked against their stored CRC-32 and dropped back to the last complete
+one. A partial that cannot be opened at all is renamed aside (``<partial>.damaged-<time>``) and the user told, never deleted.
 """
 from __future__ import annotations
 

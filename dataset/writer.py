@@ -108,23 +108,26 @@ class SequenceWriter:
         self._fingerprint = rs.settings_fingerprint(meta.to_attrs(), self.streams, self.aux,
                                                     settings)
         self._inputs = None if inputs is None else list(inputs)
+        self._busy, self._pending = False, None
         self._lock = contextlib.ExitStack()
         self._lock.enter_context(exclusive_lock(self.path, what="writing"))
         try:
+            self._install_sigterm()
             remove_stale_temporaries(self.path)
             if os.path.exists(self.partial) and not (resume or restart):
                 raise InputError("an interrupted run left this file: --resume continues it, "
                                  "--restart starts over", self.partial)
             opened = rs.open_partial(self.partial, warn) if resume and os.path.exists(
                 self.partial) else None
-            if opened is not None:
-                self._f, self._io = opened
-                self._resume(self._f, rs, labels)
-            else:
-                self._create()
-            self._install_sigterm()
+            with self._writing():
+                if opened is not None:
+                    self._f, self._io = opened
+                    self._resume(self._f, rs, labels)
+                else:
+                    self._create()
         except BaseException:
             self._close_file()
+            self._restore_sigterm()
             self._lock.close()
             raise
 
@@ -210,24 +213,47 @@ class SequenceWriter:
         self.n = self.resumed_from = n
 
     def _install_sigterm(self) -> None:
-        """SIGTERM ends the run like Ctrl-C: the partial is flushed and closed for ``--resume``."""
-        self._old_term = None
+        """SIGTERM ends the run like Ctrl-C (the partial is flushed and closed for ``--resume``).
+        A SIGTERM or Ctrl-C that arrives while a frame is being written waits until that frame
+        is complete: HDF5 cannot recover from an exception raised inside its own write call."""
+        self._old_handlers: dict[int, Any] = {}
         if threading.current_thread() is not threading.main_thread():
             return
-        if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
-            return
 
-        def on_term(signum, frame):
-            print(f"terminated (SIGTERM): {self.partial} keeps {self.n} frames; run again with "
-                  "--resume to continue", file=sys.stderr, flush=True)
-            raise SystemExit(128 + signal.SIGTERM)
+        def on_signal(signum, frame):
+            if self._busy:
+                self._pending = signum
+                return
+            self._interrupt(signum)
 
-        self._old_term = signal.signal(signal.SIGTERM, on_term)
+        for sig, default in ((signal.SIGTERM, signal.SIG_DFL),
+                             (signal.SIGINT, signal.default_int_handler)):
+            if signal.getsignal(sig) is default:
+                self._old_handlers[sig] = signal.signal(sig, on_signal)
+
+    def _interrupt(self, signum: int) -> None:
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        print(f"terminated (SIGTERM): {self.partial} keeps {self.n} frames; run again with "
+              "--resume to continue", file=sys.stderr, flush=True)
+        raise SystemExit(128 + signal.SIGTERM)
+
+    @contextlib.contextmanager
+    def _writing(self):
+        """A block that HDF5 writes in: signals wait for its end (see :meth:`_install_sigterm`)."""
+        self._busy = True
+        try:
+            yield
+        finally:
+            self._busy = False
+        if self._pending is not None:
+            signum, self._pending = self._pending, None
+            self._interrupt(signum)
 
     def _restore_sigterm(self) -> None:
-        if getattr(self, "_old_term", None) is not None:
-            signal.signal(signal.SIGTERM, self._old_term)
-            self._old_term = None
+        for sig, handler in getattr(self, "_old_handlers", {}).items():
+            signal.signal(sig, handler)
+        self._old_handlers = {}
 
     def _fail(self, e: BaseException) -> None:
         """A write failed (disk full, read-only, file-size limit): close, keep or remove the
@@ -296,7 +322,8 @@ class SequenceWriter:
         missing = set(self.streams) - set(frames)
         extra = set(frames) - set(self.streams)
         if missing or extra:
-            raise InputError(f"frame {self.n}: expected streams {self.streams}, got {sorted(frames)}")
+            raise InputError(f"frame {self.n}: expected streams {self.streams}, "
+                             f"got {sorted(frames)}")
         i = self.n
         arrays = {}
         for name in self.streams:
@@ -312,30 +339,31 @@ class SequenceWriter:
                 raise InputError(f"frame {i}: aux {name} has shape {a.shape}, "
                                  f"expected {ds.shape[1:]}")
             arrays[f"aux/{name}"] = a.astype(ds.dtype, copy=False)
-        try:
-            for key, a in arrays.items():
-                ds = f[key]
-                ds.resize(i + 1, axis=0)
-                ds[i] = a
-                crc = f[f"crc32/{key}"]
-                crc.resize(i + 1, axis=0)
-                crc[i] = _frame_checksum(a)
-            ts = f["timestamps"]
-            ts.resize(i + 1, axis=0)
-            ts[i] = float(i) if timestamp is None else float(timestamp)
-            if agents is not None and len(agents):
-                rows = np.asarray(agents).astype(schema.AGENT_DTYPE)
-                rows["frame"] = i
-                ds = f["agents"]
-                k = len(ds)
-                ds.resize(k + len(rows), axis=0)
-                ds[k:] = rows
-            f.attrs["n_written"] = i + 1
-            f.flush()  # every frame on disk: a killed run's partial reopens (see resume.py)
-            self._commit()
-        except (OSError, RuntimeError) as e:  # h5py raises RuntimeError for some write errors
-            self._fail(e)
-        self.n = i + 1
+        with self._writing():
+            try:
+                for key, a in arrays.items():
+                    ds = f[key]
+                    ds.resize(i + 1, axis=0)
+                    ds[i] = a
+                    crc = f[f"crc32/{key}"]
+                    crc.resize(i + 1, axis=0)
+                    crc[i] = _frame_checksum(a)
+                ts = f["timestamps"]
+                ts.resize(i + 1, axis=0)
+                ts[i] = float(i) if timestamp is None else float(timestamp)
+                if agents is not None and len(agents):
+                    rows = np.asarray(agents).astype(schema.AGENT_DTYPE)
+                    rows["frame"] = i
+                    ds = f["agents"]
+                    k = len(ds)
+                    ds.resize(k + len(rows), axis=0)
+                    ds[k:] = rows
+                f.attrs["n_written"] = i + 1
+                f.flush()  # every frame on disk: a killed run's partial reopens (see resume.py)
+                self._commit()
+            except (OSError, RuntimeError) as e:  # h5py raises RuntimeError for some
+                self._fail(e)
+            self.n = i + 1
         return i
 
     def flush(self) -> None:
@@ -356,6 +384,7 @@ class SequenceWriter:
             self.abort()
             raise InputError(f"adapt_frames = {self.meta.adapt_frames} exceeds the "
                              f"{self.n} frames written", self.path)
+        self._busy = True  # a signal now waits: the run is finishing (see _install_sigterm)
         try:
             for key in ("timestamps", "agents"):  # whole-dataset checksums (verify reads them)
                 f[key].attrs["crc32"] = _frame_checksum(f[key][:])
@@ -375,6 +404,7 @@ class SequenceWriter:
             self.n = max(self.n, 1)
             self._fail(e)
         finally:
+            self._busy = False
             self._restore_sigterm()
             self._lock.close()
         return self.path

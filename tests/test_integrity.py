@@ -185,7 +185,7 @@ def test_stale_temporaries_of_dead_processes_are_removed(tmp_path):
     assert not stale_dir.exists() and mine.exists()
 
 
-# -- --overwrite replaces only our own kind ---------------------------------------------------------
+# -- --overwrite replaces only our own kind ------------------------------------------------------
 def _tree(path):
     out = {}
     for d, _, names in os.walk(path):
@@ -333,7 +333,7 @@ def test_legacy_dataset_without_checksum_is_not_covered(tmp_path, capsys):
     assert "timestamps: not covered by a checksum" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("how", ["external_link", "external_storage", "virtual"])
+@pytest.mark.parametrize("how", ["external_link", "external_storage", "virtual", "soft_link"])
 def test_data_from_another_file_is_refused(tmp_path, capsys, how):
     p, other = tmp_path / "s.h5", tmp_path / "other.h5"
     assert main(synth_args(p, 2)) == 0
@@ -343,6 +343,9 @@ def test_data_from_another_file_is_refused(tmp_path, capsys, how):
         del f["left"]
         if how == "external_link":
             f["left"] = h5py.ExternalLink(str(other), "/left")
+        elif how == "soft_link":  # a soft link to an external link
+            f["elsewhere"] = h5py.ExternalLink(str(other), "/left")
+            f["left"] = h5py.SoftLink("/elsewhere")
         elif how == "external_storage":
             raw = tmp_path / "raw.bin"
             with SequenceReader(other) as r:
@@ -441,3 +444,43 @@ def test_disparity_out_keeps_the_previous_file_when_the_write_fails(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["d.npy", "left.png", "right.png"]
     assert main(args) == 0
     assert np.load(out).shape == (160, 320)
+
+
+@pytest.mark.parametrize("sig, exc", [(signal.SIGTERM, SystemExit), (signal.SIGINT,
+                                                                      KeyboardInterrupt)])
+def test_a_signal_inside_an_hdf5_write_waits_for_the_frame(tmp_path, monkeypatch, sig, exc):
+    """SIGTERM / Ctrl-C arriving inside HDF5's write call (our file object) must not break the
+    file: it takes effect once the frame is complete, and the partial resumes."""
+    from staticdepth.dataset import resume as rs
+    from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
+    from staticdepth.geometry import Camera
+
+    p = tmp_path / "s.h5"
+    cam = Camera.from_fov(64, 32, 90)
+    frames = [np.full((32, 64, 3), i, np.uint8) for i in range(4)]
+    real_write = rs.UndoableFile.write
+    state = {"armed": False, "sent": 0}
+
+    def write(self, b):
+        if state["armed"] and not state["sent"]:
+            state["sent"] = 1
+            os.kill(os.getpid(), sig)  # the handler runs here, inside HDF5's flush
+        return real_write(self, b)
+
+    monkeypatch.setattr(rs.UndoableFile, "write", write)
+    with pytest.raises(exc):
+        with SequenceWriter(p, SequenceMeta("t", cam), streams=("left",)) as w:
+            w.append(left=frames[0])
+            state["armed"] = True
+            w.append(left=frames[1])
+            pytest.fail("the signal was lost")
+    assert state["sent"] and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    monkeypatch.setattr(rs.UndoableFile, "write", real_write)
+    with SequenceWriter(p, SequenceMeta("t", cam), streams=("left",), resume=True) as w:
+        assert len(w) == 2  # the frame being written when the signal came was completed
+        for fr in frames[2:]:
+            w.append(left=fr)
+    with SequenceReader(p) as r:
+        assert r.checksum_errors() == []
+        for i in range(4):
+            np.testing.assert_array_equal(r.left(i), frames[i])
