@@ -155,7 +155,7 @@ class FrameFileWriter:
             except (OSError, KeyError, ValueError):
                 ok, f = False, None
             if ok:
-                self._f = f
+                self._set_file(f)
                 self.start = self._verified_frames()
                 self._truncate(self.start)
                 return
@@ -180,8 +180,13 @@ class FrameFileWriter:
             f.attrs[k] = _attr(v)
         f.attrs.update({"config_hash": self.config_hash, "sequence_id": self.identity,
                         "n_frames": self.n, "n_written": 0, "complete": False, "key": self.key})
-        self._f = f
+        self._set_file(f)
         self.start = 0
+
+    def _set_file(self, f: h5py.File) -> None:
+        self._f = f
+        self._ds, self._crc = f[self.key], f["crc32"]
+        self._rows = f["rows"] if self.rows_dtype is not None else None
 
     def _verified_frames(self) -> int:
         """Frames at the start of the partial file whose data read back with their checksum."""
@@ -209,14 +214,14 @@ class FrameFileWriter:
     # -- writing --------------------------------------------------------------------------------------
     @property
     def written(self) -> int:
-        return self.n if self.done else (0 if self._f is None else len(self._f["crc32"]))
+        return self.n if self.done else (0 if self._f is None else len(self._crc))
 
     def write(self, i: int, frame: np.ndarray, rows: np.ndarray | None = None) -> None:
         """Write frame ``i`` (the next one); ``rows`` are its records (their ``frame`` is set)."""
         f = self._f
         if f is None:
             raise RuntimeError("writer is not open")
-        k = len(f["crc32"])
+        k = len(self._crc)
         if i != k:
             raise RuntimeError(f"frames are written in order: expected {k}, got {i}")
         if k >= self.n:
@@ -225,16 +230,14 @@ class FrameFileWriter:
         if a.shape != self.shape:
             raise InputError(f"frame {i}: shape {a.shape}, expected {self.shape}", self.path)
         a = np.ascontiguousarray(a, dtype=self.dtype)
-        ds = f[self.key]
-        ds.resize(k + 1, axis=0)
-        ds[k] = a
-        crc = f["crc32"]
-        crc.resize(k + 1, axis=0)
-        crc[k] = frame_checksum(a)
+        self._ds.resize(k + 1, axis=0)
+        self._ds[k] = a
+        self._crc.resize(k + 1, axis=0)
+        self._crc[k] = frame_checksum(a)
         if rows is not None and len(rows) and self.rows_dtype is not None:
             r = np.asarray(rows).astype(self.rows_dtype)
             r["frame"] = i
-            t = f["rows"]
+            t = self._rows
             m = len(t)
             t.resize(m + len(r), axis=0)
             t[m:] = r
@@ -312,12 +315,13 @@ class FrameFile:
             self._f.close()
             raise
         self._rows: np.ndarray | None = None
+        self._ds = self._f[self.key]
 
     def __len__(self) -> int:
-        return len(self._f[self.key])
+        return len(self._ds)
 
     def __getitem__(self, i: int) -> np.ndarray:
-        return self._f[self.key][i]
+        return self._ds[i]
 
     @property
     def attrs(self) -> dict[str, Any]:
