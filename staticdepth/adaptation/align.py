@@ -26,11 +26,13 @@ AlignFrame = Callable[[int, np.ndarray], np.ndarray]
 
 
 def align_prediction(ws: Workspace, jobs: Mapping[str, tuple[str, AlignFrame]], config_hash: str,
-                     attrs: Mapping | None = None, stage: str = "align") -> None:
+                     attrs: Mapping | None = None, stage: str = "align",
+                     rewrite: bool = False) -> None:
     """Write each output ``out`` of ``jobs = {out: (source prediction, f(i, map) -> map)}``
-    frame by frame; outputs complete with ``config_hash`` are skipped, interrupted ones resume."""
+    frame by frame; outputs complete with ``config_hash`` are skipped (unless ``rewrite``),
+    interrupted ones resume."""
     writers = {out: ws.pred_writer(out, config_hash, {"source": src, **dict(attrs or {})},
-                                   chunk=8) for out, (src, _) in jobs.items()}
+                                   chunk=8, rewrite=rewrite) for out, (src, _) in jobs.items()}
     if all(w.done for w in writers.values()):
         return ws.skip(stage)
     with contextlib.ExitStack() as stack, ws.reader() as r:

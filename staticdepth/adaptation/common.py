@@ -59,11 +59,11 @@ class Workspace:
     def frame_file(self, name: str) -> FrameFile:
         return FrameFile(self.path(name), self.identity)
 
-    def pred_writer(self, name: str, config_hash: str, attrs=None, chunk: int = 1
-                    ) -> FrameFileWriter:
+    def pred_writer(self, name: str, config_hash: str, attrs=None, chunk: int = 1,
+                    rewrite: bool = False) -> FrameFileWriter:
         return prediction_writer(self.seq, name, n=self.n, height=self.height, width=self.width,
                                  identity=self.identity, attrs=attrs, config_hash=config_hash,
-                                 chunk=chunk)
+                                 chunk=chunk, rewrite=rewrite)
 
     def pred_done(self, name: str, config_hash: str) -> bool:
         return is_complete(prediction_path(self.seq, name), self.identity, config_hash)
