@@ -83,3 +83,7 @@ def test_shipped_recipes_parse_against_the_real_cli(recipe):
         except SystemExit:
             pytest.fail(f"{recipe.name} stage {name}: invalid command line {argv}")
         assert callable(args.func)
+        if st["command"] == "adapt":     # every setting is a valid key of the adaptation's tree
+            from staticdepth.adapt import config_from_args
+
+            config_from_args(args)
