@@ -178,6 +178,26 @@ def parse_set(items: Sequence[str] | None) -> dict[str, str]:
     return out
 
 
+def split_options(cls: type, values: Mapping[str, Any], options_field: str = "options", *,
+                  strict: bool = True) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Route ``--set`` values of a config with a free-form ``options`` mapping (the stereo
+    matcher's): a field of ``cls`` stays a setting, ``options.KEY`` goes to the options (values
+    read as YAML scalars); any other key is a setting (``strict``: :func:`from_dict` then names
+    it unknown) or, not ``strict``, an option. Returns (settings, options)."""
+    import yaml
+
+    names = {f.name for f in dataclasses.fields(cls)} - {options_field}
+    settings: dict[str, Any] = {}
+    options: dict[str, Any] = {}
+    for k, v in values.items():
+        if k in names or (strict and not k.startswith(options_field + ".")):
+            settings[k] = v
+            continue
+        key = k[len(options_field) + 1:] if k.startswith(options_field + ".") else k
+        options[key] = yaml.safe_load(v) if isinstance(v, str) else v
+    return settings, options
+
+
 def format_config(conf: Any, indent: int = 0) -> str:
     """A config tree as YAML-like text, one ``key: value`` per leaf (``--print-config``)."""
     lines = []

@@ -28,9 +28,10 @@ stages:
 def test_argv_from_args():
     argv = argv_from_args("baseline train", {"_": ["s.h5"], "epochs": 3, "fill": True,
                                               "skip": False, "drives": ["a", "b"],
-                                              "set": {"lr": 0.1}, "max_depth": 80})
+                                              "set": {"lr": 0.1, "tracking": {"min_frames": 2}},
+                                              "max_depth": 80})
     assert argv == ["baseline", "train", "s.h5", "--epochs", "3", "--fill", "--drives", "a", "b",
-                    "--set", "lr=0.1", "--max-depth", "80"]
+                    "--set", "lr=0.1", "--set", "tracking.min_frames=2", "--max-depth", "80"]
 
 
 def test_recipe_runs_then_skips_then_reruns_changed_stage(tmp_path):
