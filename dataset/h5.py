@@ -388,7 +388,8 @@ class SequenceReader:
 
     def close(self) -> None:
         for side in self.__dict__.pop("_sidecars", {}).values():
-            side.close()
+            if side is not None:
+                side.close()
         self._f.close()
 
     @property
@@ -484,12 +485,15 @@ class SequenceReader:
     def _sidecar(self, name: str):
         from staticdepth.dataset.predictions import FrameFile, prediction_names, prediction_path
 
-        cache = self.__dict__.setdefault("_sidecars", {})
-        if name not in cache:
-            if name not in prediction_names(self.path):
-                return None
-            cache[name] = FrameFile(prediction_path(self.path, name), self.sequence_id(),
-                                    (self.n_frames, self.height, self.width))
+        cache = self.__dict__.setdefault("_sidecars", {})   # name -> open file, or None (none)
+        if name in cache:
+            return cache[name]
+        if name not in prediction_names(self.path):
+            if name in self._legacy_predictions():
+                cache[name] = None                            # an in-file group: stop looking
+            return None
+        cache[name] = FrameFile(prediction_path(self.path, name), self.sequence_id(),
+                                (self.n_frames, self.height, self.width))
         return cache[name]
 
     def predictions(self) -> list[str]:
