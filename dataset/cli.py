@@ -85,6 +85,9 @@ def _verify(args: argparse.Namespace) -> int:
             try:
                 with SequenceReader(path) as r:
                     problems = r.checksum_errors()
+                from staticdepth.dataset.predictions import verify_predictions
+
+                problems += verify_predictions(path)
             except InputError as e:
                 problems = [e.problem]
         if problems:

@@ -10,13 +10,13 @@ talk to h5py. Guarantees:
 - the reader refuses data from other files (external links, external storage, virtual datasets)
   and ``checksum_errors`` covers every dataset;
 - one frame per chunk, so reading frame i decodes frame i only;
-- predictions are added to a copy that replaces the file atomically (:func:`add_prediction`).
+- predictions are separate files beside the sequence (:func:`add_prediction`,
+  :mod:`staticdepth.dataset.predictions`); legacy in-file ``pred/<name>`` groups are still read.
 """
 from __future__ import annotations
 
 import json
 import os
-import shutil
 from dataclasses import dataclass, field
 from typing import Any, Iterable, Iterator, Mapping
 
@@ -185,7 +185,7 @@ class SequenceReader:
         for name in (sorted(f["aux"]) if "aux" in f else []):
             if f[f"aux/{name}"].shape != (n, h, w):
                 raise InputError(f"aux map {name!r} has shape {f[f'aux/{name}'].shape}", p)
-        for name in self.predictions():
+        for name in self._legacy_predictions():
             if f[f"pred/{name}/depth"].shape != (n, h, w):
                 raise InputError(f"prediction {name!r} has shape {f[f'pred/{name}/depth'].shape}", p)
         self.n_frames, self.width, self.height = n, w, h
@@ -201,6 +201,9 @@ class SequenceReader:
         self.close()
 
     def close(self) -> None:
+        for side in self.__dict__.pop("_sidecars", {}).values():
+            if side is not None:
+                side.close()
         self._f.close()
 
     @property
@@ -279,12 +282,43 @@ class SequenceReader:
         for i in range(self.n_frames):
             yield self.frame(i)
 
-    def predictions(self) -> list[str]:
+    # -- predictions: sidecar files <SEQ>.h5.pred/<name>.h5 (dataset/predictions.py) and legacy
+    # in-file pred/<name> groups; a sidecar file wins over an in-file group of the same name
+    def sequence_id(self) -> str:
+        from staticdepth.dataset.predictions import sequence_id
+
+        if getattr(self, "_sid", None) is None:
+            self._sid = sequence_id(self._f)
+        return self._sid
+
+    def _legacy_predictions(self) -> list[str]:
         if "pred" not in self._f:
             return []
         return sorted(k for k in self._f["pred"] if "depth" in self._f["pred"][k])
 
+    def _sidecar(self, name: str):
+        from staticdepth.dataset.predictions import FrameFile, prediction_names, prediction_path
+
+        cache = self.__dict__.setdefault("_sidecars", {})   # name -> open file, or None (none)
+        if name in cache:
+            return cache[name]
+        if name not in prediction_names(self.path):
+            if name in self._legacy_predictions():
+                cache[name] = None                            # an in-file group: stop looking
+            return None
+        cache[name] = FrameFile(prediction_path(self.path, name), self.sequence_id(),
+                                (self.n_frames, self.height, self.width))
+        return cache[name]
+
+    def predictions(self) -> list[str]:
+        from staticdepth.dataset.predictions import prediction_names
+
+        return sorted(set(self._legacy_predictions()) | set(prediction_names(self.path)))
+
     def prediction(self, name: str, i: int) -> np.ndarray:
+        side = self._sidecar(name)
+        if side is not None:
+            return side[self._index(i)]
         key = f"pred/{name}/depth"
         if key not in self._f:
             raise InputError(f"sequence has no prediction {name!r} (has {self.predictions()})",
@@ -292,6 +326,12 @@ class SequenceReader:
         return self._f[key][self._index(i)]
 
     def prediction_attrs(self, name: str) -> dict[str, Any]:
+        side = self._sidecar(name)
+        if side is not None:
+            return side.attrs
+        if f"pred/{name}" not in self._f:
+            raise InputError(f"sequence has no prediction {name!r} (has {self.predictions()})",
+                             self.path)
         return dict(self._f[f"pred/{name}"].attrs)
 
     def checksum_errors(self) -> list[str]:
@@ -304,47 +344,16 @@ class SequenceReader:
 
 def add_prediction(path: str | os.PathLike, name: str, depth_maps: Iterable[np.ndarray],
                    attrs: Mapping[str, Any] | None = None, *, overwrite: bool = True) -> None:
-    """Store ``pred/<name>/depth`` (N, H, W float32) in a complete sequence file, atomically.
+    """Store the prediction ``name`` ((H, W) float32 per frame) of a complete sequence file.
 
-    The file is copied, the prediction written into the copy, and the copy renamed over the
-    original, so an interruption never damages the sequence.
+    Written frame by frame into its own file ``<path>.pred/<name>.h5``
+    (:mod:`staticdepth.dataset.predictions`); the sequence file itself is never rewritten.
     """
+    from staticdepth.dataset.predictions import write_prediction
+
     path = os.fspath(path)
-    with SequenceReader(path) as r:
-        n, h, w = r.n_frames, r.height, r.width
-        exists = name in r.predictions()
-    if exists and not overwrite:
-        raise InputError(f"prediction {name!r} already exists", path)
-    tmp = f"{path}.pred{os.getpid()}.tmp"
-    shutil.copyfile(path, tmp)
-    try:
-        with h5py.File(tmp, "a") as f:
-            key = f"pred/{name}"
-            if key in f:
-                del f[key]
-            g = f.create_group(key)
-            ds = g.create_dataset("depth", shape=(n, h, w), dtype=np.float32, chunks=(1, h, w),
-                                  **_compression("float"))
-            k = 0
-            for k, d in enumerate(depth_maps, start=1):
-                d = np.asarray(d, dtype=np.float32)
-                if d.shape != (h, w):
-                    raise InputError(f"prediction {name!r} frame {k - 1}: shape {d.shape}, "
-                                     f"expected {(h, w)}", path)
-                if k > n:
-                    raise InputError(f"prediction {name!r} has more than {n} frames", path)
-                ds[k - 1] = d
-            if k != n:
-                raise InputError(f"prediction {name!r} has {k} frames, the sequence {n}", path)
-            crc_key = f"crc32/{key}/depth"  # per-frame checksums, read by verify
-            if crc_key in f:
-                del f[crc_key]
-            f.create_dataset(crc_key, data=np.array([_frame_checksum(ds[i]) for i in range(n)],
-                                                    np.uint32))
-            for a, v in (attrs or {}).items():
-                g.attrs[a] = v if isinstance(v, (int, float, str, np.number)) else json.dumps(v)
-        _fsync_path(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    if not overwrite:
+        with SequenceReader(path) as r:
+            if name in r.predictions():
+                raise InputError(f"prediction {name!r} already exists", path)
+    write_prediction(path, name, depth_maps, attrs)

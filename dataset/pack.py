@@ -347,15 +347,10 @@ def pack_recording(recording: str | os.PathLike, rig_path: str | os.PathLike | N
         rig = rec_rig
     else:
         raise InputError("the recording has no rig: pass --rig rig.json", recording)
-    values: dict[str, Any] = {"matcher": matcher}
-    options = {}
-    for k, v in dict(overrides or {}).items():
-        if k.startswith("options."):
-            import yaml
+    from staticdepth.config import split_options
 
-            options[k[len("options."):]] = yaml.safe_load(v) if isinstance(v, str) else v
-        else:
-            values[k] = v
+    fields, options = split_options(StereoConfig, dict(overrides or {}))
+    values: dict[str, Any] = {"matcher": matcher, **fields}
     if model is not None:
         options["model"] = model
     if options:

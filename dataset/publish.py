@@ -104,6 +104,7 @@ def card_markdown(card: dict[str, Any]) -> str:
         lines += [f"### {s['name']}", "", "```json", json.dumps(s, indent=2), "```", ""]
     lines += ["## Files", "",
               "- `sequences/*.h5`: sequence files (read with `staticdepth inspect`)",
+              "- `sequences/*.h5.pred/*.h5`: predictions stored beside each sequence",
               "- `kitti/<name>/`: KITTI-style export", f"- `{MANIFEST}`: SHA-256 of every file; "
               "check with `staticdepth verify <this folder>`", "", "## Citation", "",
               card["citation"] or "(none given)", ""]
@@ -146,7 +147,7 @@ def _publish(files, stems, out, title, licence, citation, export, overwrite) -> 
     tmp = temporary_path(out, "publish")
     try:
         os.makedirs(os.path.join(tmp, "sequences"))
-        cards = []
+        cards, preds_listed = [], []
         for f, stem in zip(files, stems):
             with SequenceReader(f) as r:
                 problems = r.checksum_errors()
@@ -154,6 +155,9 @@ def _publish(files, stems, out, title, licence, citation, export, overwrite) -> 
                     raise InputError(f"sequence fails verification: {problems[0]}", f)
                 cards.append(sequence_card(r))
             shutil.copyfile(f, os.path.join(tmp, "sequences", stem + ".h5"))
+            preds_listed += [f"sequences/{stem}.h5.pred/{n}.h5"
+                             for n in _copy_predictions(f, os.path.join(tmp, "sequences",
+                                                                        stem + ".h5"))]
             if export:
                 os.makedirs(os.path.join(tmp, "kitti"), exist_ok=True)
                 export_kitti(os.path.join(tmp, "sequences", stem + ".h5"),
@@ -162,7 +166,8 @@ def _publish(files, stems, out, title, licence, citation, export, overwrite) -> 
                 "created": time.strftime("%Y-%m-%d"), "licence": licence, "citation": citation,
                 "toolkit_version": __version__, "sequences": cards,
                 "files": {"sequences": [f"sequences/{s}.h5" for s in stems],
-                          "kitti": [f"kitti/{s}" for s in stems] if export else []}}
+                          "kitti": [f"kitti/{s}" for s in stems] if export else [],
+                          "predictions": preds_listed}}
         with open(os.path.join(tmp, CARD_JSON), "w") as fh:
             json.dump(card, fh, indent=2)
         with open(os.path.join(tmp, CARD_MD), "w") as fh:
@@ -178,6 +183,22 @@ def _publish(files, stems, out, title, licence, citation, export, overwrite) -> 
         if os.path.exists(tmp):
             shutil.rmtree(tmp)
     return {"path": out, "sequences": [c["name"] for c in cards], "files": len(listed) + 1}
+
+
+def _copy_predictions(seq: str | os.PathLike, dst_seq: str) -> list[str]:
+    """Copy the sequence's sidecar predictions (``<seq>.pred/*.h5``) beside its copy; verified
+    first (identity and every frame's checksum)."""
+    from staticdepth.dataset.predictions import (prediction_names, prediction_path,
+                                                 verify_predictions)
+
+    names = prediction_names(seq)
+    problems = verify_predictions(seq)
+    if problems:
+        raise InputError(f"prediction fails verification: {problems[0]}", seq)
+    for n in names:
+        os.makedirs(os.path.dirname(prediction_path(dst_seq, n)), exist_ok=True)
+        shutil.copyfile(prediction_path(seq, n), prediction_path(dst_seq, n))
+    return names
 
 
 def verify_release(folder: str | os.PathLike) -> list[str]:
@@ -211,10 +232,14 @@ def verify_release(folder: str | os.PathLike) -> list[str]:
                 problems.append(f"{CARD_JSON}: lists {rel}, which is missing")
     except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
         problems.append(f"{CARD_JSON}: unreadable ({e})")
-    for rel in sorted(r for r in present if r.startswith("sequences/") and r.endswith(".h5")):
+    for rel in sorted(r for r in present if r.startswith("sequences/") and r.endswith(".h5")
+                      and r.count("/") == 1):     # not sequences/<name>.h5.pred/<pred>.h5
         try:
             with SequenceReader(os.path.join(folder, rel)) as r:
                 problems += [f"{rel}: {p}" for p in r.checksum_errors()]
+            from staticdepth.dataset.predictions import verify_predictions
+
+            problems += [f"{rel}: {p}" for p in verify_predictions(os.path.join(folder, rel))]
         except InputError as e:
             problems.append(f"{rel}: {e.problem}")
     return problems

@@ -1,9 +1,9 @@
 """Stage: align predicted depth maps to the agents' ground plane (``staticdepth align``).
 
 Inputs: one ``.npy`` prediction (H, W) or a folder of them (processed in name order), or a
-sequence file's stored prediction ``pred/<name>/depth`` (``--sequence``, written back as
-``pred/<name>-align``); the plane JSON written by ``staticdepth ground-plane``; and a ground mask:
-an image/.npy (``--ground-mask``), a polygon (``--ground-polygon "u1,v1 u2,v2 ..."`` or a JSON/TXT
+sequence file's stored prediction ``<name>`` (``--sequence``, written back as the prediction
+``<name>-align`` beside the sequence, frame by frame, by the adaptation's align stage writer);
+the plane JSON written by ``staticdepth ground-plane``; and a ground mask: an image/.npy (``--ground-mask``), a polygon (``--ground-polygon "u1,v1 u2,v2 ..."`` or a JSON/TXT
 file of vertices) or, for a sequence, a ground-truth semantic map per frame (``--ground-aux
 ground``, e.g. the CARLA importer's). ``--agent-mask`` pixels are removed from the plane fit and
 always aligned (METHOD.md section 4). Aligned maps are float32 (NaN = unknown), written
@@ -99,11 +99,10 @@ def _load_npy(path: str) -> np.ndarray:
 
 
 def save_npy_atomic(path: str | os.PathLike, array: np.ndarray) -> None:
-    path = os.fspath(path)
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "wb") as f:
+    from staticdepth.fileio import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
         np.save(f, array)
-    os.replace(tmp, path)
 
 
 def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: np.ndarray, *,
@@ -254,16 +253,19 @@ def _align_files(args, plane: AgentPlane, height, masks: _Masks):
 
 
 def _align_sequence(args, plane: AgentPlane, height, masks: _Masks):
-    from staticdepth.dataset.h5 import SequenceReader, add_prediction
+    """The adaptation's align stage writer (streamed, frame by frame) with this command's maps."""
+    from staticdepth.adaptation.align import align_prediction
+    from staticdepth.adaptation.common import Workspace
 
     if args.out is not None:
-        raise InputError("--sequence writes into the sequence file: use --out-name, not --out")
+        raise InputError("--sequence writes a prediction of the sequence: use --out-name, not --out")
     out_name = args.out_name or f"{args.pred_name}-align"
     if out_name == args.pred_name:
         raise InputError(f"--out-name {out_name!r} would overwrite the prediction being aligned")
     seq = os.fspath(args.sequence)
     frames: list[dict[str, Any]] = []
-    with SequenceReader(seq) as r:
+    ws = Workspace(seq, log=lambda m: None)
+    with ws.reader() as r:
         K = load_camera(args.intrinsics).K if args.intrinsics else r.camera.K
         if args.pred_name not in r.predictions():
             raise InputError(f"sequence has no prediction {args.pred_name!r} (has "
@@ -271,22 +273,21 @@ def _align_sequence(args, plane: AgentPlane, height, masks: _Masks):
         if masks.aux is not None and masks.aux not in r.aux_names():
             raise InputError(f"sequence has no aux map {masks.aux!r} (has {r.aux_names()})", seq)
 
-        def aligned():
-            for i in progress(range(len(r)), total=len(r), desc="align"):
-                pred = r.prediction(args.pred_name, i)
-                try:
-                    out, info = align_map(pred, K, plane, masks.ground(pred.shape, r, i),
-                                          inverse=args.inverse, camera_height_m=height,
-                                          near_plane_rel=args.near_plane,
-                                          agent_mask=masks.agent(pred.shape))
-                except InputError as e:
-                    if e.path:
-                        raise
-                    raise InputError(f"frame {i}: {e.problem}", seq) from None
-                frames.append({"frame": i, **info})
-                yield out
+        def aligned(i: int, pred: np.ndarray) -> np.ndarray:
+            try:
+                out, info = align_map(pred, K, plane, masks.ground(pred.shape, r, i),
+                                      inverse=args.inverse, camera_height_m=height,
+                                      near_plane_rel=args.near_plane,
+                                      agent_mask=masks.agent(pred.shape))
+            except InputError as e:
+                if e.path:
+                    raise
+                raise InputError(f"frame {i}: {e.problem}", seq) from None
+            frames.append({"frame": i, **info})
+            return out
 
-        attrs = {"source": f"pred/{args.pred_name}", "plane": os.fspath(args.plane),
+        attrs = {"source_prediction": f"pred/{args.pred_name}", "plane": os.fspath(args.plane),
                  "units": "m" if height is not None else "camera heights"}
-        add_prediction(seq, out_name, aligned(), attrs)
-    return frames, f"{seq}:pred/{out_name}"
+        align_prediction(ws, {out_name: (args.pred_name, aligned)},
+                         f"align-command-{os.urandom(6).hex()}", attrs, rewrite=True)
+    return frames, f"{seq}.pred/{out_name}"

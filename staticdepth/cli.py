@@ -66,14 +66,10 @@ def resolve_device(name: str):
 
 
 def parse_overrides(items: Sequence[str] | None) -> dict[str, str]:
-    """``--set key=value`` pairs into a dict (values still strings)."""
-    out: dict[str, str] = {}
-    for item in items or ():
-        if "=" not in item:
-            raise InputError(f"--set expects key=value, got {item!r}")
-        k, v = item.split("=", 1)
-        out[k.strip()] = v.strip()
-    return out
+    """``--set key=value`` pairs into a dict (values still strings): :func:`staticdepth.config.parse_set`."""
+    from staticdepth.config import parse_set
+
+    return parse_set(items)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

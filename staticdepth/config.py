@@ -7,12 +7,13 @@ new one). ``config_hash`` names a stage's output by its settings.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import hashlib
 import json
 import os
 import types
 import typing
-from typing import Any, Mapping, TypeVar
+from typing import Any, Mapping, Sequence, TypeVar
 
 from staticdepth.errors import InputError
 
@@ -36,6 +37,11 @@ def _convert(value: Any, typ: Any, key: str) -> Any:
             except InputError:
                 continue
         raise InputError(f"setting {key!r}: cannot read {value!r} as {typ}")
+    if typ in (set, frozenset) or origin in (set, frozenset):
+        if isinstance(value, str):
+            value = [v for v in value.replace(" ", "").split(",") if v]
+        inner = args[0] if args else Any
+        return frozenset(_convert(v, inner if inner is not Any else int, key) for v in value)
     if origin in (tuple, list):
         if isinstance(value, str):
             value = [v for v in value.replace("x", ",").split(",") if v.strip()] \
@@ -60,16 +66,97 @@ def _convert(value: Any, typ: Any, key: str) -> Any:
     return value
 
 
+def _dataclass_type(typ: Any) -> type | None:
+    return typ if isinstance(typ, type) and dataclasses.is_dataclass(typ) else None
+
+
+def _field_default(f: dataclasses.Field) -> Any:
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return dataclasses.MISSING
+
+
+def setting_keys(cls: type, prefix: str = "") -> list[str]:
+    """Every leaf setting of a (nested) config dataclass as a dotted key, in field order."""
+    hints = typing.get_type_hints(cls)
+    out: list[str] = []
+    for f in dataclasses.fields(cls):
+        sub = _dataclass_type(hints[f.name])
+        out += setting_keys(sub, f"{prefix}{f.name}.") if sub else [prefix + f.name]
+    return out
+
+
+def nearest_key(key: str, known: Sequence[str]) -> str | None:
+    """The valid key a misspelt or un-nested ``key`` most likely means (None: no good guess)."""
+    leaf = key.rsplit(".", 1)[-1]
+    same_leaf = [k for k in known if k.rsplit(".", 1)[-1] == leaf]
+    if len(same_leaf) == 1:
+        return same_leaf[0]
+    close = difflib.get_close_matches(key, known, n=1, cutoff=0.6)
+    if close:
+        return close[0]
+    leaves = {k.rsplit(".", 1)[-1]: k for k in known}
+    close = difflib.get_close_matches(leaf, list(leaves), n=1, cutoff=0.7)
+    return leaves[close[0]] if close else None
+
+
+def _unknown_error(cls: type, unknown: list[str], prefix: str, source: str | None) -> InputError:
+    known = setting_keys(cls, prefix)
+    guess = nearest_key(unknown[0], known)
+    hint = f": did you mean {guess!r}?" if guess else ""
+    listing = f"known: {known}" if len(known) <= 30 else f"{len(known)} settings"
+    return InputError(f"unknown setting(s) {unknown} for {cls.__name__}{hint} ({listing})",
+                      source)
+
+
 def from_dict(cls: type[C], values: Mapping[str, Any] | None = None, *,
-              base: C | None = None, source: str | None = None) -> C:
-    """Build ``cls`` (a dataclass) from ``base`` (or the defaults) with ``values`` applied."""
+              base: C | None = None, source: str | None = None, _prefix: str = "") -> C:
+    """Build ``cls`` (a dataclass) from ``base`` (or the defaults) with ``values`` applied.
+
+    Keys of nested config dataclasses are dotted (``tracking.min_height_px``) or nested mappings
+    (``{"tracking": {"min_height_px": 8}}``); an unknown key is an error naming the nearest valid
+    key.
+    """
     fields = {f.name: f for f in dataclasses.fields(cls)}
     hints = typing.get_type_hints(cls)
-    unknown = sorted(set(values or {}) - set(fields))
+    groups: dict[str, Any] = {}
+    unknown: list[str] = []
+    for k, v in (values or {}).items():
+        head, dot, rest = str(k).partition(".")
+        if head not in fields:
+            unknown.append(_prefix + str(k))
+            continue
+        sub = _dataclass_type(hints[head])
+        if sub is None:
+            if dot:
+                unknown.append(_prefix + str(k))
+            else:
+                groups[head] = v
+        elif dot:
+            groups.setdefault(head, {})[rest] = v
+        elif isinstance(v, Mapping):
+            groups.setdefault(head, {}).update(v)
+        elif isinstance(v, sub):
+            groups[head] = v
+        else:
+            raise InputError(f"setting {_prefix + head!r} is a group of settings: set its keys "
+                             f"({', '.join(setting_keys(sub, _prefix + head + '.')[:4])}, ...)",
+                             source)
     if unknown:
-        raise InputError(f"unknown setting(s) {unknown} for {cls.__name__} "
-                         f"(known: {sorted(fields)})", source)
-    kw = {k: _convert(v, hints[k], k) for k, v in (values or {}).items()}
+        raise _unknown_error(cls, unknown, _prefix, source)
+    kw: dict[str, Any] = {}
+    for k, v in groups.items():
+        sub = _dataclass_type(hints[k])
+        if sub is not None and isinstance(v, dict):
+            inner = getattr(base, k) if base is not None else _field_default(fields[k])
+            kw[k] = from_dict(sub, v, base=None if inner is dataclasses.MISSING else inner,
+                              source=source, _prefix=f"{_prefix}{k}.")
+        elif sub is not None:
+            kw[k] = v
+        else:
+            kw[k] = _convert(v, hints[k], _prefix + k)
     try:
         return dataclasses.replace(base, **kw) if base is not None else cls(**kw)
     except InputError as e:
@@ -78,14 +165,74 @@ def from_dict(cls: type[C], values: Mapping[str, Any] | None = None, *,
         raise InputError(f"{cls.__name__}: {e}", source) from None
 
 
+def parse_set(items: Sequence[str] | None) -> dict[str, str]:
+    """The one ``--set KEY=VALUE`` grammar: dotted keys, values still strings (converted to the
+    setting's type by :func:`from_dict`)."""
+    out: dict[str, str] = {}
+    for item in items or ():
+        k, sep, v = str(item).partition("=")
+        k = k.strip()
+        if not sep or not k or any(not part for part in k.split(".")):
+            raise InputError(f"--set expects key=value with a (dotted) key, got {item!r}")
+        out[k] = v.strip()
+    return out
+
+
+def split_options(cls: type, values: Mapping[str, Any], options_field: str = "options", *,
+                  strict: bool = True) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Route ``--set`` values of a config with a free-form ``options`` mapping (the stereo
+    matcher's): a field of ``cls`` stays a setting, ``options.KEY`` goes to the options (values
+    read as YAML scalars); any other key is a setting (``strict``: :func:`from_dict` then names
+    it unknown) or, not ``strict``, an option. Returns (settings, options)."""
+    import yaml
+
+    names = {f.name for f in dataclasses.fields(cls)} - {options_field}
+    settings: dict[str, Any] = {}
+    options: dict[str, Any] = {}
+    for k, v in values.items():
+        if k in names or (strict and not k.startswith(options_field + ".")):
+            settings[k] = v
+            continue
+        key = k[len(options_field) + 1:] if k.startswith(options_field + ".") else k
+        options[key] = yaml.safe_load(v) if isinstance(v, str) else v
+    return settings, options
+
+
+def format_config(conf: Any, indent: int = 0) -> str:
+    """A config tree as YAML-like text, one ``key: value`` per leaf (``--print-config``)."""
+    lines = []
+    for f in dataclasses.fields(conf):
+        v = getattr(conf, f.name)
+        pad = "  " * indent
+        if dataclasses.is_dataclass(v):
+            lines.append(f"{pad}{f.name}:")
+            lines.append(format_config(v, indent + 1))
+        else:
+            if isinstance(v, (set, frozenset)):
+                v = sorted(v)
+            if isinstance(v, (tuple, list)):
+                v = ", ".join(str(x) for x in v) if v else "[]"
+            v = "null" if v is None else ('""' if v == "" else v)
+            lines.append(f"{pad}{f.name}: {v}")
+    return "\n".join(lines)
+
+
 def to_dict(conf: Any) -> dict[str, Any]:
     return dataclasses.asdict(conf)
+
+
+def _jsonable(o: Any) -> Any:
+    if dataclasses.is_dataclass(o) and not isinstance(o, type):
+        return dataclasses.asdict(o)
+    if isinstance(o, (set, frozenset)):
+        return sorted(o)
+    return str(o)
 
 
 def config_hash(conf: Any, n: int = 10) -> str:
     """Short stable hash of a config's values (names outputs by their settings)."""
     blob = json.dumps(to_dict(conf) if dataclasses.is_dataclass(conf) else conf, sort_keys=True,
-                      default=str)
+                      default=_jsonable)
     return hashlib.sha256(blob.encode()).hexdigest()[:n]
 
 

@@ -49,6 +49,16 @@ def _subst(value: Any, env: Mapping[str, str], where: str) -> Any:
     return value
 
 
+def _dotted(d: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    out: list[tuple[str, Any]] = []
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out += _dotted(v, f"{prefix}{k}.")
+        else:
+            out.append((f"{prefix}{k}", v))
+    return out
+
+
 def argv_from_args(command: str, args: Mapping[str, Any]) -> list[str]:
     """``{key: value}`` -> the command line of ``staticdepth COMMAND``."""
     argv = command.split()
@@ -62,8 +72,8 @@ def argv_from_args(command: str, args: Mapping[str, Any]) -> list[str]:
             argv.append(flag)
         elif isinstance(v, list):
             argv += [flag] + [str(x) for x in v]
-        elif isinstance(v, dict):  # e.g. set: {epochs: 3} -> --set epochs=3 ...
-            for kk, vv in v.items():
+        elif isinstance(v, dict):  # set: {epochs: 3, tracking: {min_frames: 2}} -> --set
+            for kk, vv in _dotted(v):  # epochs=3 --set tracking.min_frames=2
                 argv += [flag, f"{kk}={vv}"]
         else:
             argv += [flag, str(v)]

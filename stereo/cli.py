@@ -124,13 +124,16 @@ def _config(args, **extra):
     from staticdepth.cli import parse_overrides
     from staticdepth.stereo.pipeline import StereoConfig
 
-    options = dict(parse_overrides(args.set))
+    from staticdepth.config import from_dict, split_options
+
+    fields, options = split_options(StereoConfig, parse_overrides(args.set), strict=False)
     if args.matcher == "onnx":
         if not args.model:
             raise InputError("--matcher onnx needs --model FILE.onnx")
         options.update(model=args.model, contract=args.contract)
-    return StereoConfig(matcher=args.matcher, max_depth_m=args.max_depth,
-                        min_depth_m=args.min_depth, fill=args.fill, options=options, **extra)
+    return from_dict(StereoConfig, {"max_depth_m": args.max_depth, "min_depth_m": args.min_depth,
+                                    "fill": args.fill, **extra, **fields,
+                                    "matcher": args.matcher, "options": options}, source="--set")
 
 
 def cmd_stereo(args: argparse.Namespace) -> int:

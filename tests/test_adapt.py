@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from staticdepth.adapt import AdaptConfig, adapt, recipe_settings
+from staticdepth.adapt import adapt, recipe_settings
+from staticdepth.adaptation.config import ScaleConfig, build_config
 from staticdepth.cli import main
 from staticdepth.dataset.h5 import SequenceReader
 from staticdepth.dataset.synth_io import render_to_file
@@ -42,8 +43,8 @@ def _copy(src, dst):
 
 
 def test_adapt_writes_every_stage_and_is_reproducible(tmp_path, sequence, tiny_model):
-    conf = AdaptConfig(model=f"builtin:{tiny_model}", detector="gt", epochs=1, lr=1e-3,
-                       min_height_px=8)
+    conf = build_config({"model": f"builtin:{tiny_model}", "detector.name": "gt",
+                         "finetune.epochs": 1, "finetune.lr": 1e-3, "tracking.min_height_px": 8})
     a, b = _copy(sequence, tmp_path / "a.h5"), _copy(sequence, tmp_path / "b.h5")
     s = adapt(a, conf, log=lambda m: None)
     adapt(b, conf, log=lambda m: None, summary_path=str(tmp_path / "b.json"))
@@ -58,7 +59,7 @@ def test_adapt_writes_every_stage_and_is_reproducible(tmp_path, sequence, tiny_m
         ratio = ra.prediction("ft-align-metric", 5) / ra.prediction("ft-align", 5)
         np.testing.assert_allclose(ratio[np.isfinite(ratio)], 5.4, rtol=1e-5)   # x H_c
         assert s["scale"]["ft-align"] == pytest.approx(5.4) and s["anchor_scale"]["ft-align"] > 0
-        assert ra.prediction_attrs("ft")["config_hash"] == s["config_hash"]
+        assert ra.prediction_attrs("ft")["config_hash"] == s["stage_hashes"]["ft"]
         assert not np.array_equal(ra.prediction("ft", 3), base)       # fine-tuning changed it
     saved = json.load(open(s["summary_path"]))
     assert saved["camera_height_m"] == pytest.approx(5.4)              # the sequence's height
@@ -85,13 +86,15 @@ def test_adapt_command_with_recipe_and_overrides(tmp_path, sequence, tiny_model)
     recipe = tmp_path / "r.yaml"
     recipe.write_text(f"name: R\ncamera_height_m: 6.0\nstages:\n  adapt:\n"
                       f"    sequence: {seq}\n    model: builtin:{tiny_model}\n"
-                      f"    detector: gt\n    epochs: 3\n    min_height_px: 8\n")
+                      f"    detector: gt\n    epochs: 3\n    tracking.min_height_px: 8\n")
     summary = tmp_path / "r.json"
-    rc = main(["adapt", "--recipe", str(recipe), "--epochs", "0", "--set", "erode_px=4",
+    rc = main(["adapt", "--recipe", str(recipe), "--epochs", "0", "--set", "align.erode_px=4",
                "--summary", str(summary), "--device", "cpu"])
     assert rc == 0
     s = json.load(open(summary))
-    assert s["config"]["epochs"] == 0 and s["config"]["erode_px"] == 4.0      # flag, --set win
+    assert s["config"]["finetune"]["epochs"] == 0                              # flag wins
+    assert s["config"]["align"]["erode_px"] == 4.0
+    assert s["config"]["tracking"]["min_height_px"] == 8
     assert s["camera_height_m"] == 6.0 and s["camera_height_source"] == "given"
     assert s["finetune"] == []
     with SequenceReader(seq) as r:
@@ -102,9 +105,10 @@ def test_recipe_settings_formats(tmp_path):
     p = tmp_path / "a.yaml"
     p.write_text("camera_height_m: 9.7\nstages:\n  adapt:\n    command: adapt\n"
                  "    args: {_: [x.h5], camera-height: 5.0, epochs: 2}\n")
-    assert recipe_settings(p) == {"sequence": "x.h5", "camera_height_m": 5.0, "epochs": 2}
+    assert recipe_settings(p) == {"sequence": "x.h5", "scale.camera_height_m": 5.0,
+                                  "finetune.epochs": 2}
     p.write_text("camera_height_m: 9.7\nstages:\n  adapt: {detector: yolox}\n")
-    assert recipe_settings(p) == {"detector": "yolox", "camera_height_m": 9.7}
+    assert recipe_settings(p) == {"detector.name": "yolox", "scale.camera_height_m": 9.7}
     p.write_text("stages:\n  import: {kind: carla}\n")
     with pytest.raises(InputError, match="no 'stages: {adapt"):
         recipe_settings(p)
@@ -112,7 +116,7 @@ def test_recipe_settings_formats(tmp_path):
 
 def test_adapt_errors(tmp_path, sequence, tiny_model, capsys):
     with pytest.raises(InputError, match="metric_scale must be"):
-        AdaptConfig(metric_scale="median")
+        ScaleConfig(metric_scale="median")
     assert main(["adapt", "--device", "cpu"]) == 2
     assert "no sequence given" in capsys.readouterr().err
     assert main(["adapt", sequence, "--set", "learning_rate=1"]) == 2
@@ -124,15 +128,16 @@ def test_adapt_errors(tmp_path, sequence, tiny_model, capsys):
                       opset_version=17)
     seq = _copy(sequence, tmp_path / "e.h5")
     with pytest.raises(InputError, match="inference only"):
-        adapt(seq, AdaptConfig(model=f"onnx:{onnx}", detector="gt", epochs=1, min_height_px=8),
-              log=lambda m: None)
+        adapt(seq, build_config({"model": f"onnx:{onnx}", "detector.name": "gt",
+                                 "finetune.epochs": 1}), log=lambda m: None)
     with pytest.raises(InputError, match="tracked agents"):
-        adapt(seq, AdaptConfig(model=f"onnx:{onnx}", detector="gt", epochs=0, min_height_px=500),
+        adapt(seq, build_config({"model": f"onnx:{onnx}", "detector.name": "gt",
+                                 "finetune.epochs": 0, "tracking.min_height_px": 500}),
               log=lambda m: None)
     render_to_file(tmp_path / "noadapt.h5", preset_name="c1", n_frames=2, adapt_frames=0,
                    overrides={"width": 64, "height": 32})
     with pytest.raises(InputError, match="no adaptation split"):
-        adapt(str(tmp_path / "noadapt.h5"), AdaptConfig(model=f"builtin:{tiny_model}"),
+        adapt(str(tmp_path / "noadapt.h5"), build_config({"model": f"builtin:{tiny_model}"}),
               log=lambda m: None)
 
 
@@ -140,8 +145,9 @@ def test_adapt_with_the_motion_detector(tmp_path, tiny_model):
     seq = tmp_path / "m.h5"
     render_to_file(seq, preset_name="c1", n_frames=40, adapt_frames=30, seed=1,
                    overrides={"width": 256, "height": 128})
-    s = adapt(str(seq), AdaptConfig(model=f"builtin:{tiny_model}", detector="motion", epochs=1,
-                                    lr=1e-3, min_height_px=8), log=lambda m: None)
+    s = adapt(str(seq), build_config({"model": f"builtin:{tiny_model}", "detector.name": "motion",
+                                      "finetune.epochs": 1, "finetune.lr": 1e-3,
+                                      "tracking.min_height_px": 8}), log=lambda m: None)
     assert s["pseudo_label_agent_pixels"] > 0
     with SequenceReader(seq) as r:
         assert set(r.predictions()) == OUTPUTS

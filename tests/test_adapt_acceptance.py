@@ -38,7 +38,8 @@ def adapted(tmp_path_factory, builtin_weights):
     render_to_file(seq, preset_name="c1", n_frames=60, adapt_frames=40, seed=1,
                    overrides={"width": 256, "height": 128})
     rc = main(["adapt", str(seq), "--model", f"builtin:{builtin_weights}", "--detector", "gt",
-               "--epochs", "5", "--seed", "0", "--device", "cpu", "--set", "min_height_px=8"])
+               "--epochs", "5", "--seed", "0", "--device", "cpu",
+               "--set", "tracking.min_height_px=8"])
     assert rc == 0
     table = {}
     with SequenceReader(seq) as r:

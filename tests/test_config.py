@@ -3,7 +3,8 @@ from dataclasses import dataclass
 
 import pytest
 
-from staticdepth.config import config_hash, from_dict, load_yaml
+from staticdepth.config import (config_hash, format_config, from_dict, load_yaml, parse_set,
+                                split_options)
 from staticdepth.errors import InputError
 
 
@@ -45,3 +46,46 @@ def test_load_yaml_errors(tmp_path):
         load_yaml(p)
     p.write_text("name: K1\nstages: {import: {kind: kitti}}\n")
     assert load_yaml(p)["stages"]["import"]["kind"] == "kitti"
+
+
+@dataclass(frozen=True)
+class Inner:
+    min_height_px: float = 20.0
+    classes: frozenset = frozenset({0, 1})
+
+
+@dataclass(frozen=True)
+class Outer:
+    model: str = "x"
+    tracking: Inner = Inner()
+    options: dict = None
+
+
+def test_dotted_keys_nested_mappings_and_nearest_key():
+    c = from_dict(Outer, parse_set(["tracking.min_height_px=8", "model=y"]))
+    assert c == Outer(model="y", tracking=Inner(min_height_px=8.0))
+    assert from_dict(Outer, {"tracking": {"classes": "3,1"}}).tracking.classes == {1, 3}
+    base = Outer(tracking=Inner(min_height_px=5.0))
+    assert from_dict(Outer, {"tracking.classes": [2]}, base=base).tracking == Inner(5.0, {2})
+    with pytest.raises(InputError, match=r"\['min_height_px'\] for Outer: did you mean "
+                                         r"'tracking.min_height_px'\?"):
+        from_dict(Outer, {"min_height_px": 3})
+    with pytest.raises(InputError, match="did you mean 'tracking.min_height_px'"):
+        from_dict(Outer, {"tracking.min_heigth_px": 3})
+    with pytest.raises(InputError, match="unknown setting.*'model.name'"):
+        from_dict(Outer, {"model.name": 3})
+    with pytest.raises(InputError, match="'tracking' is a group of settings"):
+        from_dict(Outer, {"tracking": 3})
+    for bad in ("novalue", "=3", "a..b=1"):
+        with pytest.raises(InputError, match="--set expects key=value"):
+            parse_set([bad])
+    assert format_config(Outer()) == ("model: x\ntracking:\n  min_height_px: 20.0\n"
+                                      "  classes: 0, 1\noptions: null")
+    assert config_hash(Inner(classes=frozenset({1, 0}))) == config_hash(Inner())
+
+
+def test_split_options_routes_fields_and_options():
+    assert split_options(Outer, {"model": "m", "options.border": "full", "lr": "3"}) == (
+        {"model": "m", "lr": "3"}, {"border": "full"})
+    assert split_options(Outer, {"border": "none", "options.k": "3"}, strict=False) == (
+        {}, {"border": "none", "k": 3})

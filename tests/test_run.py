@@ -28,9 +28,10 @@ stages:
 def test_argv_from_args():
     argv = argv_from_args("baseline train", {"_": ["s.h5"], "epochs": 3, "fill": True,
                                               "skip": False, "drives": ["a", "b"],
-                                              "set": {"lr": 0.1}, "max_depth": 80})
+                                              "set": {"lr": 0.1, "tracking": {"min_frames": 2}},
+                                              "max_depth": 80})
     assert argv == ["baseline", "train", "s.h5", "--epochs", "3", "--fill", "--drives", "a", "b",
-                    "--set", "lr=0.1", "--max-depth", "80"]
+                    "--set", "lr=0.1", "--set", "tracking.min_frames=2", "--max-depth", "80"]
 
 
 def test_recipe_runs_then_skips_then_reruns_changed_stage(tmp_path):
@@ -83,3 +84,7 @@ def test_shipped_recipes_parse_against_the_real_cli(recipe):
         except SystemExit:
             pytest.fail(f"{recipe.name} stage {name}: invalid command line {argv}")
         assert callable(args.func)
+        if st["command"] == "adapt":     # every setting is a valid key of the adaptation's tree
+            from staticdepth.adapt import config_from_args
+
+            config_from_args(args)

@@ -1,0 +1,67 @@
+"""Stage align: every frame of ``base`` and ``ft`` aligned to the agents' plane (METHOD.md 4).
+
+Eq. 2 and the re-projection with unit camera height (the outputs ``align`` and ``ft-align`` are in
+units of the camera height); the predicted plane is fitted on the feet's hull (eroded by
+``align.erode_px``, default W/80) minus the frame's agents, unless that leaves fewer than 50
+pixels; with ``align.agents_at_contact`` each agent then takes the plane depth at its contact.
+:func:`align_prediction` is the streamed, resumable per-frame writer that ``staticdepth align
+--sequence`` uses too.
+"""
+from __future__ import annotations
+
+import contextlib
+from typing import Callable, Mapping
+
+import numpy as np
+
+from staticdepth.adaptation.common import Agents, Workspace
+from staticdepth.adaptation.config import AdaptConfig
+from staticdepth.geometry.agent_plane import AgentPlane
+from staticdepth.geometry.alignment import agents_at_contact, align_depth, ground_mask_from_feet
+from staticdepth.progress import progress
+
+OUTPUTS = {"align": "base", "ft-align": "ft"}
+
+AlignFrame = Callable[[int, np.ndarray], np.ndarray]
+
+
+def align_prediction(ws: Workspace, jobs: Mapping[str, tuple[str, AlignFrame]], config_hash: str,
+                     attrs: Mapping | None = None, stage: str = "align",
+                     rewrite: bool = False) -> None:
+    """Write each output ``out`` of ``jobs = {out: (source prediction, f(i, map) -> map)}``
+    frame by frame; outputs complete with ``config_hash`` are skipped (unless ``rewrite``),
+    interrupted ones resume."""
+    writers = {out: ws.pred_writer(out, config_hash, {"source": src, **dict(attrs or {})},
+                                   chunk=8, rewrite=rewrite) for out, (src, _) in jobs.items()}
+    if all(w.done for w in writers.values()):
+        return ws.skip(stage)
+    with contextlib.ExitStack() as stack, ws.reader() as r:
+        for w in writers.values():
+            stack.enter_context(w)
+        start = min(w.written for w in writers.values() if not w.done)
+        for i in progress(range(start, ws.n), total=ws.n - start, desc=stage):
+            for out, (src, fn) in jobs.items():
+                w = writers[out]
+                if not w.done and i >= w.written:
+                    w.write(i, fn(i, r.prediction(src, i)))
+            ws.count(stage)
+
+
+def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, feet: np.ndarray,
+        config_hash: str) -> None:
+    erode = ws.width / 80.0 if conf.align.erode_px is None else conf.align.erode_px
+    ground = ground_mask_from_feet(feet, ws.width, ws.height, erode)
+    K, normal = ws.K, plane.normal
+
+    def aligned(i: int, Z: np.ndarray) -> np.ndarray:
+        inst = agents.instances(i)
+        m = inst > 0
+        # the frame's agents leave the ground mask, unless they would leave too little of it
+        agent_mask = m if np.count_nonzero(ground & ~m) >= 50 else None
+        A = align_depth(Z, K, normal, 1.0, ground, agent_mask=agent_mask).depth
+        if conf.align.agents_at_contact:
+            A = agents_at_contact(A, K, normal, 1.0, inst, agents.rows(i), conf.pseudo_labels)[0]
+        return A
+
+    align_prediction(ws, {out: (src, aligned) for out, src in OUTPUTS.items()}, config_hash,
+                     {"stage": "adapt", "metric": False, "units": "camera heights"})

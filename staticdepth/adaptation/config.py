@@ -1,0 +1,138 @@
+"""The adaptation's one configuration: a tree of the stages' own config dataclasses.
+
+Every leaf is reachable as a dotted key (``--set tracking.min_height_px=8``, recipes
+``set: {finetune.epochs: 3}``); :func:`staticdepth.config.format_config` prints the tree
+(``staticdepth adapt --print-config``). :func:`stage_hashes` names each stage's output by the
+settings it depends on, its upstream stages' hashes included, so changing a late setting reruns
+only the stages after it.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from staticdepth.config import config_hash, from_dict
+from staticdepth.errors import InputError
+from staticdepth.finetune import PRESETS as FINETUNE_PRESETS
+from staticdepth.finetune import FinetuneConfig
+from staticdepth.geometry.agent_plane import AgentPlaneConfig
+from staticdepth.pseudo_labels import PseudoLabelConfig
+from staticdepth.tracking import TrackingConfig
+
+DETECTORS = ("motion", "yolox", "mask2former", "gt")
+
+
+@dataclass(frozen=True)
+class PredictConfig:
+    batch_size: int = 4          # frames per forward pass (does not enter the stage hash)
+    eps: float = 1e-6            # relative depth = 1 / max(D, eps)
+
+    def __post_init__(self):
+        if self.batch_size < 1 or not self.eps > 0:
+            raise InputError(f"predict: need batch_size >= 1 and eps > 0 (got {self.batch_size}, "
+                             f"{self.eps})")
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    name: str = "motion"         # motion | yolox | mask2former | gt (the sequence's instances)
+    model: str = ""              # weights of yolox (.onnx) / mask2former (folder)
+
+    def __post_init__(self):
+        if self.name not in DETECTORS:
+            raise InputError(f"unknown detector {self.name!r} (one of {', '.join(DETECTORS)})")
+
+
+@dataclass(frozen=True)
+class AlignConfig:
+    erode_px: float | None = None    # ground mask: the feet's hull eroded by this (None: W/80)
+    agents_at_contact: bool = True   # agents take the plane depth at their contact pixel
+    #                                  (False: the paper's Eq. 2 for every pixel)
+
+    def __post_init__(self):
+        if self.erode_px is not None and not (math.isfinite(self.erode_px) and self.erode_px >= 0):
+            raise InputError(f"align.erode_px must be >= 0, got {self.erode_px}")
+
+
+@dataclass(frozen=True)
+class ScaleConfig:
+    camera_height_m: float | None = None   # None: the sequence's, else the agent-height prior
+    agent_height_m: float = 1.7            # the prior, when no camera height is known
+    metric_scale: str = "plane"            # plane: x H_c; anchor: METHOD.md 5's anchor pixel
+
+    def __post_init__(self):
+        if self.metric_scale not in ("plane", "anchor"):
+            raise InputError(f"metric_scale must be plane or anchor, got {self.metric_scale!r}")
+        h = self.camera_height_m
+        if h is not None and not (math.isfinite(h) and h > 0):
+            raise InputError(f"camera height must be a positive number of metres, got {h}")
+        if not (math.isfinite(self.agent_height_m) and self.agent_height_m > 0):
+            raise InputError(f"agent height must be positive, got {self.agent_height_m}")
+
+
+@dataclass(frozen=True)
+class AdaptConfig:
+    model: str = "builtin"       # builtin[:PATH.pt] | hf:DIR | onnx:FILE | torch:FILE
+    predict: PredictConfig = field(default_factory=PredictConfig)
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    tracking: TrackingConfig = field(default_factory=lambda: TrackingConfig(drop_collinear=False))
+    plane: AgentPlaneConfig = field(default_factory=AgentPlaneConfig)
+    pseudo_labels: PseudoLabelConfig = field(default_factory=PseudoLabelConfig)
+    finetune: FinetuneConfig = field(default_factory=lambda: FINETUNE_PRESETS["builtin"])
+    align: AlignConfig = field(default_factory=AlignConfig)
+    scale: ScaleConfig = field(default_factory=ScaleConfig)
+
+
+def is_builtin(model: str) -> bool:
+    return str(model).split(":", 1)[0] == "builtin"
+
+
+def build_config(settings: Mapping[str, Any], source: str | None = None) -> AdaptConfig:
+    """AdaptConfig from dotted settings over the defaults. The fine-tuning preset follows the
+    model: ``builtin`` (Adam 1e-4) for the built-in network, ``paper`` (1e-5) for the others,
+    unless ``finetune.lr`` is given."""
+    settings = dict(settings)
+    model = str(settings.get("model", AdaptConfig.model))
+    preset = FINETUNE_PRESETS["builtin" if is_builtin(model) else "paper"]
+    base = AdaptConfig(model=model, finetune=preset)
+    return from_dict(AdaptConfig, settings, base=base, source=source)
+
+
+def model_identity(spec: str) -> dict[str, Any]:
+    """The model spec and its weights' size and modification time (a new file is a new model)."""
+    from staticdepth.models.registry import parse_spec
+
+    _, loc = parse_spec(spec)
+    out: dict[str, Any] = {"spec": spec}
+    paths = [loc] if os.path.isfile(loc) else (
+        sorted(os.path.join(d, f) for d, _, fs in os.walk(loc) for f in fs)
+        if os.path.isdir(loc) else [])
+    out["files"] = [[os.path.relpath(p, loc) if p != loc else "", os.path.getsize(p),
+                     os.stat(p).st_mtime_ns] for p in paths]
+    return out
+
+
+def stage_hashes(conf: AdaptConfig, model_id: Mapping[str, Any] | None = None) -> dict[str, str]:
+    """Hash of each stage's output: its own settings and its inputs' hashes."""
+    mid = model_id if model_id is not None else {"spec": conf.model}
+    h: dict[str, str] = {}
+    h["base"] = config_hash({"model": mid, "eps": conf.predict.eps})
+    h["agents"] = config_hash({"detector": conf.detector})
+    h["pseudo_labels"] = config_hash({"conf": conf.pseudo_labels, "base": h["base"],
+                                      "agents": h["agents"]})
+    if conf.finetune.epochs > 0:
+        h["finetune"] = config_hash({"conf": conf.finetune, "labels": h["pseudo_labels"],
+                                     "model": mid})
+        h["ft"] = config_hash({"finetune": h["finetune"], "eps": conf.predict.eps})
+    else:
+        h["finetune"] = config_hash({"epochs": 0})
+        h["ft"] = config_hash({"copy_of": h["base"]})
+    h["ground_plane"] = config_hash({"tracking": conf.tracking, "plane": conf.plane,
+                                     "agents": h["agents"]})
+    h["align"] = config_hash({"conf": conf.align, "pl": conf.pseudo_labels, "base": h["base"],
+                              "ft": h["ft"], "plane": h["ground_plane"], "agents": h["agents"]})
+    h["scale"] = config_hash({"conf": conf.scale, "align": h["align"],
+                              "plane": h["ground_plane"]})
+    return h

@@ -1,0 +1,133 @@
+"""Stage finetune: adapt the network on its pseudo labels, streaming the adaptation frames.
+
+The adaptation frames and their labels are read from the files through a torch ``Dataset`` /
+``DataLoader`` (a batch sampler gives each epoch's order and flips from
+:func:`staticdepth.finetune.epoch_order`), so memory does not grow with the split. Each step is
+:func:`staticdepth.finetune.train_step`; the checkpoint ``<SEQ>.h5.adapt/finetune.ckpt`` (atomic,
+after every epoch, keyed by the stage hash) resumes an interrupted run and, once complete, is the
+fine-tuned network of later runs.
+
+Layers: ``finetune.layers`` names one of the network's layer groups; a network that names no
+groups at all (e.g. a plain TorchScript file) trains all its parameters.
+"""
+from __future__ import annotations
+
+import os
+import time
+from typing import Any
+
+import numpy as np
+import torch
+
+from staticdepth.adaptation.common import Workspace
+from staticdepth.adaptation.config import AdaptConfig
+from staticdepth.errors import InputError
+from staticdepth.fileio import atomic_path
+from staticdepth.finetune import (CHECKPOINT_FORMAT, _load_trainable_state, _peak_memory_mb,
+                                  _trainable_state, epoch_order, train_step)
+from staticdepth.progress import progress
+
+
+def trainable_layers(model, layers: str) -> str:
+    """The layer group that will be trained (checked now: it must exist and hold parameters)."""
+    if layers != "all" and not model.layer_groups:
+        layers = "all"
+    model.parameters_for(layers)
+    return layers
+
+
+class AdaptationFrames(torch.utils.data.Dataset):
+    """Item ``(k, flip)``: frame ``split[k]``'s image (H, W, 3) uint8, label and loss mask."""
+
+    def __init__(self, ws: Workspace):
+        self.ws, self.split = ws, ws.adapt_split
+        self._reader = self._labels = None
+
+    def __len__(self) -> int:
+        return len(self.split)
+
+    def __getitem__(self, item: tuple[int, bool]) -> dict[str, np.ndarray]:
+        if self._reader is None:                 # opened lazily: once per worker process
+            self._reader, self._labels = self.ws.reader(), self.ws.frame_file("labels.h5")
+        k, flip = item
+        image, target = self._reader.left(self.split[k]), self._labels[k]
+        if flip:
+            image, target = image[:, ::-1], target[:, ::-1]
+        target = np.ascontiguousarray(target, dtype=np.float32)
+        return {"image": np.ascontiguousarray(image), "target": target,
+                "mask": np.isfinite(target)}
+
+    def close(self) -> None:
+        for h in (self._reader, self._labels):
+            if h is not None:
+                h.close()
+        self._reader = self._labels = None
+
+
+def _batches(n: int, conf, epoch: int) -> list[list[tuple[int, bool]]]:
+    order, flips = epoch_order(n, conf, epoch)
+    return [[(int(k), bool(flips[k])) for k in order[s:s + conf.batch_size]]
+            for s in range(0, n, conf.batch_size)]
+
+
+def _load(path: str) -> dict[str, Any] | None:
+    if not os.path.exists(path):
+        return None
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:            # damaged by an interruption: train again
+        return None
+
+
+def run(conf: AdaptConfig, ws: Workspace, model, config_hash: str,
+        layers: str) -> list[dict[str, float]]:
+    """Fine-tune ``model`` in place; returns one record per epoch (loss, seconds, peak memory)."""
+    fc = conf.finetune
+    ckpt_path = ws.path("finetune.ckpt")
+    ck = _load(ckpt_path)
+    if ck is not None and (ck.get("format") != CHECKPOINT_FORMAT or ck.get("key") != config_hash):
+        ck = None
+    params = model.set_trainable(layers)
+    optimizer = torch.optim.Adam(params, lr=fc.lr, weight_decay=fc.weight_decay)
+    history, start = [], 0
+    if ck is not None:
+        _load_trainable_state(model, ck["state"])
+        optimizer.load_state_dict(ck["optimizer"])
+        history, start = list(ck["history"]), int(ck["epoch"])
+    if start >= fc.epochs:
+        ws.skip("finetune")
+    torch.manual_seed(fc.seed)
+    model.net.eval()
+    device = model.device
+    if device.type == "cuda":
+        torch.cuda.reset_peak_memory_stats(device)
+    data = AdaptationFrames(ws)
+    try:
+        for epoch in range(start, fc.epochs):
+            t0 = time.perf_counter()
+            loader = torch.utils.data.DataLoader(data, batch_sampler=_batches(len(data), fc, epoch),
+                                                 num_workers=0)
+            losses = []
+            bar = progress(loader, total=len(loader), desc=f"fine-tune {epoch + 1}/{fc.epochs}",
+                           unit="batch")
+            for batch in bar:
+                batch = {"image": batch["image"].to(device).permute(0, 3, 1, 2).float() / 255,
+                         "target": batch["target"].to(device), "mask": batch["mask"].to(device)}
+                losses.append(train_step(model, batch, fc, optimizer))
+                ws.count("finetune", len(batch["image"]))
+            rec = {"epoch": epoch + 1, "loss": float(np.mean(losses)),
+                   "seconds": time.perf_counter() - t0, "peak_memory_mb": _peak_memory_mb(device)}
+            history.append(rec)
+            with atomic_path(ckpt_path) as tmp:
+                torch.save({"format": CHECKPOINT_FORMAT, "key": config_hash, "epoch": epoch + 1,
+                            "state": _trainable_state(model), "optimizer": optimizer.state_dict(),
+                            "history": history}, tmp)
+            ws.log(f"  epoch {rec['epoch']}: loss {rec['loss']:.5f} ({rec['seconds']:.1f} s, "
+                   f"peak {rec['peak_memory_mb']:.0f} MiB)")
+    finally:
+        data.close()
+    for p in model.net.parameters():
+        p.requires_grad_(False)
+    if not history and fc.epochs > 0:
+        raise InputError("fine-tuning ran no epoch", ckpt_path)
+    return history

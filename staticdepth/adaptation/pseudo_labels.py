@@ -1,0 +1,35 @@
+"""Stage pseudo_labels: each adaptation frame's label from the base inverse depth and its agents.
+
+Written to ``<SEQ>.h5.adapt/labels.h5`` (one (H, W) float32 label per frame of the adaptation
+split, with the number of relabelled agent pixels per frame in its ``rows``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from staticdepth.adaptation.common import Agents, Workspace
+from staticdepth.adaptation.config import AdaptConfig
+from staticdepth.progress import progress
+from staticdepth.pseudo_labels import pseudo_label
+
+ROWS = np.dtype([("frame", np.int32), ("agent_pixels", np.int64)])
+
+
+def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str) -> int:
+    """Write the labels; returns the number of agent pixels relabelled."""
+    split = ws.adapt_split
+    w = ws.frame_writer("labels.h5", n=len(split), shape=(ws.height, ws.width),
+                        dtype=np.float32, config_hash=config_hash, rows_dtype=ROWS, chunk=16,
+                        attrs={"first_frame": split.start})
+    if w.done:
+        ws.skip("pseudo_labels")
+    else:
+        with w, ws.frame_file("inverse-base.h5") as inv:
+            for k in progress(range(w.start, len(split)), desc="pseudo labels"):
+                i = split[k]
+                label, m = pseudo_label(inv[i], agents.instances(i), agents.rows(i),
+                                        conf.pseudo_labels)
+                w.write(k, label, np.array([(k, int(m.sum()))], ROWS))
+                ws.count("pseudo_labels")
+    with ws.frame_file("labels.h5") as f:
+        return int(f._f["rows"]["agent_pixels"].sum())

@@ -1,0 +1,72 @@
+"""Stage scale: metric outputs ``align-metric`` and ``ft-align-metric`` (METHOD.md section 5).
+
+The camera height: ``scale.camera_height_m``, else the sequence's, else the agents' height prior.
+The aligned maps are in units of the camera height, so ``metric_scale = plane`` multiplies them
+by H_c; ``anchor`` uses the temporal median of the per-frame anchor-pixel scales instead (frames
+whose anchor an agent covers are skipped, unless every frame's is). Both scales are reported.
+One pass over the frames measures the anchors, a second writes the metric maps.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from staticdepth.adaptation.align import OUTPUTS as ALIGNED
+from staticdepth.adaptation.common import Agents, Workspace
+from staticdepth.adaptation.config import AdaptConfig
+from staticdepth.geometry.agent_plane import AgentPlane, camera_height_from_prior
+from staticdepth.geometry.scale import scale_from_anchor, temporal_scale
+from staticdepth.progress import progress
+
+
+def with_camera_height(conf: AdaptConfig, ws: Workspace, plane: AgentPlane) -> AgentPlane:
+    s = conf.scale
+    if s.camera_height_m is not None:
+        return plane.with_camera_height(s.camera_height_m, "given")
+    if ws.camera_height_m is not None:
+        return plane.with_camera_height(ws.camera_height_m, "sequence")
+    return plane.with_camera_height(camera_height_from_prior(plane, s.agent_height_m),
+                                    f"agent height prior {s.agent_height_m:g} m")
+
+
+def anchor_scales(ws: Workspace, agents: Agents, plane: AgentPlane) -> dict[str, float]:
+    """Temporal anchor scale of each aligned prediction."""
+    per: dict[str, list[float]] = {name: [] for name in ALIGNED}
+    per_any: dict[str, list[float]] = {name: [] for name in ALIGNED}
+    with ws.reader() as r:
+        for i in progress(range(ws.n), desc="anchor scale"):
+            m = agents.instances(i) > 0
+            for name in ALIGNED:
+                A = r.prediction(name, i)
+                s = scale_from_anchor(A, ws.K, plane.normal, plane.camera_height_m, agent_mask=m)
+                per[name].append(s.scale)
+                if not np.isfinite(s.scale):     # kept for when agents cover every anchor
+                    s = scale_from_anchor(A, ws.K, plane.normal, plane.camera_height_m)
+                per_any[name].append(s.scale)
+            ws.count("scale")
+    return {name: temporal_scale(per[name] if np.isfinite(per[name]).any() else per_any[name])
+            for name in ALIGNED}
+
+
+def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, config_hash: str
+        ) -> tuple[dict[str, float], dict[str, float]]:
+    """Write the metric maps; returns (scale used, anchor scale) per aligned prediction."""
+    outs = {f"{name}-metric": name for name in ALIGNED}
+    if all(ws.pred_done(o, config_hash) for o in outs):
+        ws.skip("scale")
+        with ws.reader() as r:
+            attrs = {name: r.prediction_attrs(o) for o, name in outs.items()}
+        return ({n: float(a["scale"]) for n, a in attrs.items()},
+                {n: float(a["anchor_scale"]) for n, a in attrs.items()})
+    anchor = anchor_scales(ws, agents, plane)
+    scales = {name: (anchor[name] if conf.scale.metric_scale == "anchor"
+                     else float(plane.camera_height_m)) for name in ALIGNED}
+    for o, name in outs.items():
+        w = ws.pred_writer(o, config_hash, {"stage": "adapt", "metric": True, "source": name,
+                                            "scale": scales[name], "anchor_scale": anchor[name],
+                                            "camera_height_m": plane.camera_height_m}, chunk=8)
+        if w.done:
+            continue
+        with w, ws.reader() as r:
+            for i in progress(range(w.start, ws.n), desc=o):
+                w.write(i, r.prediction(name, i) * np.float32(scales[name]))
+    return scales, anchor
