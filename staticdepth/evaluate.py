@@ -188,10 +188,8 @@ def register(sub) -> None:
 
 
 def _write_json(path: str, obj: Any) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as f:
-        json.dump(obj, f, indent=2)
-    os.replace(tmp, path)
+    from staticdepth.fileio import atomic_write_json
+    atomic_write_json(path, obj)
 
 
 def format_row(name: str, m: dict[str, float]) -> str:
