@@ -6,7 +6,6 @@ Commands: ``staticdepth evaluate SEQ.h5`` (predictions stored in a sequence file
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from typing import Any, Iterable, Sequence
 
