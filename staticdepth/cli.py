@@ -134,8 +134,7 @@ def main(argv: Sequence[str] | None = None, *, recipe: str | None = None) -> int
     except InputError as e:
         return _error(args.command, str(e))
     except OSError as e:
-        from staticdepth.fileio import os_error
-        return _error(args.command, str(os_error(e)))
+        return _error(args.command, _os_problem(e))
     except KeyboardInterrupt:
         print(f"staticdepth {args.command}: interrupted", file=sys.stderr)
         return 130
@@ -152,6 +151,19 @@ def _error(command: str, message: str) -> int:
     line = " ".join(message.split()) or "failed"  # one line, whatever the message held
     print(f"staticdepth {command}: error: {line}", file=sys.stderr)
     return 2
+
+
+def _os_problem(e: OSError) -> str:
+    """``PATH: problem`` for an OSError; h5py's carry the path only in their text."""
+    import re
+
+    from staticdepth.fileio import os_error
+
+    path = e.filename
+    if path is None:
+        m = re.search(r"name = '([^']+)'", str(e))
+        path = m.group(1) if m else None
+    return str(os_error(e, path))
 
 
 def _library_input_error(e: Exception) -> str | None:

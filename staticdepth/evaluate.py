@@ -13,8 +13,8 @@ import numpy as np
 
 from staticdepth.dataset import schema
 from staticdepth.errors import InputError
-from staticdepth.metrics import (METRIC_KEYS, PROTOCOLS, apply_protocol, average, depth_metrics,
-                                 evaluate, valid_mask)
+from staticdepth.metrics import (METRIC_KEYS, PROTOCOLS, apply_protocol, average,
+                                 check_prediction, depth_metrics, evaluate, valid_mask)
 from staticdepth.progress import progress
 
 DISTANCE_BANDS_M = ((0.0, 10.0), (10.0, 20.0), (20.0, 40.0), (40.0, 80.0))
@@ -132,6 +132,8 @@ def load_maps(path: str | os.PathLike) -> list[np.ndarray]:
         a = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as e:
         raise InputError(f"not a readable .npy file ({e})", path) from None
+    if a.dtype.kind not in "fiub":  # complex or text: no silent cast to real numbers
+        check_prediction(a, path)
     if a.ndim == 2:
         return [a.astype(np.float64)]
     if a.ndim == 3:
@@ -149,6 +151,8 @@ def metrics_on_maps(preds: list[np.ndarray], gts: list[np.ndarray], protocol: st
         if p.shape != g.shape:
             raise InputError(f"image {i}: prediction {p.shape} vs ground truth {g.shape}", pred_src)
         g = np.where(g > 0, g, np.nan)  # 0 = unknown in ground truth
+        check_prediction(p, f"{pred_src} (image {i})" if len(preds) > 1 else pred_src,
+                         valid=valid_mask(g, max_depth=max_depth))
         try:
             per.append(evaluate(p, g, protocol, max_depth=max_depth))
         except InputError as e:

@@ -96,8 +96,8 @@ def save_builtin(path: str | os.PathLike, model: TorchDepthModel, info: dict | N
             "input_size": (model.resize.height, model.resize.width),
             "state_dict": {k: v.detach().cpu() for k, v in net.state_dict().items()},
             "info": dict(info or {})}
-    with atomic_path(path) as tmp:
-        torch.save(ckpt, tmp)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:  # open() errors are OSErrors
+        torch.save(ckpt, f)
     return path
 
 
