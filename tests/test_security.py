@@ -115,6 +115,15 @@ def test_a_recipe_cannot_trust_models(tmp_path, capsys):
         err = capsys.readouterr().err
         assert "r.yaml: a recipe cannot pass --trust-model" in err, err
         assert not marker.exists()
+    # without the flag in the recipe: refused as on the command line ...
+    args = {"_": [seq], "model": model, "detector": "gt", "epochs": 0, "device": "cpu"}
+    recipe.write_text(yaml.safe_dump({"name": "r", "out_dir": str(tmp_path / "out"),
+                                      "stages": {"a": {"command": "adapt", "args": args}}}))
+    assert main(["run", str(recipe)]) == 2
+    assert "would run code" in capsys.readouterr().err and not marker.exists()
+    # ... and the user's own `run --trust-model` reaches the recipe's stages
+    assert main(["run", str(recipe), "--trust-model"]) == 2
+    assert "one channel" in capsys.readouterr().err and marker.exists()
 
 
 def test_report_escapes_names_from_data_files(tmp_path):
