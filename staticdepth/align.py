@@ -100,11 +100,9 @@ def _load_npy(path: str) -> np.ndarray:
 
 
 def save_npy_atomic(path: str | os.PathLike, array: np.ndarray) -> None:
-    path = os.fspath(path)
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "wb") as f:
+    from staticdepth.fileio import atomic_path
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
         np.save(f, array)
-    os.replace(tmp, path)
 
 
 def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: np.ndarray, *,
@@ -198,6 +196,9 @@ class _Masks:
 
 
 def _align_cmd(args: argparse.Namespace) -> int:
+    if args.json:  # before any map is written
+        from staticdepth.fileio import check_writable
+        check_writable(args.json)
     plane = AgentPlane.from_dict(read_json(args.plane), args.plane)
     height = args.camera_height if args.camera_height is not None else plane.camera_height_m
     if height is not None and not height > 0:

@@ -203,7 +203,14 @@ def header() -> str:
     return f"{'':24s} " + " ".join(f"{k:>8s}" for k in METRIC_KEYS)
 
 
+def _check_json_output(args: argparse.Namespace) -> None:
+    if args.json:  # a folder, a read-only place: refused before the evaluation runs
+        from staticdepth.fileio import check_writable
+        check_writable(args.json)
+
+
 def _metrics_cmd(args: argparse.Namespace) -> int:
+    _check_json_output(args)
     out = metrics_on_maps(load_maps(args.pred), load_maps(args.gt), args.protocol,
                           args.max_depth, args.pred, args.gt)
     print(header())
@@ -214,6 +221,7 @@ def _metrics_cmd(args: argparse.Namespace) -> int:
 
 
 def _evaluate_cmd(args: argparse.Namespace) -> int:
+    _check_json_output(args)
     res = evaluate_sequence(args.sequence, args.pred, split=args.split,
                             protocols=args.protocol, max_depth=args.max_depth)
     print(f"{res['sequence']}: split {res['split']} ({res['frames']} frames)")
