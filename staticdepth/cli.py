@@ -138,8 +138,6 @@ def main(argv: Sequence[str] | None = None, *, recipe: str | None = None) -> int
     except KeyboardInterrupt:
         print(f"staticdepth {args.command}: interrupted", file=sys.stderr)
         return 130
-
-
     except Exception as e:
         problem = _library_input_error(e)
         if problem is None:
@@ -155,11 +153,14 @@ def _error(command: str, message: str) -> int:
 
 def _os_problem(e: OSError) -> str:
     """``PATH: problem`` for an OSError; h5py's carry the path only in their text."""
+    import errno
     import re
 
     from staticdepth.fileio import os_error
 
     path = e.filename
+    if e.errno == errno.EISDIR and getattr(e, "filename2", None):
+        path = e.filename2  # os.replace(tmp, out): the output is the folder
     if path is None:
         m = re.search(r"name = '([^']+)'", str(e))
         path = m.group(1) if m else None

@@ -25,6 +25,9 @@ def _raising(exc):
      "/data/out.h5: no space left on the device"),
     (OSError(errno.EROFS, "Read-only file system", "/data/out.h5"),
      "/data/out.h5: read-only file system"),
+    # os.replace(tmp, out) onto a folder: the folder is the output, not the temporary
+    (OSError(errno.EISDIR, "Is a directory", "/data/out.h5.partial", None, "/data/out.h5"),
+     "/data/out.h5: is a folder, not a file"),
     # h5py puts the path only in its message
     (OSError(errno.EACCES, "Unable to synchronously create file (unable to open file: "
                            "name = '/ro/x.h5', errno = 13, error message = 'Permission denied')"),
