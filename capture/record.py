@@ -9,7 +9,8 @@ blocks (and the time it spent blocked is reported) rather than frames being sile
 Stopping: the source ending (replay), a frame or time limit, a stop event (Ctrl-C, SIGTERM), the
 source failing (:class:`SourceLost`) or a write failing (disk full) all end in
 :meth:`Recorder.close`, which drains the writers, closes the CSV files and rewrites the manifest
-with the status and summary.
+with the status and summary. Any other error (a corrupt input frame) leaves status ``failed`` with
+the reason, never ``complete``.
 The on-disk layout is described in :mod:`staticdepth.capture.layout`.
 """
 from __future__ import annotations
@@ -323,7 +324,7 @@ def record(source: StereoSource, out: str | os.PathLike, conf: RecordConfig = Re
         root = layout.create_recording_dir(out, numbered)
         rec = Recorder(root, conf, rig=rig or source.rig, source_settings=source.settings(),
                        nominal_fps=source.nominal_fps, write_bytes=write_bytes)
-        status, detail = "complete", None
+        status, detail = "failed", None  # "complete" only when the source ends normally
         t_start = time.monotonic()
         frames = source.frames()
         try:
@@ -340,12 +341,17 @@ def record(source: StereoSource, out: str | os.PathLike, conf: RecordConfig = Re
                 if stop is not None and stop.is_set():
                     status = "stopped"
                     break
+            else:
+                status = "complete"
         except SourceLost as e:
             status, detail = "source_lost", str(e)
         except RecordingFailed:
             pass                                     # close() reports the cause
         except KeyboardInterrupt:
             status = "stopped"
+        except Exception as e:  # e.g. a corrupt input frame: recorded as the reason, then raised
+            detail = f"{type(e).__name__}: {e}"
+            raise
         finally:
             with contextlib.suppress(Exception):
                 frames.close()

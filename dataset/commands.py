@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from staticdepth.errors import InputError
 
@@ -112,9 +113,16 @@ def _write_with_executor(args: argparse.Namespace, write, *pos, **kw) -> int:
     return 0
 
 
+def _check_camera_height(value: float | None) -> None:
+    """Before any heavy work: a camera height is a positive, finite number of metres."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise InputError(f"--camera-height must be a positive number of metres, got {value:g}")
+
+
 def _import_kitti(args: argparse.Namespace) -> int:
     from staticdepth.dataset.kitti import import_kitti
 
+    _check_camera_height(args.camera_height)
     return _write_with_executor(args, import_kitti, args.root, args.drives, args.out,
                                 name=args.name, adapt_frames=args.adapt_frames, right=args.right,
                                 depth_maps=args.depth_maps, camera_height_m=args.camera_height)
@@ -131,6 +139,7 @@ def _pack(args: argparse.Namespace) -> int:
     from staticdepth.cli import parse_overrides
     from staticdepth.dataset.pack import pack_recording
 
+    _check_camera_height(args.camera_height)
     return _write_with_executor(args, pack_recording, args.recording, args.rig, args.out,
                                 camera_height_m=args.camera_height,
                                 adapt_frames=args.adapt_frames, matcher=args.matcher,

@@ -235,10 +235,20 @@ class SequenceReader:
             raise IndexError(f"frame {i} out of range 0..{self.n_frames - 1}")
         return i % self.n_frames
 
+    def _read_frame(self, key: str, i: int) -> np.ndarray:
+        """``key[i]``; a corrupt chunk (h5py's OSError) is an InputError naming file and frame."""
+        i = self._index(i)
+        try:
+            return self._f[key][i]
+        except OSError as e:
+            raise InputError(f"{key} frame {i} is unreadable, the file is damaged "
+                             f"({str(e).strip() or type(e).__name__}); check it with "
+                             "'staticdepth verify'", self.path) from None
+
     def read(self, stream: str, i: int) -> np.ndarray:
         if stream not in self._f:
             raise InputError(f"sequence has no {stream!r} stream", self.path)
-        return self._f[stream][self._index(i)]
+        return self._read_frame(stream, i)
 
     def left(self, i: int) -> np.ndarray:
         return self.read("left", i)
@@ -260,7 +270,7 @@ class SequenceReader:
         if key not in self._f:
             raise InputError(f"sequence has no aux map {name!r} (has {self.aux_names()})",
                              self.path)
-        return self._f[key][self._index(i)]
+        return self._read_frame(key, i)
 
     def timestamps(self) -> np.ndarray:
         return self._f["timestamps"][:]
@@ -272,7 +282,7 @@ class SequenceReader:
 
     def frame(self, i: int) -> dict[str, Any]:
         i = self._index(i)
-        out: dict[str, Any] = {s: self._f[s][i] for s in self.streams()}
+        out: dict[str, Any] = {s: self._read_frame(s, i) for s in self.streams()}
         out["timestamp"] = float(self._f["timestamps"][i])
         out["agents"] = self.agents(i)
         out["index"] = i

@@ -28,6 +28,7 @@ from staticdepth.geometry.alignment import (align_depth, depth_from_inverse,
                                             ground_mask_from_polygon, ground_mask_from_semantics)
 from staticdepth.geometry.camera import read_json
 from staticdepth.geometry.scale import scale_from_anchor, temporal_scale
+from staticdepth.metrics import check_prediction
 from staticdepth.ground_plane import write_json
 from staticdepth.progress import progress
 
@@ -196,6 +197,9 @@ class _Masks:
 
 
 def _align_cmd(args: argparse.Namespace) -> int:
+    if args.json:  # before any map is written
+        from staticdepth.fileio import check_writable
+        check_writable(args.json)
     plane = AgentPlane.from_dict(read_json(args.plane), args.plane)
     height = args.camera_height if args.camera_height is not None else plane.camera_height_m
     if height is not None and not height > 0:
@@ -237,7 +241,7 @@ def _align_files(args, plane: AgentPlane, height, masks: _Masks):
         inputs, outputs = [src], [Path(args.out)]
     frames = []
     for i, o in progress(list(zip(inputs, outputs)), desc="align"):
-        pred = _load_npy(os.fspath(i))
+        pred = check_prediction(_load_npy(os.fspath(i)), i)  # real, no +-inf (NaN = unknown)
         if pred.ndim != 2:
             raise InputError(f"a prediction must be a 2-D (H, W) map, got shape {pred.shape}", i)
         ground, agents = masks.ground(pred.shape), masks.agent(pred.shape)

@@ -247,6 +247,8 @@ def load_yaml(path: str | os.PathLike) -> dict[str, Any]:
         raise InputError("file not found", path) from None
     except yaml.YAMLError as e:
         raise InputError(f"not valid YAML ({e})", path) from None
+    except UnicodeDecodeError:
+        raise InputError("not a text (UTF-8) YAML file", path) from None
     if not isinstance(d, dict):
         raise InputError("expected a YAML mapping at the top level", path)
     return d

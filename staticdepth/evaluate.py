@@ -6,7 +6,6 @@ Commands: ``staticdepth evaluate SEQ.h5`` (predictions stored in a sequence file
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from typing import Any, Iterable, Sequence
 
@@ -14,8 +13,8 @@ import numpy as np
 
 from staticdepth.dataset import schema
 from staticdepth.errors import InputError
-from staticdepth.metrics import (METRIC_KEYS, PROTOCOLS, apply_protocol, average, depth_metrics,
-                                 evaluate, valid_mask)
+from staticdepth.metrics import (METRIC_KEYS, PROTOCOLS, apply_protocol, average,
+                                 check_prediction, depth_metrics, evaluate, valid_mask)
 from staticdepth.progress import progress
 
 DISTANCE_BANDS_M = ((0.0, 10.0), (10.0, 20.0), (20.0, 40.0), (40.0, 80.0))
@@ -133,6 +132,8 @@ def load_maps(path: str | os.PathLike) -> list[np.ndarray]:
         a = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as e:
         raise InputError(f"not a readable .npy file ({e})", path) from None
+    if a.dtype.kind not in "fiub":  # complex or text: no silent cast to real numbers
+        check_prediction(a, path)
     if a.ndim == 2:
         return [a.astype(np.float64)]
     if a.ndim == 3:
@@ -150,6 +151,8 @@ def metrics_on_maps(preds: list[np.ndarray], gts: list[np.ndarray], protocol: st
         if p.shape != g.shape:
             raise InputError(f"image {i}: prediction {p.shape} vs ground truth {g.shape}", pred_src)
         g = np.where(g > 0, g, np.nan)  # 0 = unknown in ground truth
+        check_prediction(p, f"{pred_src} (image {i})" if len(preds) > 1 else pred_src,
+                         valid=valid_mask(g, max_depth=max_depth))
         try:
             per.append(evaluate(p, g, protocol, max_depth=max_depth))
         except InputError as e:
@@ -188,10 +191,8 @@ def register(sub) -> None:
 
 
 def _write_json(path: str, obj: Any) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as f:
-        json.dump(obj, f, indent=2)
-    os.replace(tmp, path)
+    from staticdepth.fileio import atomic_write_json
+    atomic_write_json(path, obj)
 
 
 def format_row(name: str, m: dict[str, float]) -> str:
@@ -202,7 +203,14 @@ def header() -> str:
     return f"{'':24s} " + " ".join(f"{k:>8s}" for k in METRIC_KEYS)
 
 
+def _check_json_output(args: argparse.Namespace) -> None:
+    if args.json:  # a folder, a read-only place: refused before the evaluation runs
+        from staticdepth.fileio import check_writable
+        check_writable(args.json)
+
+
 def _metrics_cmd(args: argparse.Namespace) -> int:
+    _check_json_output(args)
     out = metrics_on_maps(load_maps(args.pred), load_maps(args.gt), args.protocol,
                           args.max_depth, args.pred, args.gt)
     print(header())
@@ -213,6 +221,7 @@ def _metrics_cmd(args: argparse.Namespace) -> int:
 
 
 def _evaluate_cmd(args: argparse.Namespace) -> int:
+    _check_json_output(args)
     res = evaluate_sequence(args.sequence, args.pred, split=args.split,
                             protocols=args.protocol, max_depth=args.max_depth)
     print(f"{res['sequence']}: split {res['split']} ({res['frames']} frames)")

@@ -213,3 +213,19 @@ def exclusive_lock(path: str | os.PathLike, *, what: str = "writing") -> Iterato
 
 
 _HELD: dict[str, int] = {}
+
+
+def check_writable(path: str | os.PathLike) -> None:
+    """Before any heavy work: can a file be written at ``path``? Not a folder, its folder exists,
+    and a file can be created there (a probe ``<path>.tmp-<pid>-probe``, removed at once).
+    Raises :class:`InputError` naming ``path`` (read-only, permission denied, ...)."""
+    path = os.fspath(path)
+    _check_output_path(path)
+    probe = temporary_path(path, "probe")
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    except OSError as e:
+        raise os_error(e, path) from None
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.remove(probe)

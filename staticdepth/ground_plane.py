@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import os
 from dataclasses import replace
 from typing import Any
@@ -88,12 +87,9 @@ def estimate_ground_plane(observations: np.ndarray, K: np.ndarray,
 
 
 def write_json(path: str | os.PathLike, obj: Any) -> None:
-    """Write JSON atomically (temporary file, then rename)."""
-    path = os.fspath(path)
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as f:
-        json.dump(obj, f, indent=2)
-    os.replace(tmp, path)
+    """Write JSON atomically (:mod:`staticdepth.fileio`)."""
+    from staticdepth.fileio import atomic_write_json
+    atomic_write_json(path, obj)
 
 
 def summary(plane: AgentPlane) -> str:

@@ -31,6 +31,32 @@ def valid_mask(gt: np.ndarray, min_depth: float = 1e-3, max_depth: float = 80.0,
     return m
 
 
+def check_prediction(pred: np.ndarray, where=None, *, valid: np.ndarray | None = None
+                     ) -> np.ndarray:
+    """A user's prediction as float64, refused (:class:`InputError` naming ``where``) when it is
+    not real numbers (complex, text), holds +-inf anywhere, or - given the ground truth's
+    ``valid`` pixels - NaN where the ground truth is valid. Metrics would otherwise drop those
+    pixels, so a map that is NaN wherever it is wrong would score perfectly; NaN elsewhere is the
+    project's "unknown" and stays allowed."""
+    a = np.asarray(pred)
+    if a.dtype.kind == "c":
+        raise InputError(f"the prediction holds complex numbers ({a.dtype}): depth is real", where)
+    if a.dtype.kind not in "fiub":
+        raise InputError(f"the prediction is not numeric (dtype {a.dtype})", where)
+    a = a.astype(np.float64)
+    n_inf = int(np.isinf(a).sum())
+    if n_inf:
+        raise InputError(f"the prediction has {n_inf} infinite pixel(s): give finite depths "
+                         "(NaN = unknown)", where)
+    if valid is not None:
+        n_nan = int((np.isnan(a) & valid).sum())
+        if n_nan:
+            raise InputError(f"the prediction is NaN at {n_nan} pixel(s) where the ground truth "
+                             "is valid: those would be left out of the metrics; predict a depth "
+                             "there", where)
+    return a
+
+
 def median_scale(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None) -> float:
     """ratio = median(gt) / median(pred) over the valid pixels (finite positive prediction)."""
     m = valid_mask(gt, 0.0, np.inf, mask) & np.isfinite(pred) & (np.asarray(pred) > 0)

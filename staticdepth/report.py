@@ -10,6 +10,7 @@ import argparse
 import base64
 import html
 import os
+import re
 from typing import Any, Mapping, Sequence
 
 import cv2
@@ -136,11 +137,8 @@ def write_html(path: str | os.PathLike, title: str, tables: Sequence[Table],
     parts += [f"<figure><img src='{_png_uri(img)}'><figcaption>{html.escape(c)}</figcaption>"
               f"</figure>" for c, img in figures]
     parts.append("</body></html>")
-    path = os.fspath(path)
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as f:
-        f.write("\n".join(parts))
-    os.replace(tmp, path)
+    from staticdepth.fileio import atomic_write_text
+    atomic_write_text(path, "\n".join(parts))
 
 
 def anchor_row(path: str | os.PathLike, summary: Mapping[str, Any] | None) -> dict[str, float]:
@@ -180,11 +178,16 @@ def build_report(sequences: Mapping[str, str], out_dir: str | os.PathLike,
     paths = write_tables(tables, out_dir)
     for scene, seq in sequences.items():
         figs = sequence_figures(seq, summaries.get(scene))
-        p = os.path.join(out_dir, f"report_{scene}.html")
+        p = os.path.join(out_dir, f"report_{_file_stem(scene)}.html")
         write_html(p, f"staticdepth report: {scene}", tables, figs,
                    notes=[f"sequence: {seq}"])
         paths.append(p)
     return {"tables": tables, "paths": paths, "evals": evals, "anchors": anchors}
+
+
+def _file_stem(name: str) -> str:
+    """A scene name as a safe file name part (no folders, no markup)."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).lstrip(".") or "scene"
 
 
 def register(sub) -> None:

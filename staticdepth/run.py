@@ -28,6 +28,7 @@ from typing import Any, Mapping
 
 from staticdepth.config import config_hash, load_yaml
 from staticdepth.errors import InputError
+from staticdepth.fileio import atomic_write_json
 
 RECIPE_KEYS = {"name", "out_dir", "vars", "stages", "description", "paper"}
 STAGE_KEYS = {"command", "args", "outputs", "description"}
@@ -112,6 +113,22 @@ def load_recipe(path: str | os.PathLike, variables: Mapping[str, str] | None = N
     return {"name": r["name"], "out_dir": env["out_dir"], "stages": stages, "path": src}
 
 
+def _read_state(state_path: str) -> dict[str, str]:
+    """The stage hashes of earlier runs; a corrupt state file is an error naming it."""
+    if not os.path.exists(state_path):
+        return {}
+    try:
+        with open(state_path, "rb") as f:
+            state = json.loads(f.read().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise InputError(f"corrupt recipe state ({type(e).__name__}: {e}); delete it to rerun "
+                         "every stage", state_path) from None
+    if not isinstance(state, dict) or not all(isinstance(v, str) for v in state.values()):
+        raise InputError("corrupt recipe state (expected a mapping of stage -> hash); delete it "
+                         "to rerun every stage", state_path)
+    return state
+
+
 def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str] | None = None,
                dry_run: bool = False, log=print) -> dict[str, str]:
     """Run the stages in order; returns {stage: "ran" | "skipped"}."""
@@ -121,7 +138,7 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
     if not dry_run:
         os.makedirs(out_dir, exist_ok=True)
     state_path = os.path.join(out_dir, STATE_FILE)
-    state = json.load(open(state_path)) if os.path.exists(state_path) else {}
+    state = _read_state(state_path)
     chain = ""
     status: dict[str, str] = {}
     for name, st in recipe["stages"].items():
@@ -139,7 +156,7 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
             status[name] = "dry-run"
             continue
         t0 = time.perf_counter()
-        rc = cli_main(argv)
+        rc = cli_main(argv, recipe=recipe["path"])
         if rc != 0:
             raise InputError(f"stage {name!r} failed (exit {rc}): staticdepth {' '.join(argv)}",
                              recipe["path"])
@@ -147,10 +164,7 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
         if missing:
             raise InputError(f"stage {name!r} did not produce {missing}", recipe["path"])
         state[name] = chain
-        tmp = state_path + ".tmp"
-        with open(tmp, "w") as f:
-            json.dump(state, f, indent=2)
-        os.replace(tmp, state_path)
+        atomic_write_json(state_path, state)
         status[name] = "ran"
         log(f"[{recipe['name']}] {name}: done in {time.perf_counter() - t0:.1f} s")
     return status

@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import csv
+import html
 import io
 import os
 from typing import Any, Mapping, Sequence
@@ -42,9 +43,12 @@ class Table:
         return "\n".join(lines)
 
     def markdown(self) -> str:
-        lines = [f"**{self.title}**", "", "| " + " | ".join(self.header) + " |",
+        def md(s: str) -> str:  # Markdown viewers render raw HTML: escape it, and the cell bar
+            return html.escape(str(s)).replace("|", "\\|")
+
+        lines = [f"**{md(self.title)}**", "", "| " + " | ".join(map(md, self.header)) + " |",
                  "|" + "---|" * len(self.header)]
-        lines += ["| " + " | ".join(self._cell(v) for v in r) + " |" for r in self.rows]
+        lines += ["| " + " | ".join(md(self._cell(v)) for v in r) + " |" for r in self.rows]
         return "\n".join(lines)
 
     def csv(self) -> str:
@@ -56,10 +60,12 @@ class Table:
         return buf.getvalue()
 
     def html(self) -> str:
-        head = "".join(f"<th>{h}</th>" for h in self.header)
-        body = "".join("<tr>" + "".join(f"<td>{self._cell(v)}</td>" for v in r) + "</tr>"
+        """The table as HTML; every string is escaped (names come from data files)."""
+        esc = html.escape
+        head = "".join(f"<th>{esc(str(h))}</th>" for h in self.header)
+        body = "".join("<tr>" + "".join(f"<td>{esc(self._cell(v))}</td>" for v in r) + "</tr>"
                        for r in self.rows)
-        return f"<h3>{self.title}</h3><table><tr>{head}</tr>{body}</table>"
+        return f"<h3>{esc(self.title)}</h3><table><tr>{head}</tr>{body}</table>"
 
 
 def _metric(results: Mapping[str, Any], name: str, protocol: str, key: str,
@@ -136,7 +142,5 @@ def write_tables(tables: Sequence[Table], out_dir: str | os.PathLike, stem: str 
 
 
 def _atomic_write(path: str, text: str) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
+    from staticdepth.fileio import atomic_write_text
+    atomic_write_text(path, text)

@@ -83,10 +83,10 @@ def train_builtin(conf: TrainBuiltinConfig, *, out: str | os.PathLike, device=No
 
     from staticdepth.models.tiny import builtin_model, save_builtin
 
+    from staticdepth.fileio import check_writable
+
     out = os.fspath(out)
-    parent = os.path.dirname(os.path.abspath(out))
-    if not os.path.isdir(parent):
-        raise InputError("output folder does not exist", parent)
+    check_writable(out)  # a folder, a missing or read-only folder: refused before training
     t0 = time.perf_counter()
     images, targets = render_training_set(conf)
     log(f"rendered {len(images)} {conf.preset} frames {conf.width}x{conf.height} "

@@ -1,10 +1,11 @@
 """Acceptance of ``staticdepth adapt`` on a synthetic high, tilted camera with the built-in model.
 
 The built-in network is trained by ``staticdepth train-builtin`` on street-level scenes (about 40 s
-on 2 free cores; cached in pytest's cache folder, keyed by its settings) and adapted on the ``c1``
-scene (5.4 m up, pitched 25 deg) at 256x128: 60 frames, the first 40 for adaptation, ground-truth
-agents (``--detector gt``), 5 epochs. Metrics: AbsRel over the evaluation split, median-scaled per
-image (the paper's Table 1) or metric (Table 3, scale from the camera height).
+on 2 free cores; cached in pytest's cache folder when that plugin is on, keyed by its settings) and
+adapted on the ``c1`` scene (5.4 m up, pitched 25 deg) at 256x128: 60 frames, the first 40 for
+adaptation, ground-truth agents (``--detector gt``), 5 epochs. Metrics: AbsRel over the evaluation
+split, median-scaled per image (the paper's Table 1) or metric (Table 3, scale from the camera
+height).
 """
 from __future__ import annotations
 
@@ -24,8 +25,12 @@ TRAIN = ["--frames", "320", "--epochs", "12", "--size", "256x128", "--seed", "0"
 
 
 @pytest.fixture(scope="module")
-def builtin_weights(request):
-    folder = request.config.cache.mkdir("staticdepth-builtin")
+def builtin_weights(request, tmp_path_factory):
+    # pytest's cache folder keeps the weights between runs; without the cache plugin
+    # (-p no:cacheprovider) they are trained into this session's temporary folder
+    cache = getattr(request.config, "cache", None)
+    folder = (cache.mkdir("staticdepth-builtin") if cache is not None
+              else tmp_path_factory.mktemp("staticdepth-builtin"))
     path = folder / f"builtin-{config_hash(TRAIN)}.pt"
     if not path.exists():
         assert main(["train-builtin", "--out", str(path), "--device", "cpu"] + TRAIN) == 0

@@ -8,6 +8,7 @@ import torch
 from staticdepth.errors import InputError
 from staticdepth.models import Resize, TorchDepthModel, load_model
 from staticdepth.models.registry import default_builtin_path, parse_spec
+from staticdepth.models.trust import trusted_models
 from staticdepth.models.tiny import TinyDepthNet, builtin_model, load_builtin, save_builtin
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
@@ -126,7 +127,10 @@ def test_torch_files(tmp_path):
     m.resize = model.resize
     np.testing.assert_allclose(m.predict(img), ref, rtol=1e-5, atol=1e-6)
     torch.save(model.net, tmp_path / "whole.pt")
-    m2 = load_model(f"torch:{tmp_path / 'whole.pt'}")
+    with pytest.raises(InputError, match="would run code .*--trust-model"):
+        load_model(f"torch:{tmp_path / 'whole.pt'}")
+    with trusted_models():
+        m2 = load_model(f"torch:{tmp_path / 'whole.pt'}")
     m2.resize = model.resize
     np.testing.assert_allclose(m2.predict(img), ref, rtol=1e-5, atol=1e-6)
     assert "head" in m2.layer_groups
@@ -138,9 +142,6 @@ def test_torch_files(tmp_path):
     (tmp_path / "junk.pt").write_bytes(b"junk")
     with pytest.raises(InputError, match="not a readable torch file"):
         load_model(f"torch:{tmp_path / 'junk.pt'}")
-    from staticdepth.models.torch_model import load_torch
-    with pytest.raises(InputError, match="not a TorchScript"):
-        load_torch(tmp_path / "whole.pt", trusted=False)
 
 
 def test_onnx_matches_torch(tmp_path):

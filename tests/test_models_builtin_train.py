@@ -52,7 +52,7 @@ def test_train_builtin_errors(tmp_path, capsys):
         render_training_set(TrainBuiltinConfig(frames=0))
     assert main(["train-builtin", "--out", str(tmp_path / "no" / "b.pt"), "--frames", "1",
                  "--epochs", "1", "--size", "64x32"]) == 2
-    assert "output folder does not exist" in capsys.readouterr().err
+    assert "folder does not exist" in capsys.readouterr().err
 
 
 def test_hf_without_transformers_is_a_clear_error(monkeypatch):

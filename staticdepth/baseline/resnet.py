@@ -94,11 +94,8 @@ def load_imagenet_weights(encoder: ResnetEncoder, path: str | os.PathLike) -> No
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise InputError("ImageNet weights file not found", path)
-    try:
-        sd = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise InputError(f"not a readable torch state dict ({type(e).__name__}: {e})",
-                         path) from None
+    from staticdepth.models.trust import torch_load
+    sd = torch_load(path, what="torch state dict")  # weights_only unless --trust-model
     for key in ("state_dict", "model"):
         if isinstance(sd, dict) and isinstance(sd.get(key), dict):
             sd = sd[key]

@@ -64,10 +64,8 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise InputError("checkpoint not found (train first: staticdepth baseline train)", path)
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise InputError(f"not a readable checkpoint ({type(e).__name__})", path) from None
+    from staticdepth.models.trust import torch_load
+    state = torch_load(path, what="checkpoint")  # tensors and plain values only (weights_only)
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         raise InputError(f"not a stereo-baseline checkpoint (expected format "
                          f"{CHECKPOINT_FORMAT!r})", path)

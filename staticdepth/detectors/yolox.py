@@ -114,17 +114,13 @@ class YoloxDetector(Detector):
     name: str = "yolox"
 
     def __post_init__(self):
-        import onnxruntime as ort
-
         if self.mask not in MASK_MODES:
             raise InputError(f"yolox mask mode must be one of {MASK_MODES}, got {self.mask!r}")
         if not self.model or not os.path.isfile(self.model):
             raise InputError("YOLOX ONNX model not found (give --set detector.model=PATH.onnx, "
                              "e.g. yolox_nano.onnx)", self.model or None)
-        try:
-            self.session = ort.InferenceSession(self.model, providers=["CPUExecutionProvider"])
-        except Exception as e:
-            raise InputError(f"onnxruntime cannot load it ({type(e).__name__})", self.model) from None
+        from staticdepth.onnx_session import onnx_session
+        self.session = onnx_session(self.model, what="YOLOX ONNX model")
         self.input_name = self.session.get_inputs()[0].name
 
     def boxes(self, image_rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -289,13 +289,8 @@ class StereoRig:
 
     def save(self, path: str | os.PathLike) -> None:
         """Write the rig as JSON atomically (temporary file, then rename)."""
-        path = os.fspath(path)
-        tmp = f"{path}.tmp{os.getpid()}"
-        with open(tmp, "w") as f:
-            json.dump(self.to_dict(), f, indent=2)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        from staticdepth.fileio import atomic_write_json
+        atomic_write_json(path, self.to_dict())
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "StereoRig":

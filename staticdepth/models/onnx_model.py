@@ -20,16 +20,12 @@ class OnnxDepthModel(DepthModel):
     def __init__(self, path: str | os.PathLike, *, resize: Resize | None = None,
                  mean: Sequence[float] = IMAGENET_MEAN, std: Sequence[float] = IMAGENET_STD,
                  providers: Sequence[str] | None = None):
-        import onnxruntime as ort
+        from staticdepth.onnx_session import onnx_session
 
         self.path = os.fspath(path)
         if not os.path.isfile(self.path):
             raise InputError("ONNX model file not found (give onnx:FILE.onnx)", self.path)
-        try:
-            self.session = ort.InferenceSession(self.path,
-                                                providers=list(providers or ["CPUExecutionProvider"]))
-        except Exception as e:
-            raise InputError(f"onnxruntime cannot load it ({type(e).__name__}: {e})", self.path) from None
+        self.session = onnx_session(self.path, providers or ["CPUExecutionProvider"])
         inputs = self.session.get_inputs()
         if len(inputs) != 1 or len(inputs[0].shape) != 4:
             raise InputError("expected one (1, 3, h, w) input", self.path)

@@ -18,7 +18,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from staticdepth.errors import InputError
+from staticdepth.fileio import atomic_path
 from staticdepth.models.base import IMAGENET_MEAN, IMAGENET_STD, Resize, TorchDepthModel
+from staticdepth.models.trust import torch_load
 
 CHECKPOINT_FORMAT = "staticdepth.builtin/1"
 DEFAULT_CONFIG: dict[str, Any] = {"enc_channels": (16, 32, 64, 128, 256),
@@ -94,9 +96,8 @@ def save_builtin(path: str | os.PathLike, model: TorchDepthModel, info: dict | N
             "input_size": (model.resize.height, model.resize.width),
             "state_dict": {k: v.detach().cpu() for k, v in net.state_dict().items()},
             "info": dict(info or {})}
-    tmp = f"{path}.tmp{os.getpid()}"
-    torch.save(ckpt, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:  # open() errors are OSErrors
+        torch.save(ckpt, f)
     return path
 
 
@@ -106,10 +107,7 @@ def load_builtin(path: str | os.PathLike) -> TorchDepthModel:
     if not os.path.isfile(path):
         raise InputError("built-in model weights not found; train them with "
                          f"`staticdepth train-builtin --out {path}`", path)
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # torch raises many types for a corrupt file
-        raise InputError(f"not a readable torch checkpoint ({type(e).__name__}: {e})", path) from None
+    ckpt = torch_load(path, what="torch checkpoint")  # tensors and plain values only
     if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
         raise InputError(f"not a built-in model checkpoint (format {CHECKPOINT_FORMAT!r} "
                          "expected); use torch:FILE for other torch models", path)

@@ -61,13 +61,8 @@ def _session(path: str, device: str, threads: int):
             providers = ["CPUExecutionProvider"]
     else:
         raise InputError(f"unknown device {device!r} for the onnx matcher (auto, cpu or cuda)")
-    opts = ort.SessionOptions()
-    opts.intra_op_num_threads = int(threads)
-    opts.log_severity_level = 3
-    try:
-        return ort.InferenceSession(path, sess_options=opts, providers=providers)
-    except Exception as e:  # onnxruntime raises its own exception types for bad files
-        raise InputError(f"cannot load the ONNX model ({str(e).splitlines()[0]})", path) from None
+    from staticdepth.onnx_session import onnx_session
+    return onnx_session(path, providers, threads=threads)
 
 
 def _static_hw(shape, layout: str) -> tuple[int, int] | None:
