@@ -44,13 +44,14 @@ from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import (_BIG, AgentObservations, extreme_rim,  # noqa: F401
                                                  head_pixels, head_residuals, head_rows,
                                                  observation_residual, solve_track_scales)
+from staticdepth.geometry.agent_plane_joint import fit_joint
 from staticdepth.geometry.agent_plane_linear import (LINEAR_MODELS, fit_linear,  # noqa: F401
                                                      plane_affine, plane_paper)
 from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
 from staticdepth.geometry.plane import angle_between_deg, horizon_line
 from staticdepth.geometry.projection import rays_from_pixels
 
-MODELS = ("exact", "affine", "paper")
+MODELS = ("joint", "exact", "affine", "paper")
 PERSON_CLASSES = (0, -1)  # COCO person, or unknown class (a CSV without classes)
 
 
@@ -58,14 +59,15 @@ PERSON_CLASSES = (0, -1)  # COCO person, or unknown class (a CSV without classes
 class AgentPlaneConfig:
     """How to fit the ground plane from agents; see :data:`PRESETS`."""
 
-    model: str = "exact"
+    model: str = "joint"
     radius_m: float = 0.2            # body (foot disk) radius of the cylinder model (0 = thin axis)
     head_radius_m: float = 0.12      # head disk radius: the top of the silhouette (0 = thin)
     agent_height_m: float = 1.7      # only sets the radius/height ratio of the cylinder model
     inlier_px: float = 3.0           # RANSAC: observation inlier threshold on the head point
     column_weight: float = 0.0       # weight of the head-column residuals (0 = rows only; see
     #                                  the module doc for why columns are off by default)
-    classes: tuple[int, ...] | None = PERSON_CLASSES   # class ids that enter the fit (None = all)
+    classes: tuple[int, ...] | None | str = "auto"   # class ids that enter the fit (None = all;
+    #                                  "auto": all for ``joint``, people for the other models)
     ransac_iters: int = 60           # upper bound; stops early at 99% confidence
     loss: str = "soft_l1"            # robust refinement loss (scipy least_squares)
     f_scale_px: float = 1.5
@@ -74,8 +76,15 @@ class AgentPlaneConfig:
     max_roll_deg: float = 30.0
     bootstrap: int = 20              # resamples over tracks (0 = no uncertainty)
     seed: int = 0
+    shape_prior_weight: float = 1.0  # joint: pixels of residual per prior sd of an extent
+    height_prior_weight: float = 1.0  # joint: pixels per sd of a track's height from its class
 
     def __post_init__(self):
+        if isinstance(self.classes, str):
+            if self.classes != "auto":
+                raise InputError(f"classes must be a tuple of class ids, None or 'auto', got "
+                                 f"{self.classes!r}")
+            object.__setattr__(self, "classes", None if self.model == "joint" else PERSON_CLASSES)
         if self.model not in MODELS:
             raise InputError(f"unknown ground-plane model {self.model!r} (use {', '.join(MODELS)})")
         if self.radius_m < 0 or self.head_radius_m < 0 or self.agent_height_m <= 0:
@@ -85,10 +94,11 @@ class AgentPlaneConfig:
 
 
 PRESETS: dict[str, AgentPlaneConfig] = {
-    "exact": AgentPlaneConfig(),
-    "exact-thin": AgentPlaneConfig(radius_m=0.0, head_radius_m=0.0),
-    "exact-columns": AgentPlaneConfig(column_weight=1.0),
-    "exact-all-classes": AgentPlaneConfig(classes=None),
+    "joint": AgentPlaneConfig(),
+    "exact": AgentPlaneConfig(model="exact"),
+    "exact-thin": AgentPlaneConfig(model="exact", radius_m=0.0, head_radius_m=0.0),
+    "exact-columns": AgentPlaneConfig(model="exact", column_weight=1.0),
+    "exact-all-classes": AgentPlaneConfig(model="exact", classes=None),
     "affine": AgentPlaneConfig(model="affine"),
     "paper": AgentPlaneConfig(model="paper"),
 }
@@ -205,7 +215,7 @@ def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact",
         raise InputError("the agents' foot points are collinear: the ground plane is undetermined"
                          " (need agents at positions off one line)")
     ids, idx = np.unique(np.asarray(obs["track"]), return_inverse=True)
-    if model == "exact" and len(obs) - len(ids) < 2:
+    if model in ("exact", "joint") and len(obs) - len(ids) < 2:
         raise InputError(f"{len(obs)} observations of {len(ids)} track(s): the exact model needs "
                          "tracks seen in several frames (each track's first observation only "
                          "fixes its own height; at least 2 more are needed)")
@@ -338,6 +348,15 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
         inl = np.ones(len(obs.ids), bool)
         s = np.full(len(obs.ids), 1.0 / d_over_h)
         res = K[1, 1] * (obs.rays @ n) / d_over_h - obs.h
+    elif conf.model == "joint":
+        n, s, inl, res, extents, boot = fit_joint(K, obs, conf, rng)
+        _check_nadir(n, conf)
+        d_over_h = 1.0 / float(np.median(s[inl]))
+        rms = float(np.sqrt(np.mean(res[inl[obs.idx]] ** 2)))
+        return AgentPlane(n, horizon_line(K, n), d_over_h, obs.ids.copy(), s, inl, rms,
+                          conf.model, len(obs.top_v), boot.get("normal_std_deg", float("nan")),
+                          boot.get("d_over_h_std", float("nan")),
+                          extra={"classes": obs.cls, "extents": extents})
     else:
         n, s, inl, res = _fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))
