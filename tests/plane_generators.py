@@ -13,8 +13,9 @@ model per generator, each a cloud of surface points in the agent's own frame (up
   straight, and a third of the tracks cyclists (1.8 x 0.6 m box as tall as the rider).
 
 People's heights: 90% adults N(1.72, 0.08) m, 10% children U(1.0, 1.45) m. A detection is the
-projection of the body's points: as a mask, its lowest point (foot) and highest point (top) with
-their columns, 1 px Gaussian noise; as a box, the extreme rows and columns each jittered by
+projection of the body's points: as a mask, its lowest point (foot) and highest point (top), each
+with the median column of the points within half a pixel of that row (a mask's extreme row is a
+run of pixels), 1 px Gaussian noise on all four; as a box, the extreme rows and columns each jittered by
 U(-2, 2) px, the foot column the box centre and no top column. Outliers (``outliers`` = share of
 observations): sitting people (whole tracks, 55-70% of the height), detections cut by the image
 top (the top row moved down by 15-50% of the height) and partly occluded feet (the foot row moved
@@ -55,7 +56,7 @@ def camera(rng) -> tuple[np.ndarray, np.ndarray, float, float, float]:
     return K, Rz @ np.array([0.0, math.cos(t), math.sin(t)]), d, pitch, roll
 
 
-def _rings(radii, zs, k=24):
+def _rings(radii, zs, k=72):
     """Points (M, 3) in the agent frame (forward, side, up) of horizontal rings."""
     a = np.linspace(0, 2 * math.pi, k, endpoint=False)
     return np.concatenate([np.stack([r * np.cos(a), r * np.sin(a), np.full(k, z)], 1)
@@ -150,10 +151,10 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
             u, v = _project(K, X)
             if u.min() < 2 or u.max() > W - 3 or v.min() < 2 or v.max() > H - 3:
                 continue
-            ib, it = int(np.argmax(v)), int(np.argmin(v))
-            if detection == "mask":
+            if detection == "mask":      # a mask's extreme row: the median column of its run
                 e = rng.normal(0, noise_px, 4)
-                out.append((track, i, cls, u[ib] + e[0], v[ib] + e[1], v[it] + e[2], u[it] + e[3]))
+                ub, ut = np.median(u[v >= v.max() - 0.5]), np.median(u[v <= v.min() + 0.5])
+                out.append((track, i, cls, ub + e[0], v.max() + e[1], v.min() + e[2], ut + e[3]))
             else:
                 j = rng.uniform(-2, 2, 4)
                 lo, hi = u.min() + j[0], u.max() + j[1]

@@ -129,6 +129,7 @@ class AgentPlane:
     camera_height_m: float | None = None
     camera_height_source: str | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
+    camera_height_std_m: float = float("nan")
 
     @property
     def pitch_deg(self) -> float:
@@ -138,10 +139,12 @@ class AgentPlane:
     def roll_deg(self) -> float:
         return pitch_roll_from_normal(self.normal)[1]
 
-    def with_camera_height(self, height_m: float, source: str) -> "AgentPlane":
+    def with_camera_height(self, height_m: float, source: str,
+                           std_m: float = float("nan")) -> "AgentPlane":
         if not (math.isfinite(height_m) and height_m > 0):
             raise InputError(f"camera height must be positive, got {height_m}")
-        return replace(self, camera_height_m=float(height_m), camera_height_source=source)
+        return replace(self, camera_height_m=float(height_m), camera_height_source=source,
+                       camera_height_std_m=float(std_m))
 
     def to_dict(self) -> dict[str, Any]:
         d = {"normal": self.normal.tolist(), "horizon": self.horizon.tolist(),
@@ -151,10 +154,13 @@ class AgentPlane:
              "tracks": {str(int(t)): float(s) for t, s in zip(self.track_ids, self.track_scale)},
              "rms_px": self.rms_px, "n_observations": self.n_observations,
              "uncertainty": {"normal_std_deg": _num(self.normal_std_deg),
-                             "d_over_agent_height_std": _num(self.d_over_h_std)}}
+                             "d_over_agent_height_std": _num(self.d_over_h_std),
+                             "camera_height_std_m": _num(self.camera_height_std_m)}}
         if self.camera_height_m is not None:
             d["camera_height_m"] = self.camera_height_m
             d["camera_height_source"] = self.camera_height_source
+        if "extents" in self.extra:
+            d["extents"] = {k: list(v) for k, v in self.extra["extents"].items()}
         return d
 
     @classmethod
@@ -175,7 +181,9 @@ class AgentPlane:
                        int(d.get("n_observations", 0)),
                        float(unc.get("normal_std_deg") or float("nan")),
                        float(unc.get("d_over_agent_height_std") or float("nan")),
-                       None if h is None else float(h), d.get("camera_height_source"))
+                       None if h is None else float(h), d.get("camera_height_source"),
+                       {"extents": d["extents"]} if "extents" in d else {},
+                       float(unc.get("camera_height_std_m") or float("nan")))
         except KeyError as e:
             raise InputError(f"plane is missing the key {e.args[0]!r}", source) from None
         except (TypeError, ValueError) as e:

@@ -231,19 +231,20 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
         n_h, inl = _ransac(K, prob, conf, rng)
         if inl.sum() < 3:
             inl = np.ones(J, bool)
-        starts = [pitch_roll_from_normal(n_h)] + starts[1::2]
+        starts = [pitch_roll_from_normal(n_h)]
     else:
         inl = np.ones(J, bool)
     sub = _Problem(K, obs.subset(np.flatnonzero(inl)))
     aff = _affine_start(K, sub.obs)
     if aff is not None:
         starts.insert(1, aff)
-    p, r, theta, s, _ = sub.fit(conf, starts, loss=conf.loss)
+    p, r, theta, s, _ = sub.fit(conf, starts, loss=conf.loss, max_nfev=100)
     keep = sub.errors(_normal(p, r), theta, s, conf.column_weight) < conf.inlier_px
     if keep.sum() >= 3:
         fine = _Problem(K, sub.obs.select(keep))
         if fine.present == sub.present:
-            p, r, theta, _, _ = fine.fit(conf, [(math.degrees(p), math.degrees(r))], theta)
+            p, r, theta, _, _ = fine.fit(conf, [(math.degrees(p), math.degrees(r))], theta,
+                                         max_nfev=60)
             sub = fine
     n = _normal(p, r)
     s = prob.solve_scales(n, _expand(prob, sub, theta), huber_px=conf.inlier_px)

@@ -5,8 +5,9 @@ ground with its vertical axis along ``-n``. Its silhouette's lowest image point 
 foot) is the lowest point of its footprint's outline, its highest image point (the observed top)
 the highest point of its roof's outline. Two outlines, both scaled with the agent's height:
 
-- ``disk`` (people; unknown classes): a disk of radius ``e s`` at the foot and at the top; one
-  parameter, the extent ratio ``e`` (0 = the thin head-foot axis; about 0.12 for a 0.2 m body).
+- ``disk`` (people; unknown classes): a disk of radius ``e_f s`` at the foot and one of ``e_h s``
+  at the top; two parameters ``(e_f, e_h)`` (0 = the thin head-foot axis; about 0.12 for a 0.2 m
+  body).
 - ``box`` (two-wheelers, cars, buses, trucks): a rectangle of half-length ``a s`` along the
   track's heading and half-width ``b s`` across it; two parameters ``(a, b)``. The heading is the
   principal direction of the track's foot points on the ground (vehicles drive straight).
@@ -49,7 +50,7 @@ class ShapeGroup:
 
 # COCO ids: person 0, bicycle 1, car 2, motorcycle 3, bus 5, truck 7; -1 = unknown (a CSV)
 GROUPS = (
-    ShapeGroup("people", "disk", (0, -1), (0.07,), (0.06,), (0.0,), (0.3,),
+    ShapeGroup("people", "disk", (0, -1), (0.07, 0.05), (0.06, 0.05), (0.0, 0.0), (0.3, 0.3),
                ((0.9, 1.70, 0.09), (0.1, 1.25, 0.15))),
     ShapeGroup("two-wheelers", "box", (1, 3), (0.5, 0.17), (0.2, 0.08), (0.0, 0.0), (1.2, 0.5),
                ((1.0, 1.70, 0.10),)),
@@ -133,12 +134,11 @@ def top_points(n: np.ndarray, rays: np.ndarray, s: np.ndarray, group: np.ndarray
             continue
         p = params[g]
         if grp.outline == "disk":
-            rho = p[0] * s[m]
             A = F[m].copy()
             if p[0] > 0:
                 for _ in range(3):
-                    A = A + (F[m] - extreme_rim(A, n, rho, lowest=True))
-            T[m] = extreme_rim(A - s[m, None] * n, n, rho, lowest=False)
+                    A = A + (F[m] - extreme_rim(A, n, p[0] * s[m], lowest=True))
+            T[m] = extreme_rim(A - s[m, None] * n, n, p[1] * s[m], lowest=False)
         else:
             T[m] = _box_top(n, F[m], s[m], p[0], p[1], heading[m])
     return T
