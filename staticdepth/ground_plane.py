@@ -152,8 +152,8 @@ def register(sub) -> None:
                                                 "thin axis)")
     p.add_argument("--bootstrap", type=int, help="resamples for the uncertainty (default 20)")
     p.add_argument("--column-weight", type=float,
-                   help="weight of the head-column residuals (default 0: rows only; 1 for masks "
-                        "whose top row is centred on the body's axis)")
+                   help="weight of the head-column residuals (0: rows only; default 1 for "
+                        "joint, scaled down by the columns' noise, 0 for exact)")
     p.add_argument("--out", required=True, help="plane JSON to write")
     p.set_defaults(func=_ground_plane_cmd)
 

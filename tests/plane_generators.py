@@ -33,6 +33,7 @@ OBS = [("frame", "i4"), ("track", "i4"), ("class_id", "i2"), ("foot_u", "f8"), (
        ("height_px", "f8"), ("top_v", "f8"), ("top_u", "f8"), ("score", "f4")]
 GENERATORS = ("thin", "tapered", "cylinder", "ellipsoid", "vehicles")
 PERSON, BICYCLE, CAR, BUS = 0, 1, 2, 5
+FOOT_BAND = 0.0   # share of the height above the lowest row whose columns give the foot column
 
 
 @dataclass
@@ -153,7 +154,8 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
                 continue
             if detection == "mask":      # a mask's extreme row: the median column of its run
                 e = rng.normal(0, noise_px, 4)
-                ub, ut = np.median(u[v >= v.max() - 0.5]), np.median(u[v <= v.min() + 0.5])
+                band = max(0.5, FOOT_BAND * (v.max() - v.min()))
+                ub, ut = np.median(u[v >= v.max() - band]), np.median(u[v <= v.min() + 0.5])
                 out.append((track, i, cls, ub + e[0], v.max() + e[1], v.min() + e[2], ut + e[3]))
             else:
                 j = rng.uniform(-2, 2, 4)

@@ -1,8 +1,11 @@
 """The ground plane from moving agents' foot points and pixel heights (METHOD.md section 2).
 
-Three models, selectable by name:
+Four models, selectable by name:
+- ``joint`` (default): plane, per-track heights and per-class extents fitted together, every
+  agent class (people as disks, two-wheelers and vehicles as boxes), head rows and columns
+  (:mod:`staticdepth.geometry.agent_plane_joint`, :mod:`staticdepth.geometry.agent_shape`);
 - ``paper`` and ``affine``: Eq. 1 (:mod:`staticdepth.geometry.agent_plane_linear`);
-- ``exact`` (default): the exact projective model (:mod:`staticdepth.geometry.agent_cylinder`).
+- ``exact``: the fixed-shape exact projective model (:mod:`staticdepth.geometry.agent_cylinder`).
   Unknowns are the unit normal (pitch, roll) and per track ``s_j = H_j / d``; each agent is an
   upright cylinder with a foot disk of ``radius_m`` and a head disk of ``head_radius_m`` (both
   relative to ``agent_height_m``), so the observed bottom point is the lowest point of the foot
@@ -12,11 +15,13 @@ Three models, selectable by name:
   normal and all s_j jointly on the inliers, least squares on the inlier observations, and a
   bootstrap over tracks for the uncertainty.
 
-Only the classes the body model describes enter the fit (``classes``: people, and rows of unknown
-class, by default). Cars, buses, trucks and two-wheelers are boxes, not upright cylinders: on
-the synthetic scenes they pull the normal by degrees when few people are seen.
+For ``exact`` only the classes the body model describes enter the fit (``classes="auto"``:
+people, and rows of unknown class). Cars, buses, trucks and two-wheelers are boxes, not upright
+cylinders: on the synthetic scenes they pull that model's normal by degrees when few people are
+seen; ``joint`` models them and takes every class by default.
 
-Why the head column is off by default: the column of the top of a mask moves with the head's
+Why the head column is off by default for ``exact`` (``joint`` uses it, weighted by the rows'
+over the columns' residual scale, since its extents are fitted): the column of the top of a mask moves with the head's
 radius and with where the mask's top row cuts the head (its midpoint is not the rim's extreme
 point), and the tilt it implies is tiny (about 0.003 px per pixel off-centre per degree of
 pitch), so a 1 px systematic column error at the image edge is a degree of pitch. Measured on the
@@ -64,8 +69,8 @@ class AgentPlaneConfig:
     head_radius_m: float = 0.12      # head disk radius: the top of the silhouette (0 = thin)
     agent_height_m: float = 1.7      # only sets the radius/height ratio of the cylinder model
     inlier_px: float = 3.0           # RANSAC: observation inlier threshold on the head point
-    column_weight: float = 0.0       # weight of the head-column residuals (0 = rows only; see
-    #                                  the module doc for why columns are off by default)
+    column_weight: float | None = None   # weight of the head-column residuals (0 = rows only;
+    #                                  None: 1 for ``joint``, 0 for ``exact``, see the module doc)
     classes: tuple[int, ...] | None | str = "auto"   # class ids that enter the fit (None = all;
     #                                  "auto": all for ``joint``, people for the other models)
     ransac_iters: int = 60           # upper bound; stops early at 99% confidence
@@ -85,6 +90,8 @@ class AgentPlaneConfig:
                 raise InputError(f"classes must be a tuple of class ids, None or 'auto', got "
                                  f"{self.classes!r}")
             object.__setattr__(self, "classes", None if self.model == "joint" else PERSON_CLASSES)
+        if self.column_weight is None:
+            object.__setattr__(self, "column_weight", 1.0 if self.model == "joint" else 0.0)
         if self.model not in MODELS:
             raise InputError(f"unknown ground-plane model {self.model!r} (use {', '.join(MODELS)})")
         if self.radius_m < 0 or self.head_radius_m < 0 or self.agent_height_m <= 0:
@@ -206,10 +213,10 @@ def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact",
     if classes is not None and "class_id" in obs.dtype.names and len(obs):
         of_class = np.isin(np.asarray(obs["class_id"]), list(classes))
         if not of_class.any():
-            raise InputError(f"no observation of the classes the body model describes (class ids "
+            raise InputError(f"no observation of the classes selected (class ids "
                              f"{', '.join(map(str, classes))}; the table has "
-                             f"{', '.join(map(str, np.unique(obs['class_id'])))}): use classes="
-                             f"None to fit every class")
+                             f"{', '.join(map(str, np.unique(obs['class_id'])))}): use "
+                             "--classes all (classes=None) to fit every class")
         obs = obs[of_class]
     u, v, h = (np.asarray(obs[f], dtype=np.float64) for f in ("foot_u", "foot_v", "height_px"))
     ok = np.isfinite(u) & np.isfinite(v) & np.isfinite(h) & (h > 0)
@@ -364,7 +371,9 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
         return AgentPlane(n, horizon_line(K, n), d_over_h, obs.ids.copy(), s, inl, rms,
                           conf.model, len(obs.top_v), boot.get("normal_std_deg", float("nan")),
                           boot.get("d_over_h_std", float("nan")),
-                          extra={"classes": obs.cls, "extents": extents})
+                          extra={"classes": obs.cls, "extents": extents,
+                                 "column_weight": boot.get("column_weight", 0.0),
+                                 "inlier_px": boot.get("inlier_px", conf.inlier_px)})
     else:
         n, s, inl, res = _fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))

@@ -19,6 +19,7 @@ exactly for these models too, so they are part of the same residuals rather than
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -31,6 +32,9 @@ from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_to
                                               track_headings)
 from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
 from staticdepth.geometry.plane import angle_between_deg
+
+
+MIN_SHAPE_TRACKS = 3
 
 
 def _normal(pitch: float, roll: float) -> np.ndarray:
@@ -47,6 +51,9 @@ class _Problem:
         self.track_group = group_of_class(obs.cls)
         self.group = self.track_group[obs.idx]
         self.present = [g for g in range(len(GROUPS)) if np.any(self.group == g)]
+        # a group's extents are free with at least MIN_SHAPE_TRACKS tracks, else at the prior
+        self.free = [g for g in self.present
+                     if np.count_nonzero(self.track_group == g) >= MIN_SHAPE_TRACKS]
         self.slices, k = {}, 2
         for g in self.present:
             m = len(GROUPS[g].prior)
@@ -73,9 +80,7 @@ class _Problem:
         hi = np.concatenate([GROUPS[g].upper for g in self.present] or [np.zeros(0)])
         return lo, hi
 
-    def headings(self, n: np.ndarray) -> np.ndarray | None:
-        if not self.boxes:
-            return None
+    def headings(self, n: np.ndarray) -> np.ndarray:
         nr = self.obs.rays @ n
         with np.errstate(divide="ignore", invalid="ignore"):
             F = self.obs.rays / nr[:, None]
@@ -165,8 +170,10 @@ class _Problem:
         th0 = self.prior_theta() if theta0 is None else np.asarray(theta0, np.float64)
         t_lo, t_hi = self.shape_bounds()
         th0 = np.clip(th0, t_lo, t_hi)
-        if not free_shape:
-            t_lo, t_hi = th0 - 1e-9, th0 + 1e-9
+        fixed = np.ones(len(th0), bool)
+        for g in (self.free if free_shape else []):
+            fixed[self.slices[g].start - 2:self.slices[g].stop - 2] = False
+        t_lo, t_hi = np.where(fixed, th0 - 1e-9, t_lo), np.where(fixed, th0 + 1e-9, t_hi)
         lower = np.r_[lo_p, -mr, t_lo, -10.0, np.full(self.J, 1e-4)]
         upper = np.r_[hi_p, mr, t_hi, 10.0, np.full(self.J, 100.0)]
         cw = conf.column_weight
@@ -210,7 +217,7 @@ def _ransac(K, prob: _Problem, conf, rng):
         p, r, _, _, _ = sub.fit(conf, [start], sub.prior_theta(), max_nfev=30, free_shape=False)
         n = _normal(p, r)
         s = prob.solve_scales(n, theta0, huber_px=conf.inlier_px)
-        res = prob.errors(n, theta0, s, conf.column_weight)
+        res = prob.errors(n, theta0, s, 0.0)
         good = res < conf.inlier_px
         inl = _track_inliers(obs.idx, good, J)
         key = (int(good[inl[obs.idx]].sum()), -float(np.sum(np.minimum(res, conf.inlier_px))))
@@ -239,25 +246,50 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     if aff is not None:
         starts.insert(1, aff)
     p, r, theta, s, _ = sub.fit(conf, starts, loss=conf.loss, max_nfev=100)
-    keep = sub.errors(_normal(p, r), theta, s, conf.column_weight) < conf.inlier_px
-    if keep.sum() >= 3:
-        fine = _Problem(K, sub.obs.select(keep))
-        if fine.present == sub.present:
-            p, r, theta, _, _ = fine.fit(conf, [(math.degrees(p), math.degrees(r))], theta,
-                                         max_nfev=60)
-            sub = fine
+    # the rows' noise scale (gait, rough masks) sets the inlier threshold, never below inlier_px
     n = _normal(p, r)
-    s = prob.solve_scales(n, _expand(prob, sub, theta), huber_px=conf.inlier_px)
     theta_all = _expand(prob, sub, theta)
+    s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
+    err = prob.errors(n, theta_all, s, 0.0)
+    thr = max(conf.inlier_px, 2.5 * 1.4826 * float(np.median(err)))
+    inl = _track_inliers(obs.idx, err < thr, J)
+    keep = inl[obs.idx] & (err < thr)
+    conf = _column_weight(conf, prob, n, theta_all, s, keep)
+    fine = _Problem(K, obs.select(keep)) if keep.sum() >= 3 else sub
+    if fine.present == sub.present:
+        p, r, theta, _, _ = fine.fit(conf, [(math.degrees(p), math.degrees(r))],
+                                     _expand(fine, prob, theta_all),
+                                     loss=conf.loss if conf.column_weight > 0 else "linear",
+                                     max_nfev=60)
+        theta_all = _expand(prob, fine, theta)
+    n = _normal(p, r)
+    s = prob.solve_scales(n, theta_all, huber_px=thr)
     res = np.nan_to_num(prob.top_rows(n, theta_all, s) - obs.top_v, nan=_BIG)
-    inl = _track_inliers(obs.idx, prob.errors(n, theta_all, s, conf.column_weight)
-                         < conf.inlier_px, J)
+    inl = _track_inliers(obs.idx, prob.errors(n, theta_all, s, 0.0) < thr, J)
     if inl.sum() == 0:
         inl = np.ones(J, bool)
     extents = {GROUPS[g].name: [float(v) for v in theta_all[sl.start - 2:sl.stop - 2]]
                for g, sl in prob.slices.items()}
     boot = _bootstrap(K, prob, conf, n, theta_all, inl, rng) if conf.bootstrap > 0 else {}
+    boot["column_weight"] = conf.column_weight
+    boot["inlier_px"] = thr
     return n, s, inl, res, extents, boot
+
+
+def _column_weight(conf, prob: _Problem, n, theta, s, keep):
+    """``conf`` with the column weight scaled by the rows' over the columns' residual scale
+    (MAD on the kept observations), never above the configured one: a real mask's lowest row is
+    often one foot of a walker, its column pixels off the axis."""
+    if conf.column_weight <= 0:
+        return conf
+    u, v = prob.top(n, theta, s)
+    ru, rv = (u - prob.obs.top_u)[keep], (v - prob.obs.top_v)[keep]
+    ru = ru[np.isfinite(ru)]
+    if len(ru) < 5:
+        return conf
+    mad = lambda x: 1.4826 * float(np.median(np.abs(x - np.median(x))))  # noqa: E731
+    ratio = mad(rv[np.isfinite(rv)]) / max(mad(ru), 1e-9)
+    return replace(conf, column_weight=conf.column_weight * min(1.0, ratio))
 
 
 def _expand(full: _Problem, sub: _Problem, theta: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ the highest point of its roof's outline. Two outlines, both scaled with the agen
   body).
 - ``box`` (two-wheelers, cars, buses, trucks): a rectangle of half-length ``a s`` along the
   track's heading and half-width ``b s`` across it; two parameters ``(a, b)``. The heading is the
-  principal direction of the track's foot points on the ground (vehicles drive straight).
+  principal direction of the track's foot points on the ground.
 
 The parameters are unknowns of the fit (one set per class group, with a weak prior, see
 :data:`GROUPS`), so no body model is assumed: a thin walker drives ``e`` to 0, a wide one up.
