@@ -1,20 +1,30 @@
 """The ``joint`` ground-plane model: plane, per-track heights and per-class extent fitted together.
 
-Unknowns: the normal (pitch, roll), one extent parameter vector per class group present
-(:mod:`staticdepth.geometry.agent_shape`: people are disks of extent ``e``, two-wheelers and
-vehicles boxes ``(a, b)``; each with a weak Gaussian prior, ``shape_prior_weight`` pixels per
-prior standard deviation) and per track ``s_j = H_j / d``. Residuals: each observation's top row
-predicted from its foot ray minus the observed one (pixels). The extent changes the apparent height
-with the viewing angle differently from the plane's own perspective (the top point moves along
-the line of sight, the foot point away from the axis), so it is estimated, not assumed.
+Unknowns: the normal (pitch, roll), one extent vector per class group present
+(:mod:`staticdepth.geometry.agent_shape`: people are foot and head disks ``(e_f, e_h)``,
+two-wheelers and vehicles boxes ``(a, b)``; each with a weak Gaussian prior,
+``shape_prior_weight`` pixels per prior standard deviation; a group with fewer than 3 tracks
+keeps the prior means), the log of 1 / camera height (tying every track's height to its class's
+typical height, robustly: children and outliers weigh little) and per track ``s_j = H_j / d``.
+Residuals: each observation's top row predicted from its foot ray minus the observed one, and
+where the top column is known (masks) its column, in pixels.
+
+Why the columns: an extent moves the top point along the line of sight, which to first order is
+the same as leaning the agent towards the camera, i.e. a change of pitch; from rows alone the
+extent and the pitch are nearly degenerate (thin walkers seen from 11.5 m at 48 degrees: the cost
+stays flat over +7 degrees of pitch). The line of sight's image passes through the vertical
+vanishing point, so the extent does not move the head-foot axis: the columns (the axes meeting at
+the image of n) separate the two. A track's foot and head lines meeting on the horizon is implied
+by the same row residuals. The columns' weight is scaled by the rows' over the columns' residual
+scale (a walker's lowest mask row is often one foot, off the axis); the inlier threshold is at
+least ``inlier_px`` and 2.5 robust standard deviations of the rows (a walker's gait moves its
+lowest point by +-0.3 m along its heading: several pixels).
 
 Robust pipeline: RANSAC over tracks (3 tracks, extents at their prior means, every other track's
 ``s_j`` solved with the normal fixed, observations within ``inlier_px`` counted), a soft-L1 fit of
-all unknowns on the inlier tracks from the RANSAC normal and the affine (Eq. 1) one, then least
-squares on the inlier observations; the bootstrap over inlier tracks refits from that solution.
-Every agent class contributes; the shape-independent cues of the literature (a track's foot and
-head lines meeting on the horizon, head-foot axes meeting at the vertical vanishing point) hold
-exactly for these models too, so they are part of the same residuals rather than separate terms.
+all unknowns on the inlier tracks from the RANSAC and the affine (Eq. 1) normals, the residual
+scales, then a fit on the inlier observations; the bootstrap over inlier tracks refits from that
+solution.
 """
 from __future__ import annotations
 
