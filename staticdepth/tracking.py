@@ -1,8 +1,8 @@
 """Agents' observations: per-frame instances -> detections -> tracks -> a tidy observation table.
 
 A detection is one agent instance in one frame (a rider and its bicycle or motorcycle are merged
-into one agent of the two-wheeler's class first, :func:`merge_riders`): its foot point (bottom centre of the mask: the
-lowest row, the median column of that row), its top point (the highest row, the median column of
+into one agent of the two-wheeler's class first, :func:`merge_riders`): its foot point (bottom
+centre of the mask: the lowest row, the median column of that row), its top point (the highest row, the median column of
 that row; the column is NaN when only a box or an agent row without it is known), box and score.
 Detections are linked across frames by the Hungarian assignment
 (``scipy.optimize.linear_sum_assignment``) on box IoU, or on foot-point distance relative to the

@@ -15,8 +15,8 @@ model per generator, each a cloud of surface points in the agent's own frame (up
 People's heights: 90% adults N(1.72, 0.08) m, 10% children U(1.0, 1.45) m. A detection is the
 projection of the body's points: as a mask, its lowest point (foot) and highest point (top), each
 with the median column of the points within half a pixel of that row (a mask's extreme row is a
-run of pixels), 1 px Gaussian noise on all four; as a box, the extreme rows and columns each jittered by
-U(-2, 2) px, the foot column the box centre and no top column. Outliers (``outliers`` = share of
+run of pixels), 1 px Gaussian noise on all four; as a box, the extreme rows and columns each
+jittered by U(-2, 2) px, the foot column the box centre and no top column. Outliers (``outliers`` = share of
 observations): sitting people (whole tracks, 55-70% of the height), detections cut by the image
 top (the top row moved down by 15-50% of the height) and partly occluded feet (the foot row moved
 up by 15-40%).
@@ -85,8 +85,9 @@ def body(kind: str, height: float, frame: int, phase: float, dims=None) -> np.nd
     if kind == "ellipsoid":
         hip, swing = 0.5 * Hh, math.radians(20) * math.sin(phase + 1.3 * frame)
         drop = hip * (1 - math.cos(swing))                   # both feet on the ground: body bobs
-        parts = [_ellipsoid(np.array([0, 0, 0.72 * Hh - drop]), np.array([0.14, 0.22, 0.23 * Hh])),
-                 _ellipsoid(np.array([0, 0, 0.935 * Hh - drop]), np.array([0.09, 0.08, 0.065 * Hh]))]
+        torso = _ellipsoid(np.array([0, 0, 0.72 * Hh - drop]), np.array([0.14, 0.22, 0.23 * Hh]))
+        head = _ellipsoid(np.array([0, 0, 0.935 * Hh - drop]), np.array([0.09, 0.08, 0.065 * Hh]))
+        parts = [torso, head]
         ring = _rings([0.06], [0.0], 8)
         for sgn, side in ((1, 0.1), (-1, -0.1)):
             t = np.linspace(0, 1, 9)[:, None]

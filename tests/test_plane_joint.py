@@ -17,7 +17,7 @@ from staticdepth.geometry.plane import angle_between_deg
 from staticdepth.geometry.scale import anchor_depth, anchor_pixel
 
 FAST = AgentPlaneConfig(bootstrap=0, column_weight=1.0)
-SEEDS = (0, 1, 2, 3)
+SEEDS = (0, 1, 2)
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +41,7 @@ def test_normal_on_every_body_model(fits, kind):
     assert np.median(errs) <= 0.5 and max(errs) <= 1.0, errs
 
 
-@pytest.mark.parametrize("kind", ["tapered", "ellipsoid", "vehicles"])
+@pytest.mark.parametrize("kind", ["ellipsoid", "vehicles"])
 def test_normal_with_twenty_percent_outliers(fits, kind):
     errs = [angle_between_deg(p.normal, s.normal) for s, p in
             (_fit(fits, kind, k, outliers=0.2) for k in SEEDS[:2])]
@@ -88,16 +88,32 @@ def test_camera_height_ml_weighs_children_by_their_share():
 
 
 def test_gate_refuses_few_tracks_and_scales_with_sqrt_n():
-    s = scene("ellipsoid", 5, n_tracks=40)
-    conf = AgentPlaneConfig(bootstrap=12, column_weight=1.0)
+    s = scene("tapered", 5, n_tracks=32)
+    conf = AgentPlaneConfig(bootstrap=6)
     few_tracks = np.unique(s.obs["track"])[:4]
     few = fit_agent_plane(s.K, s.obs[np.isin(s.obs["track"], few_tracks)], conf)
     many = fit_agent_plane(s.K, s.obs, conf)
     g_few, g_many = plane_gate(few, 0.3), plane_gate(many, 0.3)
     assert many.normal_std_deg < few.normal_std_deg
-    ratio = few.normal_std_deg / many.normal_std_deg       # 1/sqrt(n): about sqrt(40/4) = 3.2
+    ratio = few.normal_std_deg / many.normal_std_deg       # 1/sqrt(n): about sqrt(32/4) = 2.8
     assert 1.5 < ratio < 8, ratio
     assert not g_few.ok and g_few.tracks_needed > g_few.tracks
     assert g_few.frames_factor == pytest.approx((few.normal_std_deg / 0.3) ** 2)
     assert "need about" in g_few.message
     assert plane_gate(many, 5.0).ok
+
+
+def test_bad_inputs_raise():
+    from staticdepth.errors import InputError
+    from staticdepth.geometry.agent_plane_gate import class_set
+    s, p = scene("thin", 0, n_tracks=6), None
+    p = fit_agent_plane(s.K, s.obs, FAST)
+    with pytest.raises(InputError, match="unknown class set"):
+        class_set("animals")
+    with pytest.raises(InputError, match="no inlier track of the requested classes"):
+        camera_height_from_agents(p, (2,))
+    with pytest.raises(InputError, match="limit must be positive"):
+        plane_gate(p, 0.0)
+    with pytest.raises(InputError, match="classes must be a tuple"):
+        AgentPlaneConfig(classes="people")
+    assert not plane_gate(p).ok and "uncertainty unknown" in plane_gate(p).message   # no bootstrap

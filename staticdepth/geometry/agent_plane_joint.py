@@ -90,7 +90,9 @@ class _Problem:
         hi = np.concatenate([GROUPS[g].upper for g in self.present] or [np.zeros(0)])
         return lo, hi
 
-    def headings(self, n: np.ndarray) -> np.ndarray:
+    def headings(self, n: np.ndarray) -> np.ndarray | None:
+        if not self.boxes:
+            return None
         nr = self.obs.rays @ n
         with np.errstate(divide="ignore", invalid="ignore"):
             F = self.obs.rays / nr[:, None]

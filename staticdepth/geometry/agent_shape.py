@@ -22,8 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from staticdepth.geometry.agent_cylinder import extreme_rim
-
 
 @dataclass(frozen=True)
 class ShapeGroup:
@@ -92,6 +90,27 @@ def track_headings(n: np.ndarray, feet: np.ndarray, idx: np.ndarray, J: int) -> 
     return np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2
 
 
+def _rim(C: np.ndarray, basis, rho: np.ndarray, lowest: bool) -> np.ndarray:
+    """:func:`~staticdepth.geometry.agent_cylinder.extreme_rim` with the plane's basis given."""
+    e1, e2 = basis
+    p, q = np.array([e1[1], e2[1]]), np.array([e1[2], e2[2]])
+    g0, g1 = C[:, 2] * p[0] - C[:, 1] * q[0], C[:, 2] * p[1] - C[:, 1] * q[1]
+    k = p[1] * q[0] - p[0] * q[1]
+    R = np.maximum(np.hypot(g0, g1), 1e-300)
+    alpha, acos = np.arctan2(g0, g1), np.arccos(np.clip(-rho * k / R, -1.0, 1.0))
+    best, best_row = None, None
+    for sign in (1.0, -1.0):
+        phi = sign * acos - alpha
+        P = C + rho[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+        row = np.nan_to_num(_rows(P), nan=-np.inf if lowest else np.inf)
+        if best is None:
+            best, best_row = P, row
+        else:
+            take = row > best_row if lowest else row < best_row
+            best = np.where(take[:, None], P, best)
+    return best
+
+
 def _rows(P: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         return P[..., 1] / P[..., 2]
@@ -128,6 +147,7 @@ def top_points(n: np.ndarray, rays: np.ndarray, s: np.ndarray, group: np.ndarray
         F = rays / nr[:, None]
     F[~(nr > 1e-9)] = np.nan
     T = np.full_like(F, np.nan)
+    basis = _ground_basis(n)
     for g, grp in enumerate(GROUPS):
         m = group == g
         if not m.any():
@@ -137,8 +157,8 @@ def top_points(n: np.ndarray, rays: np.ndarray, s: np.ndarray, group: np.ndarray
             A = F[m].copy()
             if p[0] > 0:
                 for _ in range(3):
-                    A = A + (F[m] - extreme_rim(A, n, p[0] * s[m], lowest=True))
-            T[m] = extreme_rim(A - s[m, None] * n, n, p[1] * s[m], lowest=False)
+                    A = A + (F[m] - _rim(A, basis, p[0] * s[m], lowest=True))
+            T[m] = _rim(A - s[m, None] * n, basis, p[1] * s[m], lowest=False)
         else:
             T[m] = _box_top(n, F[m], s[m], p[0], p[1], heading[m])
     return T
