@@ -48,16 +48,16 @@ def fit(scene, maps, rows, vis, pipeline: str):
     if pipeline == "before":
         tconf = tracking.TrackingConfig(**base, **BEFORE_TRACKING)
         obs = tracking.observations_from_agents(np.concatenate(rows), w, h, tconf)
-        pconf = AgentPlaneConfig(bootstrap=0, **BEFORE_PLANE)
+        pconf = AgentPlaneConfig(model="exact", bootstrap=0, **BEFORE_PLANE)
     elif pipeline == "rows":
         obs = tracking.observations_from_agents(np.concatenate(rows), w, h,
                                                 tracking.TrackingConfig(**base),
                                                 visibility=np.concatenate(vis))
-        pconf = AgentPlaneConfig(bootstrap=0)
+        pconf = AgentPlaneConfig(model="exact", bootstrap=0)
     else:
         obs = tracking.observations_from_instances(zip(maps, rows),
                                                    tracking.TrackingConfig(**base))
-        pconf = AgentPlaneConfig(bootstrap=0)
+        pconf = AgentPlaneConfig(model="exact", bootstrap=0)
     plane = fit_agent_plane(scene.camera.K, obs, pconf)
     pitch, roll = pitch_roll_from_normal(scene.mounting.normal)
     return (plane.pitch_deg - pitch, plane.roll_deg - roll, int(plane.inliers.sum()),

@@ -20,6 +20,8 @@ from staticdepth.errors import InputError
 from staticdepth.geometry import load_camera
 from staticdepth.geometry.agent_plane import (MODELS, PRESETS, AgentPlane, AgentPlaneConfig,
                                               camera_height_from_prior, fit_agent_plane)
+from staticdepth.geometry.agent_plane_gate import (CLASS_SETS, camera_height_from_agents,
+                                                   class_set, plane_gate)
 from staticdepth.tracking import OBS_DTYPE
 
 REQUIRED_COLUMNS = ("frame", "track", "foot_u", "foot_v", "height_px")
@@ -76,13 +78,21 @@ def estimate_ground_plane(observations: np.ndarray, K: np.ndarray,
                           conf: AgentPlaneConfig = AgentPlaneConfig(), *,
                           agent_height_m: float | None = None,
                           camera_height_m: float | None = None) -> AgentPlane:
-    """Fit the plane and attach a camera height: the given one, else from the agent-height prior."""
+    """Fit the plane and attach a camera height: the given one, else from one agent height (the
+    median over person tracks), else from the classes' height distributions (people when the
+    plane has person tracks, else every class; with its uncertainty); none when that fails."""
     plane = fit_agent_plane(K, observations, conf)
     if camera_height_m is not None:
         return plane.with_camera_height(camera_height_m, "given")
     if agent_height_m is not None:
         return plane.with_camera_height(camera_height_from_prior(plane, agent_height_m),
                                         f"agent height prior {agent_height_m:g} m")
+    for name in ("people", "all"):
+        try:
+            d, sd, k = camera_height_from_agents(plane, CLASS_SETS[name], seed=conf.seed)
+        except InputError:
+            continue
+        return plane.with_camera_height(d, f"height distributions of {name} ({k} tracks)", sd)
     return plane
 
 
@@ -102,8 +112,14 @@ def summary(plane: AgentPlane) -> str:
         lines.append(f"  uncertainty: normal {plane.normal_std_deg:.2f} deg, d/H "
                      f"{plane.d_over_h_std:.3f}")
     if plane.camera_height_m is not None:
-        lines.append(f"  camera height {plane.camera_height_m:.3f} m "
+        sd = (f" +- {plane.camera_height_std_m:.3f}" if np.isfinite(plane.camera_height_std_m)
+              else "")
+        lines.append(f"  camera height {plane.camera_height_m:.3f}{sd} m "
                      f"({plane.camera_height_source})")
+    ext = plane.extra.get("extents")
+    if ext:
+        lines.append("  extents (ratio to height): " + ", ".join(
+            f"{k} {'/'.join(f'{v:.3f}' for v in vals)}" for k, vals in ext.items()))
     return "\n".join(lines)
 
 
@@ -117,13 +133,23 @@ def register(sub) -> None:
     p.add_argument("--intrinsics", required=True, help="JSON with fx, fy, cx, cy (or a camera/rig)")
     p.add_argument("--agent-height", type=float, help="agent height prior in metres (people 1.7)")
     p.add_argument("--camera-height", type=float, help="known camera height in metres")
-    p.add_argument("--model", choices=MODELS, default="exact")
+    p.add_argument("--model", choices=MODELS, default="joint",
+                   help="joint (default): plane, per-class extents and track heights together; "
+                        "exact: fixed-radius cylinders; paper/affine: Eq. 1")
+    p.add_argument("--classes", choices=tuple(CLASS_SETS),
+                   help="agent classes that enter the fit (default: all for joint, people for "
+                        "the other models)")
+    p.add_argument("--max-normal-std", type=float, default=1.0,
+                   help="refuse a plane whose normal uncertainty (bootstrap, degrees) is larger "
+                        "(default 1)")
+    p.add_argument("--accept-uncertain", action="store_true",
+                   help="write the plane even when it fails the uncertainty gate")
     p.add_argument("--radius", type=float, help="agent body radius in metres (default 0.2, 0 = "
                                                 "thin axis)")
     p.add_argument("--bootstrap", type=int, help="resamples for the uncertainty (default 20)")
     p.add_argument("--column-weight", type=float,
-                   help="weight of the head-column residuals (default 0: rows only; 1 for masks "
-                        "whose top row is centred on the body's axis)")
+                   help="weight of the head-column residuals (0: rows only; default 1 for "
+                        "joint, scaled down by the columns' noise, 0 for exact)")
     p.add_argument("--out", required=True, help="plane JSON to write")
     p.set_defaults(func=_ground_plane_cmd)
 
@@ -140,11 +166,18 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
         conf = replace(conf, column_weight=args.column_weight)
     if args.agent_height is not None:
         conf = replace(conf, agent_height_m=args.agent_height)
+    if args.classes is not None:
+        conf = replace(conf, classes=class_set(args.classes))
     try:
         plane = estimate_ground_plane(obs, camera.K, conf, agent_height_m=args.agent_height,
                                       camera_height_m=args.camera_height)
     except InputError as e:
         raise InputError(e.problem, args.observations) from None
-    write_json(args.out, plane.to_dict())
+    gate = plane_gate(plane, args.max_normal_std)
     print(summary(plane))
+    if not gate.ok and not args.accept_uncertain:
+        raise InputError(f"{gate.message} (--accept-uncertain writes it anyway)",
+                         args.observations)
+    write_json(args.out, {**plane.to_dict(), "gate": gate.to_dict()})
+    print(("" if gate.ok else "warning: ") + gate.message)
     return 0

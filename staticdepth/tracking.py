@@ -1,7 +1,8 @@
 """Agents' observations: per-frame instances -> detections -> tracks -> a tidy observation table.
 
-A detection is one agent instance in one frame: its foot point (bottom centre of the mask: the
-lowest row, the median column of that row), its top point (the highest row, the median column of
+A detection is one agent instance in one frame (a rider and its bicycle or motorcycle are merged
+into one agent of the two-wheeler's class first, :func:`merge_riders`): its foot point (bottom
+centre of the mask: the lowest row, the median column of that row), its top point (the highest row, the median column of
 that row; the column is NaN when only a box or an agent row without it is known), box and score.
 Detections are linked across frames by the Hungarian assignment
 (``scipy.optimize.linear_sum_assignment``) on box IoU, or on foot-point distance relative to the
@@ -96,6 +97,8 @@ def detections_from_instances(instance_map: np.ndarray, rows: np.ndarray | None 
     m = np.asarray(instance_map)
     if m.ndim != 2:
         raise InputError(f"an instance map must be 2-D, got shape {m.shape}")
+    if rows is not None:
+        m = merge_riders(m, rows, contact_px)
     h, w = m.shape
     vs, us = np.nonzero(m)
     ids = m[vs, us].astype(np.int64)
@@ -121,6 +124,49 @@ def detections_from_instances(instance_map: np.ndarray, rows: np.ndarray | None 
                      | (out["top_v"] <= border_px - 1 + 1e-3) | (out["foot_v"] >= h - border_px))
     keep = np.isfinite(info[:, 1])
     return out[keep]
+
+
+TWO_WHEELERS = (1, 3)     # COCO bicycle, motorcycle
+
+
+def merge_riders(instance_map: np.ndarray, rows, contact_px: int = 2) -> np.ndarray:
+    """The instance map with every rider's pixels relabelled as its two-wheeler's instance.
+
+    A rider is a person instance whose lowest row lies within the rows of a bicycle or motorcycle
+    instance (down to ``contact_px`` above its top) and whose columns overlap it; it joins the
+    two-wheeler it overlaps most. The merged agent (foot on the wheels, top on the rider's head,
+    the two-wheeler's class and track) is one rigid agent for the ground plane."""
+    info = np.asarray(rows)
+    if info.dtype.names:
+        ids, cls = np.asarray(info["instance_id"]), np.asarray(info["class_id"])
+    else:
+        tab = np.asarray(info, dtype=np.float64).reshape(-1, 3)
+        ids, cls = tab[:, 0].astype(np.int64), tab[:, 1].astype(np.int64)
+    bikes, people = ids[np.isin(cls, TWO_WHEELERS)], ids[cls == 0]
+    if not len(bikes) or not len(people):
+        return instance_map
+    ext = {}
+    for iid in np.r_[bikes, people]:
+        vs, us = np.nonzero(instance_map == iid)
+        if len(vs):
+            ext[int(iid)] = (vs.min(), vs.max(), us.min(), us.max())
+    out = None
+    for p in people:
+        if int(p) not in ext:
+            continue
+        pt, pb, pl, pr = ext[int(p)]
+        best, best_ov = None, 0
+        for b in bikes:
+            if int(b) not in ext:
+                continue
+            bt, bb, bl, br = ext[int(b)]
+            ov = min(pr, br) - max(pl, bl) + 1
+            if bt - contact_px <= pb <= bb and ov > best_ov:
+                best, best_ov = b, ov
+        if best is not None:
+            out = instance_map.copy() if out is None else out
+            out[instance_map == p] = best
+    return instance_map if out is None else out
 
 
 def _touches(m: np.ndarray, iid: int, v0: int, v1: int, cols: np.ndarray) -> bool:

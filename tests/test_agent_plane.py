@@ -128,12 +128,12 @@ def test_exact_model_recovers_normal_and_camera_height(f, pitch, roll, height):
     K, w, h = camera_K(f)
     n = true_normal(pitch, roll)
     obs = people_observations(rng, K, w, h, n, height)
-    plane = fit_agent_plane(K, obs, AgentPlaneConfig(bootstrap=0, column_weight=1.0))
+    plane = fit_agent_plane(K, obs, AgentPlaneConfig(model="exact", bootstrap=0, column_weight=1.0))
     paper = fit_agent_plane(K, obs, AgentPlaneConfig(model="paper", bootstrap=0))
     rows_only = fit_agent_plane(K, obs[[c for c in obs.dtype.names if c != "top_u"]],
-                                AgentPlaneConfig(bootstrap=0))       # boxes: no top column
+                                AgentPlaneConfig(model="exact", bootstrap=0))       # boxes: no top column
     # the default ignores the column (unbiased only on exact cylinders like these)
-    default = fit_agent_plane(K, obs, AgentPlaneConfig(bootstrap=0))
+    default = fit_agent_plane(K, obs, AgentPlaneConfig(model="exact", bootstrap=0))
     assert np.allclose(default.normal, rows_only.normal, atol=1e-9)
     err, err_paper = angle_between_deg(plane.normal, n), angle_between_deg(paper.normal, n)
     err_rows = angle_between_deg(rows_only.normal, n)
@@ -157,7 +157,7 @@ def test_exact_model_survives_20_percent_bad_detections(f, pitch, roll, height):
     K, w, h = camera_K(f)
     n = true_normal(pitch, roll)
     obs = shrink_heights(rng, people_observations(rng, K, w, h, n, height))
-    plane = fit_agent_plane(K, obs, AgentPlaneConfig(bootstrap=0))
+    plane = fit_agent_plane(K, obs, AgentPlaneConfig(model="exact", bootstrap=0))
     assert angle_between_deg(plane.normal, n) < 2.0
     assert abs(camera_height_from_prior(plane, 1.7) / height - 1) < 0.05
 
@@ -182,7 +182,7 @@ def test_thin_model_on_thin_agents_and_bootstrap():
     K, w, h = camera_K(500.0)
     n = true_normal(30.0, -2.0)
     obs = people_observations(rng, K, w, h, n, 5.0, n_tracks=25, radius=0.0, head_radius=0.0)
-    plane = fit_agent_plane(K, obs, AgentPlaneConfig(radius_m=0.0, head_radius_m=0.0, bootstrap=8))
+    plane = fit_agent_plane(K, obs, AgentPlaneConfig(model="exact", radius_m=0.0, head_radius_m=0.0, bootstrap=8))
     err = angle_between_deg(plane.normal, n)
     assert err < 1.0
     assert 0.0 < plane.normal_std_deg < 2.0
@@ -202,7 +202,7 @@ def test_straight_walkers_still_fix_the_plane():
     for t in np.unique(obs["track"]):             # each track's feet lie on one line (up to noise)
         uv = np.stack([obs["foot_u"], obs["foot_v"]], 1)[obs["track"] == t]
         assert np.linalg.svd(uv - uv.mean(0), compute_uv=False)[1] / math.sqrt(len(uv)) < 2.0
-    plane = fit_agent_plane(K, obs, AgentPlaneConfig(bootstrap=0))
+    plane = fit_agent_plane(K, obs, AgentPlaneConfig(model="exact", bootstrap=0))
     assert angle_between_deg(plane.normal, n) < 1.0
 
 
@@ -285,13 +285,13 @@ def test_only_the_modelled_classes_enter_the_fit():
                                heights=(1.5, 0.05))
     cars["class_id"], cars["track"] = 2, cars["track"] + 100
     both = np.concatenate([people, cars])
-    plane = fit_agent_plane(K, both, AgentPlaneConfig(bootstrap=0))
+    plane = fit_agent_plane(K, both, AgentPlaneConfig(model="exact", bootstrap=0))
     assert plane.n_observations == len(people)
     assert set(plane.track_ids.tolist()) == set(np.unique(people["track"]).tolist())
-    every = fit_agent_plane(K, both, AgentPlaneConfig(bootstrap=0, classes=None))
+    every = fit_agent_plane(K, both, AgentPlaneConfig(model="exact", bootstrap=0, classes=None))
     assert every.n_observations == len(both)
     with pytest.raises(InputError, match="no observation of the classes"):
         fit_agent_plane(K, cars)
     unknown = people.copy()
     unknown["class_id"] = -1                      # a CSV without classes: taken as people
-    assert fit_agent_plane(K, unknown, AgentPlaneConfig(bootstrap=0)).n_observations == len(people)
+    assert fit_agent_plane(K, unknown, AgentPlaneConfig(model="exact", bootstrap=0)).n_observations == len(people)

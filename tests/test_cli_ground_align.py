@@ -279,3 +279,30 @@ def test_ground_plane_command_reads_top_columns(tmp_path):
         errs.append(angle_between_deg(json.loads((tmp_path / "p.json").read_text())["normal"], n))
     print(f"rows only {errs[0]:.2f} deg, rows + columns {errs[1]:.2f} deg")
     assert errs[1] < 0.5 and errs[1] < errs[0]
+
+
+def test_ground_plane_gate_refuses_then_accepts(tmp_path, capsys):
+    """Four short tracks: the normal's uncertainty is over the limit, so the command exits 2 with
+    one line saying how many tracks it needs and writes nothing; --accept-uncertain writes the
+    plane with its gate; --classes vehicles on people only is a clear error."""
+    K, w, h = camera_K(600.0)
+    obs = people_observations(np.random.default_rng(2), K, w, h, true_normal(30.0), 6.0,
+                              n_tracks=4, frames=(4, 5), noise_px=2.0)
+    cols = ("frame", "track", "class_id", "foot_u", "foot_v", "height_px", "top_u")
+    write_csv(tmp_path / "obs.csv", obs, cols)
+    (tmp_path / "cam.json").write_text(json.dumps({"fx": 600.0, "fy": 600.0, "cx": K[0, 2],
+                                                   "cy": K[1, 2]}))
+    args = ["ground-plane", "--observations", str(tmp_path / "obs.csv"), "--intrinsics",
+            str(tmp_path / "cam.json"), "--bootstrap", "8", "--max-normal-std", "0.05",
+            "--out", str(tmp_path / "p.json")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "ground plane refused" in err and "need" in err
+    assert not (tmp_path / "p.json").exists()
+    assert main(args + ["--accept-uncertain"]) == 0
+    p = json.loads((tmp_path / "p.json").read_text())
+    assert p["gate"]["ok"] is False and p["gate"]["tracks_needed"] > p["gate"]["tracks"]
+    assert p["extents"]["people"] and p["camera_height_m"] > 0
+    assert "warning: ground plane refused" in capsys.readouterr().out
+    assert main(args + ["--classes", "vehicles"]) == 2
+    assert "no observation of the classes selected" in capsys.readouterr().err

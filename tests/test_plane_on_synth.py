@@ -48,7 +48,7 @@ def test_fitted_plane_matches_the_scene(c1):
     scene, maps, rows = c1
     obs = tracking.observations_from_instances(zip(maps, rows),
                                                tracking.TrackingConfig.for_model("exact"))
-    plane = fit_agent_plane(scene.camera.K, obs, AgentPlaneConfig(bootstrap=0))
+    plane = fit_agent_plane(scene.camera.K, obs, AgentPlaneConfig(model="exact", bootstrap=0))
     err = angle_between_deg(plane.normal, scene.mounting.normal)
     print(f"c1 400x200, {FRAMES} frames: normal off by {err:.2f} deg, "
           f"{int(plane.inliers.sum())}/{len(plane.inliers)} tracks")
@@ -56,8 +56,9 @@ def test_fitted_plane_matches_the_scene(c1):
     assert err <= 1.0
     # the cause of the reported 4-6 degree tilt: head-column residuals with a head disk as wide as
     # the body (the former defaults) on the very same observations
-    before = fit_agent_plane(scene.camera.K, obs, AgentPlaneConfig(bootstrap=0, column_weight=1.0,
-                                                                   head_radius_m=0.2))
+    before = fit_agent_plane(scene.camera.K, obs,
+                             AgentPlaneConfig(model="exact", bootstrap=0, column_weight=1.0,
+                                              head_radius_m=0.2))
     assert angle_between_deg(before.normal, scene.mounting.normal) > 3.0
 
 

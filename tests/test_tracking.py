@@ -228,3 +228,21 @@ def test_agent_rows_visibility_and_side_border():
     a["top_u"] = 40.0
     a["top_u"][a["track_id"] == 1] = W - 1
     assert set(observations_from_agents(a, W, H, conf)["track"]) == {2}
+
+
+def test_rider_and_bicycle_become_one_two_wheeler():
+    """A person whose lowest row lies on a bicycle joins it: one detection of class bicycle, its
+    foot the wheels' lowest row, its top the rider's head; a pedestrian beside it stays apart."""
+    m = np.zeros((H, W), np.uint16)
+    ellipse(m, 40, 50, 80, 14, 2)          # bicycle, class 1
+    ellipse(m, 40, 20, 58, 5, 3)           # rider (its lowest row 58 lies within the bicycle)
+    ellipse(m, 90, 30, 80, 5, 4)           # pedestrian
+    m[(m == 3) & (np.mgrid[:H, :W][0] >= 56)] = 2          # the bicycle's pixels in front
+    rows = np.array([(2, 1, 0.9), (3, 0, 0.9), (4, 0, 0.9)])
+    d = detections_from_instances(m, rows)
+    assert sorted(d["instance_id"].tolist()) == [2, 4]
+    bike = d[d["instance_id"] == 2][0]
+    assert bike["class_id"] == 1 and bike["top_v"] == 20 and bike["foot_v"] == 80
+    assert not bike["occluded"]
+    walker = d[d["instance_id"] == 4][0]
+    assert walker["class_id"] == 0 and walker["top_v"] == 30

@@ -1,8 +1,11 @@
 """The ground plane from moving agents' foot points and pixel heights (METHOD.md section 2).
 
-Three models, selectable by name:
+Four models, selectable by name:
+- ``joint`` (default): plane, per-track heights and per-class extents fitted together, every
+  agent class (people as disks, two-wheelers and vehicles as boxes), head rows and columns
+  (:mod:`staticdepth.geometry.agent_plane_joint`, :mod:`staticdepth.geometry.agent_shape`);
 - ``paper`` and ``affine``: Eq. 1 (:mod:`staticdepth.geometry.agent_plane_linear`);
-- ``exact`` (default): the exact projective model (:mod:`staticdepth.geometry.agent_cylinder`).
+- ``exact``: the fixed-shape exact projective model (:mod:`staticdepth.geometry.agent_cylinder`).
   Unknowns are the unit normal (pitch, roll) and per track ``s_j = H_j / d``; each agent is an
   upright cylinder with a foot disk of ``radius_m`` and a head disk of ``head_radius_m`` (both
   relative to ``agent_height_m``), so the observed bottom point is the lowest point of the foot
@@ -12,11 +15,13 @@ Three models, selectable by name:
   normal and all s_j jointly on the inliers, least squares on the inlier observations, and a
   bootstrap over tracks for the uncertainty.
 
-Only the classes the body model describes enter the fit (``classes``: people, and rows of unknown
-class, by default). Cars, buses, trucks and two-wheelers are boxes, not upright cylinders: on
-the synthetic scenes they pull the normal by degrees when few people are seen.
+For ``exact`` only the classes the body model describes enter the fit (``classes="auto"``:
+people, and rows of unknown class). Cars, buses, trucks and two-wheelers are boxes, not upright
+cylinders: on the synthetic scenes they pull that model's normal by degrees when few people are
+seen; ``joint`` models them and takes every class by default.
 
-Why the head column is off by default: the column of the top of a mask moves with the head's
+Why the head column is off by default for ``exact`` (``joint`` uses it, weighted by the rows'
+over the columns' residual scale, since its extents are fitted): the column of the top of a mask moves with the head's
 radius and with where the mask's top row cuts the head (its midpoint is not the rim's extreme
 point), and the tilt it implies is tiny (about 0.003 px per pixel off-centre per degree of
 pitch), so a 1 px systematic column error at the image edge is a degree of pitch. Measured on the
@@ -44,13 +49,14 @@ from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import (_BIG, AgentObservations, extreme_rim,  # noqa: F401
                                                  head_pixels, head_residuals, head_rows,
                                                  observation_residual, solve_track_scales)
+from staticdepth.geometry.agent_plane_joint import fit_joint
 from staticdepth.geometry.agent_plane_linear import (LINEAR_MODELS, fit_linear,  # noqa: F401
                                                      plane_affine, plane_paper)
 from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
 from staticdepth.geometry.plane import angle_between_deg, horizon_line
 from staticdepth.geometry.projection import rays_from_pixels
 
-MODELS = ("exact", "affine", "paper")
+MODELS = ("joint", "exact", "affine", "paper")
 PERSON_CLASSES = (0, -1)  # COCO person, or unknown class (a CSV without classes)
 
 
@@ -58,14 +64,15 @@ PERSON_CLASSES = (0, -1)  # COCO person, or unknown class (a CSV without classes
 class AgentPlaneConfig:
     """How to fit the ground plane from agents; see :data:`PRESETS`."""
 
-    model: str = "exact"
+    model: str = "joint"
     radius_m: float = 0.2            # body (foot disk) radius of the cylinder model (0 = thin axis)
     head_radius_m: float = 0.12      # head disk radius: the top of the silhouette (0 = thin)
     agent_height_m: float = 1.7      # only sets the radius/height ratio of the cylinder model
     inlier_px: float = 3.0           # RANSAC: observation inlier threshold on the head point
-    column_weight: float = 0.0       # weight of the head-column residuals (0 = rows only; see
-    #                                  the module doc for why columns are off by default)
-    classes: tuple[int, ...] | None = PERSON_CLASSES   # class ids that enter the fit (None = all)
+    column_weight: float | None = None   # weight of the head-column residuals (0 = rows only;
+    #                                  None: 1 for ``joint``, 0 for ``exact``, see the module doc)
+    classes: tuple[int, ...] | None | str = "auto"   # class ids that enter the fit (None = all;
+    #                                  "auto": all for ``joint``, people for the other models)
     ransac_iters: int = 60           # upper bound; stops early at 99% confidence
     loss: str = "soft_l1"            # robust refinement loss (scipy least_squares)
     f_scale_px: float = 1.5
@@ -74,8 +81,17 @@ class AgentPlaneConfig:
     max_roll_deg: float = 30.0
     bootstrap: int = 20              # resamples over tracks (0 = no uncertainty)
     seed: int = 0
+    shape_prior_weight: float = 1.0  # joint: pixels of residual per prior sd of an extent
+    height_prior_weight: float = 1.0  # joint: pixels per sd of a track's height from its class
 
     def __post_init__(self):
+        if isinstance(self.classes, str):
+            if self.classes != "auto":
+                raise InputError(f"classes must be a tuple of class ids, None or 'auto', got "
+                                 f"{self.classes!r}")
+            object.__setattr__(self, "classes", None if self.model == "joint" else PERSON_CLASSES)
+        if self.column_weight is None:
+            object.__setattr__(self, "column_weight", 1.0 if self.model == "joint" else 0.0)
         if self.model not in MODELS:
             raise InputError(f"unknown ground-plane model {self.model!r} (use {', '.join(MODELS)})")
         if self.radius_m < 0 or self.head_radius_m < 0 or self.agent_height_m <= 0:
@@ -85,10 +101,11 @@ class AgentPlaneConfig:
 
 
 PRESETS: dict[str, AgentPlaneConfig] = {
-    "exact": AgentPlaneConfig(),
-    "exact-thin": AgentPlaneConfig(radius_m=0.0, head_radius_m=0.0),
-    "exact-columns": AgentPlaneConfig(column_weight=1.0),
-    "exact-all-classes": AgentPlaneConfig(classes=None),
+    "joint": AgentPlaneConfig(),
+    "exact": AgentPlaneConfig(model="exact"),
+    "exact-thin": AgentPlaneConfig(model="exact", radius_m=0.0, head_radius_m=0.0),
+    "exact-columns": AgentPlaneConfig(model="exact", column_weight=1.0),
+    "exact-all-classes": AgentPlaneConfig(model="exact", classes=None),
     "affine": AgentPlaneConfig(model="affine"),
     "paper": AgentPlaneConfig(model="paper"),
 }
@@ -119,6 +136,7 @@ class AgentPlane:
     camera_height_m: float | None = None
     camera_height_source: str | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
+    camera_height_std_m: float = float("nan")
 
     @property
     def pitch_deg(self) -> float:
@@ -128,10 +146,12 @@ class AgentPlane:
     def roll_deg(self) -> float:
         return pitch_roll_from_normal(self.normal)[1]
 
-    def with_camera_height(self, height_m: float, source: str) -> "AgentPlane":
+    def with_camera_height(self, height_m: float, source: str,
+                           std_m: float = float("nan")) -> "AgentPlane":
         if not (math.isfinite(height_m) and height_m > 0):
             raise InputError(f"camera height must be positive, got {height_m}")
-        return replace(self, camera_height_m=float(height_m), camera_height_source=source)
+        return replace(self, camera_height_m=float(height_m), camera_height_source=source,
+                       camera_height_std_m=float(std_m))
 
     def to_dict(self) -> dict[str, Any]:
         d = {"normal": self.normal.tolist(), "horizon": self.horizon.tolist(),
@@ -141,10 +161,13 @@ class AgentPlane:
              "tracks": {str(int(t)): float(s) for t, s in zip(self.track_ids, self.track_scale)},
              "rms_px": self.rms_px, "n_observations": self.n_observations,
              "uncertainty": {"normal_std_deg": _num(self.normal_std_deg),
-                             "d_over_agent_height_std": _num(self.d_over_h_std)}}
+                             "d_over_agent_height_std": _num(self.d_over_h_std),
+                             "camera_height_std_m": _num(self.camera_height_std_m)}}
         if self.camera_height_m is not None:
             d["camera_height_m"] = self.camera_height_m
             d["camera_height_source"] = self.camera_height_source
+        if "extents" in self.extra:
+            d["extents"] = {k: list(v) for k, v in self.extra["extents"].items()}
         return d
 
     @classmethod
@@ -165,7 +188,9 @@ class AgentPlane:
                        int(d.get("n_observations", 0)),
                        float(unc.get("normal_std_deg") or float("nan")),
                        float(unc.get("d_over_agent_height_std") or float("nan")),
-                       None if h is None else float(h), d.get("camera_height_source"))
+                       None if h is None else float(h), d.get("camera_height_source"),
+                       {"extents": d["extents"]} if "extents" in d else {},
+                       float(unc.get("camera_height_std_m") or float("nan")))
         except KeyError as e:
             raise InputError(f"plane is missing the key {e.args[0]!r}", source) from None
         except (TypeError, ValueError) as e:
@@ -188,10 +213,10 @@ def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact",
     if classes is not None and "class_id" in obs.dtype.names and len(obs):
         of_class = np.isin(np.asarray(obs["class_id"]), list(classes))
         if not of_class.any():
-            raise InputError(f"no observation of the classes the body model describes (class ids "
+            raise InputError(f"no observation of the classes selected (class ids "
                              f"{', '.join(map(str, classes))}; the table has "
-                             f"{', '.join(map(str, np.unique(obs['class_id'])))}): use classes="
-                             f"None to fit every class")
+                             f"{', '.join(map(str, np.unique(obs['class_id'])))}): use "
+                             "--classes all (classes=None) to fit every class")
         obs = obs[of_class]
     u, v, h = (np.asarray(obs[f], dtype=np.float64) for f in ("foot_u", "foot_v", "height_px"))
     ok = np.isfinite(u) & np.isfinite(v) & np.isfinite(h) & (h > 0)
@@ -205,7 +230,7 @@ def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact",
         raise InputError("the agents' foot points are collinear: the ground plane is undetermined"
                          " (need agents at positions off one line)")
     ids, idx = np.unique(np.asarray(obs["track"]), return_inverse=True)
-    if model == "exact" and len(obs) - len(ids) < 2:
+    if model in ("exact", "joint") and len(obs) - len(ids) < 2:
         raise InputError(f"{len(obs)} observations of {len(ids)} track(s): the exact model needs "
                          "tracks seen in several frames (each track's first observation only "
                          "fixes its own height; at least 2 more are needed)")
@@ -338,6 +363,17 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
         inl = np.ones(len(obs.ids), bool)
         s = np.full(len(obs.ids), 1.0 / d_over_h)
         res = K[1, 1] * (obs.rays @ n) / d_over_h - obs.h
+    elif conf.model == "joint":
+        n, s, inl, res, extents, boot = fit_joint(K, obs, conf, rng)
+        _check_nadir(n, conf)
+        d_over_h = 1.0 / float(np.median(s[inl]))
+        rms = float(np.sqrt(np.mean(res[inl[obs.idx]] ** 2)))
+        return AgentPlane(n, horizon_line(K, n), d_over_h, obs.ids.copy(), s, inl, rms,
+                          conf.model, len(obs.top_v), boot.get("normal_std_deg", float("nan")),
+                          boot.get("d_over_h_std", float("nan")),
+                          extra={"classes": obs.cls, "extents": extents,
+                                 "column_weight": boot.get("column_weight", 0.0),
+                                 "inlier_px": boot.get("inlier_px", conf.inlier_px)})
     else:
         n, s, inl, res = _fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))

@@ -1,0 +1,333 @@
+"""The ``joint`` ground-plane model: plane, per-track heights and per-class extent fitted together.
+
+Unknowns: the normal (pitch, roll), one extent vector per class group present
+(:mod:`staticdepth.geometry.agent_shape`: people are foot and head disks ``(e_f, e_h)``,
+two-wheelers and vehicles boxes ``(a, b)``; each with a weak Gaussian prior,
+``shape_prior_weight`` pixels per prior standard deviation; a group with fewer than 3 tracks
+keeps the prior means), the log of 1 / camera height (tying every track's height to its class's
+typical height, robustly: children and outliers weigh little) and per track ``s_j = H_j / d``.
+Residuals: each observation's top row predicted from its foot ray minus the observed one, and
+where the top column is known (masks) its column, in pixels.
+
+Why the columns: an extent moves the top point along the line of sight, which to first order is
+the same as leaning the agent towards the camera, i.e. a change of pitch; from rows alone the
+extent and the pitch are nearly degenerate (thin walkers seen from 11.5 m at 48 degrees: the cost
+stays flat over +7 degrees of pitch). The line of sight's image passes through the vertical
+vanishing point, so the extent does not move the head-foot axis: the columns (the axes meeting at
+the image of n) separate the two. A track's foot and head lines meeting on the horizon is implied
+by the same row residuals. The columns' weight is scaled by the rows' over the columns' residual
+scale (a walker's lowest mask row is often one foot, off the axis); the inlier threshold is at
+least ``inlier_px`` and 2.5 robust standard deviations of the rows (a walker's gait moves its
+lowest point by +-0.3 m along its heading: several pixels).
+
+Robust pipeline: RANSAC over tracks (3 tracks, extents at their prior means, every other track's
+``s_j`` solved with the normal fixed, observations within ``inlier_px`` counted), a soft-L1 fit of
+all unknowns on the inlier tracks from the RANSAC and the affine (Eq. 1) normals, the residual
+scales, then a fit on the inlier observations; the bootstrap over inlier tracks refits from that
+solution.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import lil_matrix
+
+from staticdepth.errors import InputError
+from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
+from staticdepth.geometry.agent_plane_linear import plane_affine
+from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
+                                              track_headings)
+from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
+from staticdepth.geometry.plane import angle_between_deg
+
+
+MIN_SHAPE_TRACKS = 3
+
+
+def _normal(pitch: float, roll: float) -> np.ndarray:
+    return normal_from_pitch_roll(math.degrees(pitch), math.degrees(roll))
+
+
+class _Problem:
+    """The observations with their class groups; packs and unpacks the parameter vector
+    ``[pitch, roll, extents of the groups present..., s_1..s_J]``."""
+
+    def __init__(self, K: np.ndarray, obs: AgentObservations):
+        self.K, self.obs = K, obs
+        self.J, self.N = len(obs.ids), len(obs.top_v)
+        self.track_group = group_of_class(obs.cls)
+        self.group = self.track_group[obs.idx]
+        self.present = [g for g in range(len(GROUPS)) if np.any(self.group == g)]
+        # a group's extents are free with at least MIN_SHAPE_TRACKS tracks, else at the prior
+        self.free = [g for g in self.present
+                     if np.count_nonzero(self.track_group == g) >= MIN_SHAPE_TRACKS]
+        self.slices, k = {}, 2
+        for g in self.present:
+            m = len(GROUPS[g].prior)
+            self.slices[g] = slice(k, k + m)
+            k += m
+        self.n_shape = k - 2
+        self.has_u = np.isfinite(obs.top_u)
+        self.k_s = k + 1                  # index of s_1 (k: log of 1 / camera height in metres)
+        mh = np.array([GROUPS[g].typical_height for g in self.track_group])
+        self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
+        self.boxes = any(GROUPS[g].outline == "box" for g in self.present)
+
+    def params(self, theta: np.ndarray) -> list[np.ndarray]:
+        out = [np.asarray(GROUPS[g].prior) for g in range(len(GROUPS))]
+        for g, sl in self.slices.items():
+            out[g] = theta[sl.start - 2:sl.stop - 2]
+        return out
+
+    def prior_theta(self) -> np.ndarray:
+        return np.concatenate([GROUPS[g].prior for g in self.present] or [np.zeros(0)])
+
+    def shape_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.concatenate([GROUPS[g].lower for g in self.present] or [np.zeros(0)])
+        hi = np.concatenate([GROUPS[g].upper for g in self.present] or [np.zeros(0)])
+        return lo, hi
+
+    def headings(self, n: np.ndarray) -> np.ndarray | None:
+        if not self.boxes:
+            return None
+        nr = self.obs.rays @ n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            F = self.obs.rays / nr[:, None]
+        return track_headings(n, F, self.obs.idx, self.J)[self.obs.idx]
+
+    def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray):
+        return predict_top(self.K, n, self.obs.rays, s[self.obs.idx], self.group,
+                           self.params(theta), self.headings(n))
+
+    def top_rows(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
+        return self.top(n, theta, s)[1]
+
+    def errors(self, n, theta, s, col_w: float) -> np.ndarray:
+        """(N,) the larger of |row| and weighted |column| residual (impossible: _BIG)."""
+        u, v = self.top(n, theta, s)
+        e = np.abs(np.nan_to_num(v - self.obs.top_v, nan=_BIG))
+        if col_w > 0:
+            e = np.maximum(e, col_w * np.nan_to_num(np.abs(u - self.obs.top_u), nan=0.0))
+        return e
+
+    def residuals(self, x: np.ndarray, prior_w: float, height_w: float,
+                  col_w: float) -> np.ndarray:
+        n = _normal(x[0], x[1])
+        theta, lam, s = x[2:2 + self.n_shape], x[self.k_s - 1], x[self.k_s:]
+        u, v = self.top(n, theta, s)
+        r = np.nan_to_num(v - self.obs.top_v, nan=_BIG)
+        if col_w > 0:
+            r = np.r_[r, col_w * np.nan_to_num(u[self.has_u] - self.obs.top_u[self.has_u],
+                                               nan=_BIG)]
+        sd = np.concatenate([GROUPS[g].prior_sd for g in self.present] or [np.zeros(0)])
+        # heights: log s_j = log H_class - log d + eps, robust (children, outliers)
+        z = (np.log(s) - self.log_h - lam) / self.log_sd
+        zr = np.sign(z) * np.sqrt(2.0 * (np.sqrt(1.0 + z * z) - 1.0))
+        return np.r_[r, prior_w * (theta - self.prior_theta()) / np.maximum(sd, 1e-9),
+                     height_w * zr]
+
+    def sparsity(self, col_w: float):
+        ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else []].astype(int)
+        R = len(ob)
+        S = lil_matrix((R + self.n_shape + self.J, self.k_s + self.J), dtype=np.int8)
+        rows = np.arange(R)
+        S[rows, 0] = 1
+        S[rows, 1] = 1
+        for g, sl in self.slices.items():
+            for c in range(sl.start, sl.stop):
+                S[rows[self.group[ob] == g], c] = 1
+        S[rows, self.k_s + self.obs.idx[ob]] = 1
+        for k in range(self.n_shape):
+            S[R + k, 2 + k] = 1
+        tr = R + self.n_shape + np.arange(self.J)
+        S[tr, self.k_s - 1] = 1
+        S[tr, self.k_s + np.arange(self.J)] = 1
+        return S.tocsr()
+
+    def solve_scales(self, n: np.ndarray, theta: np.ndarray, iters: int = 8,
+                     huber_px: float = 3.0) -> np.ndarray:
+        """Per-track s_j (J,) with the normal and extents fixed: Gauss-Newton per track, the later
+        half Huber-reweighted."""
+        o, J = self.obs, self.J
+        nr = o.rays @ n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s_obs = o.h / (self.K[1, 1] * nr)
+        s_obs = np.where(np.isfinite(s_obs) & (s_obs > 0), s_obs, np.nan)
+        s = np.full(J, 0.3)
+        for j in range(J):
+            vals = s_obs[o.idx == j]
+            vals = vals[np.isfinite(vals)]
+            if len(vals):
+                s[j] = np.median(vals)
+        for it in range(iters):
+            r0 = self.top_rows(n, theta, s) - o.top_v
+            eps = 1e-4 * np.maximum(s, 1e-3)
+            jac = (self.top_rows(n, theta, s + eps) - o.top_v - r0) / eps[o.idx]
+            ok = np.isfinite(r0) & np.isfinite(jac)
+            wt = np.ones_like(r0)
+            if it >= iters // 2:
+                wt = np.minimum(1.0, huber_px / np.maximum(np.abs(np.nan_to_num(r0)), 1e-12))
+            num = np.bincount(o.idx[ok], (wt * r0 * jac)[ok], minlength=J)
+            den = np.bincount(o.idx[ok], (wt * jac * jac)[ok], minlength=J)
+            s = np.clip(s - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0), 1e-4, 100.0)
+        return s
+
+    def fit(self, conf, starts, theta0=None, loss="linear", max_nfev=200, free_shape=True):
+        """Best of several (pitch, roll) starts in degrees: (pitch, roll (rad), theta, s, cost)."""
+        lo_p, hi_p = (math.radians(b) for b in conf.pitch_bounds_deg)
+        mr = math.radians(conf.max_roll_deg)
+        th0 = self.prior_theta() if theta0 is None else np.asarray(theta0, np.float64)
+        t_lo, t_hi = self.shape_bounds()
+        th0 = np.clip(th0, t_lo, t_hi)
+        fixed = np.ones(len(th0), bool)
+        for g in (self.free if free_shape else []):
+            fixed[self.slices[g].start - 2:self.slices[g].stop - 2] = False
+        t_lo, t_hi = np.where(fixed, th0 - 1e-9, t_lo), np.where(fixed, th0 + 1e-9, t_hi)
+        lower = np.r_[lo_p, -mr, t_lo, -10.0, np.full(self.J, 1e-4)]
+        upper = np.r_[hi_p, mr, t_hi, 10.0, np.full(self.J, 100.0)]
+        cw = conf.column_weight
+        sparsity, best = self.sparsity(cw), None
+        for p0, r0 in starts:
+            p0 = float(np.clip(math.radians(p0), lo_p + 1e-3, hi_p - 1e-3))
+            r0 = float(np.clip(math.radians(r0), -mr + 1e-3, mr - 1e-3))
+            s0 = np.clip(self.solve_scales(_normal(p0, r0), th0, iters=4), 2e-4, 99.0)
+            lam0 = float(np.median(np.log(s0) - self.log_h))
+            x0 = np.clip(np.r_[p0, r0, th0, lam0, s0], lower + 1e-12, upper - 1e-12)
+            hw = conf.height_prior_weight
+            res = least_squares(lambda x: self.residuals(x, conf.shape_prior_weight, hw, cw), x0,
+                                bounds=(lower, upper), loss=loss, f_scale=conf.f_scale_px,
+                                jac_sparsity=sparsity, x_scale="jac", max_nfev=max_nfev)
+            if best is None or res.cost < best[4]:
+                k = 2 + self.n_shape
+                best = (float(res.x[0]), float(res.x[1]), res.x[2:k].copy(),
+                        res.x[self.k_s:].copy(), float(res.cost))
+        return best
+
+
+def _track_inliers(idx: np.ndarray, good: np.ndarray, J: int) -> np.ndarray:
+    return np.bincount(idx, good, minlength=J) / np.maximum(np.bincount(idx, minlength=J), 1) >= 0.5
+
+
+def _affine_start(K, obs: AgentObservations) -> tuple[float, float] | None:
+    try:
+        return pitch_roll_from_normal(plane_affine(K, obs.u, obs.v, obs.h)[0])
+    except InputError:
+        return None
+
+
+def _ransac(K, prob: _Problem, conf, rng):
+    J, obs = prob.J, prob.obs
+    theta0 = prob.prior_theta()
+    best, need, it = None, conf.ransac_iters, 0
+    while it < min(need, conf.ransac_iters):
+        it += 1
+        sub = _Problem(K, obs.subset(rng.choice(J, 3, replace=False)))
+        start = _affine_start(K, sub.obs) or (30.0, 0.0)
+        p, r, _, _, _ = sub.fit(conf, [start], sub.prior_theta(), max_nfev=30, free_shape=False)
+        n = _normal(p, r)
+        s = prob.solve_scales(n, theta0, huber_px=conf.inlier_px)
+        res = prob.errors(n, theta0, s, 0.0)
+        good = res < conf.inlier_px
+        inl = _track_inliers(obs.idx, good, J)
+        key = (int(good[inl[obs.idx]].sum()), -float(np.sum(np.minimum(res, conf.inlier_px))))
+        if best is None or key > best[0]:
+            best = (key, n, inl)
+            w = max(inl.mean(), 1e-3)
+            need = max(8, math.ceil(math.log(0.01) / math.log(max(1.0 - w ** 3, 1e-12))))
+    return best[1], best[2]
+
+
+def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
+    """Fit the joint model. Returns (n, s (J,), inliers (J,), row residuals (N,), extents
+    {group name: list}, bootstrap {normal_std_deg, d_over_h_std, ...})."""
+    prob = _Problem(K, obs)
+    J = prob.J
+    starts = [(p, 0.0) for p in conf.pitch_starts_deg]
+    if J >= 4:
+        n_h, inl = _ransac(K, prob, conf, rng)
+        if inl.sum() < 3:
+            inl = np.ones(J, bool)
+        starts = [pitch_roll_from_normal(n_h)]
+    else:
+        inl = np.ones(J, bool)
+    sub = _Problem(K, obs.subset(np.flatnonzero(inl)))
+    aff = _affine_start(K, sub.obs)
+    if aff is not None:
+        starts.insert(1, aff)
+    p, r, theta, s, _ = sub.fit(conf, starts, loss=conf.loss, max_nfev=100)
+    # the rows' noise scale (gait, rough masks) sets the inlier threshold, never below inlier_px
+    n = _normal(p, r)
+    theta_all = _expand(prob, sub, theta)
+    s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
+    err = prob.errors(n, theta_all, s, 0.0)
+    thr = max(conf.inlier_px, 2.5 * 1.4826 * float(np.median(err)))
+    inl = _track_inliers(obs.idx, err < thr, J)
+    keep = inl[obs.idx] & (err < thr)
+    conf = _column_weight(conf, prob, n, theta_all, s, keep)
+    fine = _Problem(K, obs.select(keep)) if keep.sum() >= 3 else sub
+    if fine.present == sub.present:
+        p, r, theta, _, _ = fine.fit(conf, [(math.degrees(p), math.degrees(r))],
+                                     _expand(fine, prob, theta_all),
+                                     loss=conf.loss if conf.column_weight > 0 else "linear",
+                                     max_nfev=60)
+        theta_all = _expand(prob, fine, theta)
+    n = _normal(p, r)
+    s = prob.solve_scales(n, theta_all, huber_px=thr)
+    res = np.nan_to_num(prob.top_rows(n, theta_all, s) - obs.top_v, nan=_BIG)
+    inl = _track_inliers(obs.idx, prob.errors(n, theta_all, s, 0.0) < thr, J)
+    if inl.sum() == 0:
+        inl = np.ones(J, bool)
+    extents = {GROUPS[g].name: [float(v) for v in theta_all[sl.start - 2:sl.stop - 2]]
+               for g, sl in prob.slices.items()}
+    boot = _bootstrap(K, prob, conf, n, theta_all, inl, rng) if conf.bootstrap > 0 else {}
+    boot["column_weight"] = conf.column_weight
+    boot["inlier_px"] = thr
+    return n, s, inl, res, extents, boot
+
+
+def _column_weight(conf, prob: _Problem, n, theta, s, keep):
+    """``conf`` with the column weight scaled by the rows' over the columns' residual scale
+    (MAD on the kept observations), never above the configured one: a real mask's lowest row is
+    often one foot of a walker, its column pixels off the axis."""
+    if conf.column_weight <= 0:
+        return conf
+    u, v = prob.top(n, theta, s)
+    ru, rv = (u - prob.obs.top_u)[keep], (v - prob.obs.top_v)[keep]
+    ru = ru[np.isfinite(ru)]
+    if len(ru) < 5:
+        return conf
+    mad = lambda x: 1.4826 * float(np.median(np.abs(x - np.median(x))))  # noqa: E731
+    ratio = mad(rv[np.isfinite(rv)]) / max(mad(ru), 1e-9)
+    return replace(conf, column_weight=conf.column_weight * min(1.0, ratio))
+
+
+def _expand(full: _Problem, sub: _Problem, theta: np.ndarray) -> np.ndarray:
+    """Extents of ``sub``'s groups placed into ``full``'s vector (prior means for groups that
+    only the outlier tracks have)."""
+    out = full.prior_theta().copy()
+    for g, sl in full.slices.items():
+        if g in sub.slices:
+            ss = sub.slices[g]
+            out[sl.start - 2:sl.stop - 2] = theta[ss.start - 2:ss.stop - 2]
+    return out
+
+
+def _bootstrap(K, prob: _Problem, conf, n, theta, inl, rng) -> dict:
+    """Resample the inlier tracks, refit from the solution (least squares, inlier observations
+    of the full fit): RMS angle to the solution's normal (deg), std of d/H (typical agent)."""
+    tracks = np.flatnonzero(inl)
+    if len(tracks) < 3:
+        return {}
+    p0, r0 = pitch_roll_from_normal(n)
+    angles, dh = [], []
+    for _ in range(conf.bootstrap):
+        sub = _Problem(K, prob.obs.subset(rng.choice(tracks, len(tracks), replace=True)))
+        p, r, _, s, _ = sub.fit(conf, [(p0, r0)], _expand(sub, prob, theta), loss=conf.loss,
+                                max_nfev=40)
+        angles.append(angle_between_deg(_normal(p, r), n))
+        dh.append(1.0 / float(np.median(s)))
+    return {"normal_std_deg": float(np.sqrt(np.mean(np.square(angles)))),
+            "d_over_h_std": float(np.std(dh, ddof=1)), "n_tracks": int(len(tracks))}

@@ -1,0 +1,179 @@
+"""Agents' extent for the ground-plane fit: per-class shape models with free parameters.
+
+An agent of height ``s = H / d`` (units of the camera height d, plane ``n . P = 1``) stands on the
+ground with its vertical axis along ``-n``. Its silhouette's lowest image point (the observed
+foot) is the lowest point of its footprint's outline, its highest image point (the observed top)
+the highest point of its roof's outline. Two outlines, both scaled with the agent's height:
+
+- ``disk`` (people; unknown classes): a disk of radius ``e_f s`` at the foot and one of ``e_h s``
+  at the top; two parameters ``(e_f, e_h)`` (0 = the thin head-foot axis; about 0.12 for a 0.2 m
+  body).
+- ``box`` (two-wheelers, cars, buses, trucks): a rectangle of half-length ``a s`` along the
+  track's heading and half-width ``b s`` across it; two parameters ``(a, b)``. The heading is the
+  principal direction of the track's foot points on the ground.
+
+The parameters are unknowns of the fit (one set per class group, with a weak prior, see
+:data:`GROUPS`), so no body model is assumed: a thin walker drives ``e`` to 0, a wide one up.
+:func:`predict_top_rows` gives the top row of every observation from the foot rays.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ShapeGroup:
+    """One class group: its outline (``disk`` or ``box``), COCO class ids, the prior mean and
+    standard deviation of its extent parameters (ratios to the agent's height) and their bounds,
+    and its height distribution: ``(weight, mean m, sd m)`` components (people: adults and 10%
+    children)."""
+
+    name: str
+    outline: str
+    classes: tuple[int, ...]
+    prior: tuple[float, ...]
+    prior_sd: tuple[float, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    heights: tuple[tuple[float, float, float], ...]
+
+    @property
+    def typical_height(self) -> tuple[float, float]:
+        """(mean, relative sd) of the main (heaviest) height component."""
+        w, m, sd = max(self.heights)
+        return m, sd / m
+
+
+# COCO ids: person 0, bicycle 1, car 2, motorcycle 3, bus 5, truck 7; -1 = unknown (a CSV)
+GROUPS = (
+    ShapeGroup("people", "disk", (0, -1), (0.07, 0.05), (0.06, 0.05), (0.0, 0.0), (0.3, 0.3),
+               ((0.9, 1.70, 0.09), (0.1, 1.25, 0.15))),
+    ShapeGroup("two-wheelers", "box", (1, 3), (0.5, 0.17), (0.2, 0.08), (0.0, 0.0), (1.2, 0.5),
+               ((1.0, 1.70, 0.10),)),
+    ShapeGroup("cars", "box", (2,), (1.5, 0.6), (0.35, 0.12), (0.3, 0.2), (2.5, 1.0),
+               ((1.0, 1.52, 0.10),)),
+    ShapeGroup("buses-trucks", "box", (5, 7), (1.8, 0.42), (0.6, 0.12), (0.3, 0.1), (4.0, 1.0),
+               ((1.0, 3.1, 0.35),)),
+)
+
+
+def group_of_class(cls: np.ndarray) -> np.ndarray:
+    """(N,) group index per class id; classes of no group count as people (disk)."""
+    out = np.zeros(len(cls), np.int64)
+    for g, grp in enumerate(GROUPS):
+        out[np.isin(cls, grp.classes)] = g
+    return out
+
+
+def _ground_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    e1 = np.array([1.0, 0.0, 0.0]) - n[0] * n
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(n, e1)
+
+
+def track_headings(n: np.ndarray, feet: np.ndarray, idx: np.ndarray, J: int) -> np.ndarray:
+    """(J, 3) unit heading per track: the principal direction of its foot points (N, 3) in the
+    plane (the first axis of the plane's basis for tracks with fewer than 2 finite points)."""
+    e1, e2 = _ground_basis(n)
+    xy = np.stack([feet @ e1, feet @ e2], 1)
+    ok = np.all(np.isfinite(xy), 1)
+    cnt = np.bincount(idx[ok], minlength=J).astype(np.float64)
+    mean = np.stack([np.bincount(idx[ok], xy[ok, k], minlength=J) for k in (0, 1)], 1)
+    mean /= np.maximum(cnt, 1)[:, None]
+    dxy = np.where(ok[:, None], xy - mean[idx], 0.0)
+    sxx = np.bincount(idx, dxy[:, 0] ** 2, minlength=J)
+    syy = np.bincount(idx, dxy[:, 1] ** 2, minlength=J)
+    sxy = np.bincount(idx, dxy[:, 0] * dxy[:, 1], minlength=J)
+    ang = 0.5 * np.arctan2(2 * sxy, sxx - syy)
+    return np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2
+
+
+def _rim(C: np.ndarray, basis, rho: np.ndarray, lowest: bool) -> np.ndarray:
+    """:func:`~staticdepth.geometry.agent_cylinder.extreme_rim` with the plane's basis given."""
+    e1, e2 = basis
+    p, q = np.array([e1[1], e2[1]]), np.array([e1[2], e2[2]])
+    g0, g1 = C[:, 2] * p[0] - C[:, 1] * q[0], C[:, 2] * p[1] - C[:, 1] * q[1]
+    k = p[1] * q[0] - p[0] * q[1]
+    R = np.maximum(np.hypot(g0, g1), 1e-300)
+    alpha, acos = np.arctan2(g0, g1), np.arccos(np.clip(-rho * k / R, -1.0, 1.0))
+    best, best_row = None, None
+    for sign in (1.0, -1.0):
+        phi = sign * acos - alpha
+        P = C + rho[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+        row = np.nan_to_num(_rows(P), nan=-np.inf if lowest else np.inf)
+        if best is None:
+            best, best_row = P, row
+        else:
+            take = row > best_row if lowest else row < best_row
+            best = np.where(take[:, None], P, best)
+    return best
+
+
+def _rows(P: np.ndarray) -> np.ndarray:
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return P[..., 1] / P[..., 2]
+
+
+def _box_top(n, F, s, a, b, heading) -> np.ndarray:
+    """Highest top corners (N, 3) of boxes whose lowest footprint corner is F (N, 3)."""
+    side = np.cross(n, heading)
+    signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], np.float64)
+    off = (signs[None, :, 0, None] * (a * s)[:, None, None] * heading[:, None, :]
+           + signs[None, :, 1, None] * (b * s)[:, None, None] * side[:, None, :])   # (N, 4, 3)
+    # hypothesis k: corner k is the lowest one, so the box's centre is F - off_k
+    centre = F[:, None, :] - off                                                    # (N, 4, 3)
+    corners = centre[:, :, None, :] + off[:, None, :, :]                            # (N, 4, 4, 3)
+    rows = _rows(corners)
+    margin = rows[:, np.arange(4), np.arange(4)] - np.max(rows, axis=2)             # <= 0
+    k = np.argmax(np.nan_to_num(margin, nan=-np.inf), axis=1)
+    c = centre[np.arange(len(F)), k]
+    top = c[:, None, :] - s[:, None, None] * n + off                                # (N, 4, 3)
+    trows = np.nan_to_num(_rows(top), nan=np.inf)
+    trows[top[..., 2] <= 1e-9] = np.inf
+    return top[np.arange(len(F)), np.argmin(trows, axis=1)]
+
+
+def top_points(n: np.ndarray, rays: np.ndarray, s: np.ndarray, group: np.ndarray,
+               params: list[np.ndarray], heading: np.ndarray | None) -> np.ndarray:
+    """Highest silhouette points (N, 3) over d for agents whose lowest point is on ``rays``.
+
+    n: unit normal; s: (N,) height over d; group: (N,) index into :data:`GROUPS`; params: one
+    parameter vector per group; heading: (N, 3) unit headings (needed for box groups). NaN rows
+    where a ray does not meet the ground."""
+    nr = rays @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        F = rays / nr[:, None]
+    F[~(nr > 1e-9)] = np.nan
+    T = np.full_like(F, np.nan)
+    basis = _ground_basis(n)
+    for g, grp in enumerate(GROUPS):
+        m = group == g
+        if not m.any():
+            continue
+        p = params[g]
+        if grp.outline == "disk":
+            A = F[m].copy()
+            if p[0] > 0:
+                for _ in range(3):
+                    A = A + (F[m] - _rim(A, basis, p[0] * s[m], lowest=True))
+            T[m] = _rim(A - s[m, None] * n, basis, p[1] * s[m], lowest=False)
+        else:
+            T[m] = _box_top(n, F[m], s[m], p[0], p[1], heading[m])
+    return T
+
+
+def predict_top(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray,
+                group: np.ndarray, params: list[np.ndarray],
+                heading: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted top points (u (N,), v (N,)) in pixels (NaN where impossible); see
+    :func:`top_points`."""
+    T = top_points(n, rays, s, group, params, heading)
+    z = T[:, 2]
+    bad = ~(z > 1e-9)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x, y = T[:, 0] / z, T[:, 1] / z
+    u, v = K[0, 0] * x + K[0, 1] * y + K[0, 2], K[1, 1] * y + K[1, 2]
+    u[bad], v[bad] = np.nan, np.nan
+    return u, v

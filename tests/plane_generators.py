@@ -1,0 +1,200 @@
+"""Independent scene and observation generators for the ground-plane tests (issue 13).
+
+Nothing here imports the library or ``dataset/synth``: cameras, bodies and detections are built
+from first principles. A scene is a camera (3-12 m up, pitched 10-50 degrees, rolled +-5, f
+500-900 px at 960x540) over the plane ``n . P = d``, with agents walking or driving on it. One body
+model per generator, each a cloud of surface points in the agent's own frame (up, forward, side):
+
+- ``thin``: the head-foot axis only (two points);
+- ``tapered``: narrow at the foot (4 cm) and the crown (5 cm), 22 cm at the shoulders;
+- ``cylinder``: a wide cylinder (0.3 m radius) from the ground to the crown;
+- ``ellipsoid``: torso and head ellipsoids on two legs swinging +-20 degrees (the body bobs);
+- ``vehicles``: boxes (cars 4.2-4.8 x 1.7-1.9 x 1.4-1.6 m, buses 10-12 x 2.5 x 3.0-3.3 m) driving
+  straight, and a third of the tracks cyclists (1.8 x 0.6 m box as tall as the rider).
+
+People's heights: 90% adults N(1.72, 0.08) m, 10% children U(1.0, 1.45) m. A detection is the
+projection of the body's points: as a mask, its lowest point (foot) and highest point (top), each
+with the median column of the points within half a pixel of that row (a mask's extreme row is a
+run of pixels), 1 px Gaussian noise on all four; as a box, the extreme rows and columns each
+jittered by U(-2, 2) px, the foot column the box centre and no top column. Outliers (``outliers`` = share of
+observations): sitting people (whole tracks, 55-70% of the height), detections cut by the image
+top (the top row moved down by 15-50% of the height) and partly occluded feet (the foot row moved
+up by 15-40%).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+W, H = 960, 540
+OBS = [("frame", "i4"), ("track", "i4"), ("class_id", "i2"), ("foot_u", "f8"), ("foot_v", "f8"),
+       ("height_px", "f8"), ("top_v", "f8"), ("top_u", "f8"), ("score", "f4")]
+GENERATORS = ("thin", "tapered", "cylinder", "ellipsoid", "vehicles")
+PERSON, BICYCLE, CAR, BUS = 0, 1, 2, 5
+FOOT_BAND = 0.0   # share of the height above the lowest row whose columns give the foot column
+
+
+@dataclass
+class Scene:
+    K: np.ndarray
+    normal: np.ndarray           # camera frame, pointing to the ground
+    height_m: float              # camera height d
+    obs: np.ndarray              # observation table (OBS)
+    agent_heights: dict          # track -> true height (m)
+    pitch_deg: float
+    roll_deg: float
+
+
+def camera(rng) -> tuple[np.ndarray, np.ndarray, float, float, float]:
+    """(K, n, d, pitch, roll): a random camera of the issue's range."""
+    f = rng.uniform(500, 900)
+    pitch, roll, d = rng.uniform(10, 50), rng.uniform(-5, 5), rng.uniform(3, 12)
+    K = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1.0]])
+    t, r = math.radians(pitch), math.radians(roll)
+    Rz = np.array([[math.cos(r), -math.sin(r), 0], [math.sin(r), math.cos(r), 0], [0, 0, 1]])
+    return K, Rz @ np.array([0.0, math.cos(t), math.sin(t)]), d, pitch, roll
+
+
+def _rings(radii, zs, k=72):
+    """Points (M, 3) in the agent frame (forward, side, up) of horizontal rings."""
+    a = np.linspace(0, 2 * math.pi, k, endpoint=False)
+    return np.concatenate([np.stack([r * np.cos(a), r * np.sin(a), np.full(k, z)], 1)
+                           for r, z in zip(radii, zs)])
+
+
+def _ellipsoid(c, ax, k=12):
+    th, ph = np.meshgrid(np.linspace(0, math.pi, k), np.linspace(0, 2 * math.pi, 2 * k))
+    p = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1).reshape(-1, 3)
+    return c + p * ax
+
+
+def body(kind: str, height: float, frame: int, phase: float, dims=None) -> np.ndarray:
+    """Surface points (M, 3) in the agent frame (forward, side, up), feet on z = 0."""
+    Hh = height
+    if kind == "thin":
+        return np.array([[0, 0, 0.0], [0, 0, Hh]])
+    if kind == "tapered":
+        z = np.linspace(0, 1, 21)
+        r = 0.04 + 0.18 * np.sin(math.pi * np.minimum(z / 0.8, 1.0)) ** 0.6
+        r = np.where(z > 0.8, 0.05 + (0.11 - 0.05) * np.sin(math.pi * (1 - z) / 0.4), r)
+        return _rings(r, z * Hh)
+    if kind == "cylinder":
+        return _rings(np.full(11, 0.3), np.linspace(0, Hh, 11))
+    if kind == "ellipsoid":
+        hip, swing = 0.5 * Hh, math.radians(20) * math.sin(phase + 1.3 * frame)
+        drop = hip * (1 - math.cos(swing))                   # both feet on the ground: body bobs
+        torso = _ellipsoid(np.array([0, 0, 0.72 * Hh - drop]), np.array([0.14, 0.22, 0.23 * Hh]))
+        head = _ellipsoid(np.array([0, 0, 0.935 * Hh - drop]), np.array([0.09, 0.08, 0.065 * Hh]))
+        parts = [torso, head]
+        ring = _rings([0.06], [0.0], 8)
+        for sgn, side in ((1, 0.1), (-1, -0.1)):
+            t = np.linspace(0, 1, 9)[:, None]
+            foot = np.array([sgn * hip * math.sin(swing), side, 0.0])
+            leg = np.array([0, side, hip - drop]) * (1 - t) + foot * t
+            parts.append((leg[:, None, :] + ring[None]).reshape(-1, 3))
+        return np.concatenate(parts)
+    if kind == "box":
+        length, width = dims
+        return np.array([[sx * length / 2, sy * width / 2, z] for sx in (-1, 1) for sy in (-1, 1)
+                         for z in (0.0, Hh)])
+    raise ValueError(kind)
+
+
+def _project(K, P):
+    q = P @ K.T
+    return q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
+
+
+def _agent_spec(kind: str, rng):
+    """(body kind, class, height, dims, speed m/frame, turn sd) of one agent."""
+    if kind != "vehicles":
+        adult = rng.random() >= 0.1
+        hgt = rng.normal(1.72, 0.08) if adult else rng.uniform(1.0, 1.45)
+        return kind, PERSON, hgt, None, rng.uniform(0.5, 0.9), 0.25
+    r = rng.random()
+    if r < 1 / 3:
+        return "box", BICYCLE, rng.normal(1.72, 0.06), (1.8, 0.6), rng.uniform(1.0, 2.0), 0.0
+    if r < 0.85:
+        return ("box", CAR, rng.uniform(1.4, 1.6), (rng.uniform(4.2, 4.8), rng.uniform(1.7, 1.9)),
+                rng.uniform(1.5, 3.0), 0.0)
+    return "box", BUS, rng.uniform(3.0, 3.3), (rng.uniform(10, 12), 2.5), rng.uniform(1.5, 3.0), 0.0
+
+
+def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.0,
+          n_tracks: int = 24, frames: tuple[int, int] = (6, 10), noise_px: float = 1.0) -> Scene:
+    """A random camera and ``n_tracks`` tracks of ``kind`` agents; see the module doc."""
+    rng = np.random.default_rng(seed)
+    K, n, d, pitch, roll = camera(rng)
+    up = -n
+    e1 = np.cross(n, [1.0, 0, 0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    rows, heights, track, tries = [], {}, 0, 0
+    while track < n_tracks and tries < 5000:
+        tries += 1
+        u0, v0 = rng.uniform(60, W - 60), rng.uniform(0.25 * H, H - 20)
+        ray = np.linalg.solve(K, [u0, v0, 1.0])
+        if ray @ n <= 1e-3 or (ray * d / (ray @ n))[2] > 60:
+            continue
+        pos = ray * d / (ray @ n)
+        bkind, cls, hgt, dims, speed, turn = _agent_spec(kind, rng)
+        heading, phase, out = rng.uniform(0, 2 * math.pi), rng.uniform(0, 2 * math.pi), []
+        for i in range(int(rng.integers(frames[0], frames[1] + 1))):
+            heading += rng.normal(0, turn) if turn else 0.0
+            fwd = math.cos(heading) * e1 + math.sin(heading) * e2
+            pos = pos + speed * fwd
+            side = np.cross(up, fwd)
+            P = body(bkind, hgt, i, phase, dims)
+            X = pos + P[:, :1] * fwd + P[:, 1:2] * side + P[:, 2:3] * up
+            if X[:, 2].min() < 0.3:
+                break
+            u, v = _project(K, X)
+            if u.min() < 2 or u.max() > W - 3 or v.min() < 2 or v.max() > H - 3:
+                continue
+            if detection == "mask":      # a mask's extreme row: the median column of its run
+                e = rng.normal(0, noise_px, 4)
+                band = max(0.5, FOOT_BAND * (v.max() - v.min()))
+                ub, ut = np.median(u[v >= v.max() - band]), np.median(u[v <= v.min() + 0.5])
+                out.append((track, i, cls, ub + e[0], v.max() + e[1], v.min() + e[2], ut + e[3]))
+            else:
+                j = rng.uniform(-2, 2, 4)
+                lo, hi = u.min() + j[0], u.max() + j[1]
+                out.append((track, i, cls, (lo + hi) / 2, v.max() + j[2], v.min() + j[3], np.nan))
+        if len(out) >= 3:
+            rows += out
+            heights[track] = hgt
+            track += 1
+    a = np.array(rows, dtype=np.float64)
+    obs = np.zeros(len(a), OBS)
+    for k, name in enumerate(("track", "frame", "class_id", "foot_u", "foot_v", "top_v", "top_u")):
+        obs[name] = a[:, k]
+    obs["score"] = 1.0
+    if outliers > 0:
+        _corrupt(rng, obs, outliers)
+    obs["height_px"] = obs["foot_v"] - obs["top_v"]
+    return Scene(K, n, d, obs, heights, pitch, roll)
+
+
+def _corrupt(rng, obs: np.ndarray, share: float) -> None:
+    """Corrupt ``share`` of the observations in place: a third sitting (whole person tracks),
+    the rest cut at the top or occluded at the feet."""
+    target = int(round(share * len(obs)))
+    done = np.zeros(len(obs), bool)
+    people = np.unique(obs["track"][obs["class_id"] == PERSON])
+    for t in rng.permutation(people):
+        sel = obs["track"] == t
+        if done.sum() + sel.sum() > target / 3:
+            break
+        h = obs["foot_v"][sel] - obs["top_v"][sel]
+        obs["top_v"][sel] = obs["foot_v"][sel] - h * rng.uniform(0.55, 0.7)
+        done |= sel
+    rest = rng.permutation(np.flatnonzero(~done))[:max(target - int(done.sum()), 0)]
+    for i in rest:
+        h = obs["foot_v"][i] - obs["top_v"][i]
+        if rng.random() < 0.5:
+            obs["top_v"][i] += h * rng.uniform(0.15, 0.5)
+            obs["top_u"][i] = np.nan if np.isnan(obs["top_u"][i]) else obs["top_u"][i]
+        else:
+            obs["foot_v"][i] -= h * rng.uniform(0.15, 0.4)

@@ -1,0 +1,119 @@
+"""The joint ground-plane model on independent generators (tests/plane_generators.py, issue 13).
+
+Each generator has its own body model (thin axis, tapered, wide cylinder, ellipsoid with swinging
+legs, vehicle boxes); the truth is the generator's camera. Few cameras per generator keep the
+runtime small; benchmarks/bench_agent_plane.py runs more.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from plane_generators import GENERATORS, scene
+from staticdepth.geometry.agent_plane import AgentPlaneConfig, fit_agent_plane
+from staticdepth.geometry.agent_plane_gate import (camera_height_from_agents, camera_height_ml,
+                                                   plane_gate)
+from staticdepth.geometry.plane import angle_between_deg
+from staticdepth.geometry.scale import anchor_depth, anchor_pixel
+
+FAST = AgentPlaneConfig(bootstrap=0, column_weight=1.0)
+SEEDS = (0, 1, 2)
+
+
+@pytest.fixture(scope="module")
+def fits():
+    """(generator, seed) -> (scene, plane) on masks, 1 px noise."""
+    return {}
+
+
+def _fit(fits, kind, seed, **kw):
+    key = (kind, seed, tuple(sorted(kw.items())))
+    if key not in fits:
+        s = scene(kind, seed, **kw)
+        fits[key] = (s, fit_agent_plane(s.K, s.obs, FAST))
+    return fits[key]
+
+
+@pytest.mark.parametrize("kind", GENERATORS)
+def test_normal_on_every_body_model(fits, kind):
+    errs = [angle_between_deg(_fit(fits, kind, k)[1].normal, _fit(fits, kind, k)[0].normal)
+            for k in SEEDS]
+    assert np.median(errs) <= 0.5 and max(errs) <= 1.0, errs
+
+
+@pytest.mark.parametrize("kind", ["ellipsoid", "vehicles"])
+def test_normal_with_twenty_percent_outliers(fits, kind):
+    errs = [angle_between_deg(p.normal, s.normal) for s, p in
+            (_fit(fits, kind, k, outliers=0.2) for k in SEEDS[:2])]
+    assert max(errs) <= 2.0, errs
+
+
+@pytest.mark.parametrize("kind", [k for k in GENERATORS if k != "vehicles"])
+def test_camera_height_from_people(fits, kind):
+    rel = []
+    for k in SEEDS:
+        s, p = _fit(fits, kind, k)
+        d, sd, n = camera_height_from_agents(p, bootstrap=50)
+        assert n >= 10 and 0 < sd < 0.1 * d
+        rel.append(abs(d / s.height_m - 1))
+    assert np.median(rel) <= 0.03 and max(rel) <= 0.05, rel
+
+
+def test_anchor_depth_with_known_camera_height(fits):
+    rel = []
+    for kind in GENERATORS:
+        for k in SEEDS[:2]:
+            s, p = _fit(fits, kind, k)
+            u, v = anchor_pixel(960, 540)
+            true = anchor_depth(s.K, s.normal, s.height_m, u, v)
+            rel.append(abs(anchor_depth(s.K, p.normal, s.height_m, u, v) / true - 1))
+    assert np.median(rel) <= 0.01 and max(rel) <= 0.03, rel
+
+
+def test_extent_is_estimated_not_assumed(fits):
+    """Thin walkers drive the people's extent to ~0, wide cylinders (0.3 m) up to ~0.17."""
+    thin = _fit(fits, "thin", 0)[1].extra["extents"]["people"]
+    wide = _fit(fits, "cylinder", 0)[1].extra["extents"]["people"]
+    assert max(thin) < 0.03 and min(wide) > 0.1, (thin, wide)
+
+
+def test_camera_height_ml_weighs_children_by_their_share():
+    """Closed-form check: adults at exactly 1.70 m and one child at 1.25 m out of ten tracks give
+    d within 1% of the truth (a plain median of 1.7/s would too; a mean would be 4.5% off)."""
+    d = 8.0
+    s = np.r_[np.full(9, 1.70), 1.25] / d
+    groups = np.zeros(10, int)
+    assert abs(camera_height_ml(s, groups) / d - 1) < 0.01
+    assert abs(1.7 / np.mean(s) / d - 1) > 0.04
+
+
+def test_gate_refuses_few_tracks_and_scales_with_sqrt_n():
+    s = scene("tapered", 5, n_tracks=32)
+    conf = AgentPlaneConfig(bootstrap=6)
+    few_tracks = np.unique(s.obs["track"])[:4]
+    few = fit_agent_plane(s.K, s.obs[np.isin(s.obs["track"], few_tracks)], conf)
+    many = fit_agent_plane(s.K, s.obs, conf)
+    g_few, g_many = plane_gate(few, 0.3), plane_gate(many, 0.3)
+    assert many.normal_std_deg < few.normal_std_deg
+    ratio = few.normal_std_deg / many.normal_std_deg       # 1/sqrt(n): about sqrt(32/4) = 2.8
+    assert 1.5 < ratio < 8, ratio
+    assert not g_few.ok and g_few.tracks_needed > g_few.tracks
+    assert g_few.frames_factor == pytest.approx((few.normal_std_deg / 0.3) ** 2)
+    assert "need about" in g_few.message
+    assert plane_gate(many, 5.0).ok
+
+
+def test_bad_inputs_raise():
+    from staticdepth.errors import InputError
+    from staticdepth.geometry.agent_plane_gate import class_set
+    s, p = scene("thin", 0, n_tracks=6), None
+    p = fit_agent_plane(s.K, s.obs, FAST)
+    with pytest.raises(InputError, match="unknown class set"):
+        class_set("animals")
+    with pytest.raises(InputError, match="no inlier track of the requested classes"):
+        camera_height_from_agents(p, (2,))
+    with pytest.raises(InputError, match="limit must be positive"):
+        plane_gate(p, 0.0)
+    with pytest.raises(InputError, match="classes must be a tuple"):
+        AgentPlaneConfig(classes="people")
+    assert not plane_gate(p).ok and "uncertainty unknown" in plane_gate(p).message   # no bootstrap

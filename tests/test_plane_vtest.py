@@ -1,0 +1,68 @@
+"""The joint ground plane on the real fixed-camera video vtest.avi with YOLOX: the two halves agree.
+
+vtest.avi has no calibration: the intrinsics are assumed (f = 700 px, principal point at the
+centre), so the test checks consistency, not the true plane: each half of the video (every 8th
+frame) gives a plane and a camera height with their bootstrap uncertainty, and the halves must
+agree within twice their combined uncertainty.
+"""
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from staticdepth import tracking
+from staticdepth.detectors import make_detector
+from staticdepth.geometry.agent_plane import AgentPlaneConfig, fit_agent_plane
+from staticdepth.geometry.agent_plane_gate import camera_height_from_agents, plane_gate
+from staticdepth.geometry.plane import angle_between_deg
+
+STEP = 8
+F_PX = 700.0
+
+
+@pytest.fixture(scope="module")
+def halves(shared_data):
+    video = shared_data / "video" / "vtest.avi"
+    model = shared_data / "models" / "yolox_nano" / "yolox_nano.onnx"
+    for p in (video, model):
+        if not p.exists():
+            pytest.skip(f"{p} not found")
+    cap = cv2.VideoCapture(str(video))
+    frames, i = [], 0
+    while True:
+        ok, f = cap.read()
+        if not ok:
+            break
+        if i % STEP == 0:
+            frames.append(np.ascontiguousarray(f[..., ::-1]))
+        i += 1
+    assert len(frames) >= 90, f"read {len(frames)} frames of {video}"
+    H, W = frames[0].shape[:2]
+    K = np.array([[F_PX, 0, (W - 1) / 2], [0, F_PX, (H - 1) / 2], [0, 0, 1.0]])
+    det = make_detector("yolox", model=str(model))
+    out = []
+    for part in (frames[:len(frames) // 2], frames[len(frames) // 2:]):
+        obs = tracking.observations_from_instances(list(det.detect_sequence(part)),
+                                                   tracking.TrackingConfig.for_model("joint"))
+        plane = fit_agent_plane(K, obs, AgentPlaneConfig(bootstrap=8))
+        d, sd, n = camera_height_from_agents(plane, bootstrap=100)
+        out.append((plane, d, sd, n))
+    return out
+
+
+def test_halves_agree_within_their_uncertainty(halves):
+    (p1, d1, sd1, n1), (p2, d2, sd2, n2) = halves
+    for p, d, sd, n in halves:
+        print(f"pitch {p.pitch_deg:.2f} roll {p.roll_deg:.2f} +- {p.normal_std_deg:.2f} deg, "
+              f"camera height {d:.2f} +- {sd:.2f} m ({n} person tracks), inlier tracks "
+              f"{int(p.inliers.sum())}/{len(p.inliers)}; {plane_gate(p).message}")
+        assert n >= 8 and int(p.inliers.sum()) >= 8
+        assert math.isfinite(p.normal_std_deg) and 0 < p.normal_std_deg < 5
+        assert 0 < sd < 0.2 * d
+        assert 10 < p.pitch_deg < 45 and abs(p.roll_deg) < 10     # a camera looking down
+    gap = angle_between_deg(p1.normal, p2.normal)
+    assert gap <= 2 * math.hypot(p1.normal_std_deg, p2.normal_std_deg), gap
+    assert abs(d1 - d2) <= 2 * math.hypot(sd1, sd2), (d1, d2)
