@@ -27,7 +27,7 @@ from staticdepth.stereo.fill import fill_from_background
 from staticdepth.stereo.match import create_matcher, num_disparities_for
 from staticdepth.stereo.pipeline import DEFAULT_NUM_DISPARITIES, StereoConfig, _median_rows
 from staticdepth.stereo.temporal import (BackgroundModel, TemporalConfig, build_background,
-                                         config_key, fuse_frame, sample_indices,
+                                         config_key, depth_precision, fuse_frame, sample_indices,
                                          texture_confidence)
 
 CONFIDENCE_SUFFIX = "-confidence"
@@ -42,13 +42,20 @@ class SequenceStereoResult:
     background_reused: bool
 
 
-def frame_confidence(left_rgb: np.ndarray, disparity: np.ndarray) -> np.ndarray:
-    """A single frame's confidence: texture x local smoothness of the disparity (3x3 std)."""
+def match_confidence(left_rgb: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+    """A single frame's match reliability: texture x local smoothness of the disparity (3x3 std);
+    0 where the disparity is invalid."""
     d = np.where(np.isfinite(disparity), disparity, 0).astype(np.float32)
     m = cv2.blur(d, (3, 3))
     std = np.sqrt(np.maximum(cv2.blur(d * d, (3, 3)) - m * m, 0))
     conf = texture_confidence(cv2.cvtColor(left_rgb, cv2.COLOR_RGB2GRAY)) * np.exp(-2.0 * std)
     return np.where(np.isfinite(disparity), conf, 0).astype(np.float32)
+
+
+def frame_confidence(left_rgb: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+    """A single frame's confidence in its depth: match reliability x depth precision (see
+    :func:`~staticdepth.stereo.temporal.depth_precision`)."""
+    return match_confidence(left_rgb, disparity) * depth_precision(disparity)
 
 
 def _num_disparities(config: StereoConfig, focal_px: float, baseline_m: float, width: int,
@@ -122,7 +129,8 @@ def stereo_sequence(path: str | os.PathLike, name: str, config: StereoConfig | N
             scaled = create_matcher(c.matcher, num_disparities=n_disp * s,
                                     image_size=(w * s, h * s), options=c.options) if s > 1 \
                 else matcher
-            key = config_key(c.to_dict(), temporal.to_dict(), {
+            matching = {k: v for k, v in c.to_dict().items() if k != "fill"}
+            key = config_key(matching, temporal.to_dict(), {
                 "n": n_frames, "size": [w, h], "name": r.meta.name,
                 "created": str(r.attrs.get("created", "")), "num_disparities": n_disp})
             model, reused = _background(r, path, name, match,
@@ -138,7 +146,7 @@ def stereo_sequence(path: str | os.PathLike, name: str, config: StereoConfig | N
                 L, R = r.left(i), r.right(i)
                 d = match(L, R)
                 if model is not None:
-                    fused = fuse_frame(model, L, d, frame_confidence(L, d))
+                    fused = fuse_frame(model, L, d, match_confidence(L, d))
                     d, conf = fused.disparity, fused.confidence
                 else:
                     conf = frame_confidence(L, d)

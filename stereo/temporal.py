@@ -43,8 +43,10 @@ from staticdepth.stereo.fill import lr_consistent
 # A matcher as the fusion sees it: rectified RGB pair -> left disparity (float32, NaN = invalid).
 MatchFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
-FOREGROUND_CONFIDENCE = 0.5       # a single frame's match never outranks a stable background
+FOREGROUND_CONFIDENCE = 0.25       # a single frame's match never outranks a stable background
 FILLED_CONFIDENCE = 0.25          # background holes filled from the per-frame disparity samples
+REL_SCATTER = 0.1                # relative disparity scatter at which confidence falls by 1/e
+PRECISION_PX = 4.0  # disparity at which the depth-precision factor is 1/2
 TEXTURE_DN = 4.0                  # local grey-level std (DN) at which texture confidence is 1/2
 
 
@@ -55,8 +57,8 @@ class TemporalConfig:
     samples: int = 25              # frames whose images make the background plates
     disparity_samples: int = 8     # of those, frames also matched (stability, plate hole filling)
     plate_scale: int = 2           # the plates are matched upsampled this many times
-    change_dn: float = 10.0        # least grey-level change (5x5 mean) that marks a foreground
-    change_sigmas: float = 4.0     # ... or this many times the measured noise, if larger
+    change_dn: float = 6.0         # least colour change (5x5 mean, DN) that marks a foreground
+    change_sigmas: float = 3.0     # ... or this many times the measured noise, if larger
     foreground_px: float = 0.5     # nearer than the background by this much -> foreground
     stable_px: float = 1.0         # a sample agrees with the background within this
     lr_px: float = 1.0             # left-right agreement of the plates
@@ -100,6 +102,12 @@ class BackgroundModel:
     def __post_init__(self):
         g = cv2.cvtColor(self.left, cv2.COLOR_RGB2GRAY)
         object.__setattr__(self, "_grey", g)
+        cols = np.broadcast_to(np.arange(g.shape[1], dtype=np.float32)[None, :], g.shape)
+        object.__setattr__(self, "_columns", cols)
+
+    @property
+    def columns(self) -> np.ndarray:
+        return self._columns  # type: ignore[attr-defined]
 
     @property
     def grey(self) -> np.ndarray:
@@ -216,14 +224,13 @@ def build_background(pairs: Iterable[tuple[np.ndarray, np.ndarray]], match: Matc
         raise InputError("no frames to build a background from")
     L_stack, R_stack = np.stack(lefts), np.stack(rights)
     med_l = np.median(L_stack, axis=0).astype(np.float32)
-    grey_stack = np.stack([cv2.cvtColor(x, cv2.COLOR_RGB2GRAY) for x in lefts]).astype(np.float32)
-    med_g = cv2.cvtColor(med_l.round().astype(np.uint8), cv2.COLOR_RGB2GRAY).astype(np.float32)
-    dev = np.abs(grey_stack - med_g[None])
-    noise = float(1.4826 * np.median(dev)) if len(lefts) > 2 else 0.0
+    med_u8 = med_l.round().astype(np.uint8)
+    # robust per-channel noise of a sample about the median (MAD; 0 with too few samples)
+    noise = float(1.4826 * np.median(np.abs(L_stack[::max(1, len(lefts) // 8)] - med_l))) \
+        if len(lefts) > 2 else 0.0
     change_dn = max(c.change_dn, c.change_sigmas * noise)
-    # static[k]: the sample shows the background at the pixel (5x5 mean change under threshold)
-    static = np.stack([cv2.blur(d, (5, 5)) < change_dn for d in dev])
-    del grey_stack, dev
+    # static[k]: the sample shows the background at the pixel
+    static = np.stack([appearance_change(x, med_u8) <= change_dn for x in lefts])
     # the plates: the mean of the static samples (less noise than the median), the median where
     # no sample is static; the right plate uses the left view's static test shifted by nothing -
     # agents rarely cover the same pixel in most samples, so its median is robust on its own
@@ -257,7 +264,14 @@ def build_background(pairs: Iterable[tuple[np.ndarray, np.ndarray]], match: Matc
                     FILLED_CONFIDENCE * stability * texture)
     disparity = np.where(np.isfinite(disp), disp, med).astype(np.float32)
     if c.plane_radius:
-        disparity = smooth_planar(disparity, c.plane_radius, c.plane_rms_px)
+        disparity, rms = smooth_planar(disparity, c.plane_radius, c.plane_rms_px)
+        # the local scatter of the background's disparity about its plane, relative to the
+        # disparity: the expected relative depth error where the plane fit holds
+        # (no fit: at least the largest scatter a fit may have)
+        scatter = np.where(np.isfinite(rms), rms, np.float32(c.plane_rms_px))
+        with np.errstate(invalid="ignore"):
+            rel = scatter / np.maximum(np.nan_to_num(disparity, nan=1e-3), 1e-3)
+        conf = conf * np.exp(-rel / np.float32(REL_SCATTER))
     conf = np.where(np.isfinite(disparity), conf, 0).astype(np.float32)
     return BackgroundModel(plate_l, plate_r, disparity, conf, noise, change_dn, c.foreground_px)
 
@@ -271,7 +285,8 @@ def _static_mean(stack: np.ndarray, static: np.ndarray, fallback: np.ndarray) ->
     return np.clip(np.round(mean), 0, 255).astype(np.uint8)
 
 
-def smooth_planar(disparity: np.ndarray, radius: int, max_rms_px: float) -> np.ndarray:
+def smooth_planar(disparity: np.ndarray, radius: int, max_rms_px: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Each pixel takes the value at its centre of an affine fit d = a + b u + c v over its
     (2r+1)^2 window, where the fit is good (residual RMS < ``max_rms_px``, 60% of the window
     valid). A plane's disparity is affine in (u, v), so planes (the ground, walls) lose their
@@ -308,11 +323,18 @@ def smooth_planar(disparity: np.ndarray, radius: int, max_rms_px: float) -> np.n
         try:
             beta = np.linalg.solve(A, b[..., None])[..., 0]
         except np.linalg.LinAlgError:
-            return d.copy()
+            return d.copy(), np.full(d.shape, np.nan, np.float32)
         rss = sdd - 2 * (beta * b).sum(-1) + np.einsum("...i,...ij,...j->...", beta, A, beta)
         rms = np.sqrt(np.maximum(rss, 0) / np.maximum(n, 1))
     use = good & ok & np.isfinite(beta[..., 0]) & (rms < max_rms_px)
-    return np.where(use, beta[..., 0], d).astype(np.float32)
+    return np.where(use, beta[..., 0], d).astype(np.float32), np.where(use, rms, np.nan).astype(
+        np.float32)
+
+
+def appearance_change(rgb: np.ndarray, plate_rgb: np.ndarray) -> np.ndarray:
+    """uint8 (H, W): the largest channel's absolute difference, averaged over 5x5 pixels."""
+    a = cv2.absdiff(rgb, plate_rgb)
+    return cv2.blur(cv2.max(cv2.max(a[..., 0], a[..., 1]), a[..., 2]), (5, 5))
 
 
 def foreground_mask(model: BackgroundModel, left_rgb: np.ndarray, disparity: np.ndarray
@@ -320,9 +342,7 @@ def foreground_mask(model: BackgroundModel, left_rgb: np.ndarray, disparity: np.
     """(foreground, changed): pixels to take from the frame itself, and those whose appearance
     changed. Foreground = the changed pixels (gaps closed) plus, within 3 px of them, pixels whose
     own disparity is nearer than the background by ``foreground_px``."""
-    g = cv2.cvtColor(left_rgb, cv2.COLOR_RGB2GRAY)
-    diff = cv2.blur(cv2.absdiff(g, model.grey), (5, 5))
-    changed = diff > model.change_dn
+    changed = appearance_change(left_rgb, model.left) > model.change_dn
     ch8 = changed.view(np.uint8)
     fg = cv2.morphologyEx(ch8, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
     near_change = cv2.dilate(ch8, np.ones((11, 11), np.uint8)).view(bool)
@@ -344,5 +364,13 @@ def fuse_frame(model: BackgroundModel, left_rgb: np.ndarray, disparity: np.ndarr
     if confidence is None:
         confidence = texture_confidence(cv2.cvtColor(left_rgb, cv2.COLOR_RGB2GRAY))
     conf = np.where(take_own, np.float32(FOREGROUND_CONFIDENCE) * confidence, model.confidence)
-    conf = np.where(np.isfinite(out), conf, 0).astype(np.float32)
+    out[model.columns < out] = np.nan      # a match outside the right image is no measurement
+    conf = np.where(np.isfinite(out), conf * depth_precision(out), 0).astype(np.float32)
     return FusedFrame(out, conf, take_own)
+
+
+def depth_precision(disparity: np.ndarray) -> np.ndarray:
+    """d / (d + PRECISION_PX): the same disparity error is a larger share of a far depth, so
+    confidence in a depth falls with its disparity (1/2 at ``PRECISION_PX``)."""
+    d = np.nan_to_num(disparity, nan=0.0).clip(0, None)
+    return d / (d + np.float32(PRECISION_PX))
