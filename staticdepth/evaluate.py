@@ -22,7 +22,7 @@ DISTANCE_BANDS_M = ((0.0, 10.0), (10.0, 20.0), (20.0, 40.0), (40.0, 80.0))
 GROUND_TOLERANCE_M = 0.10
 
 
-CONFIDENCE_BANDS = ((0.0, 0.25), (0.25, 0.5), (0.5, 0.75), (0.75, 1.0))
+CONFIDENCE_BANDS = 4     # accuracy by confidence: quartiles of each frame's confidence
 
 
 def default_protocol(name: str, attrs: dict[str, Any] | None = None) -> str:
@@ -32,13 +32,18 @@ def default_protocol(name: str, attrs: dict[str, Any] | None = None) -> str:
     return "metric" if metric or int((attrs or {}).get("metric", 0)) else "median"
 
 
-def confidence_masks(confidence: np.ndarray) -> dict[str, np.ndarray]:
-    """``conf a-b`` masks of a confidence map in [0, 1] (the last band includes 1)."""
-    out = {}
-    for lo, hi in CONFIDENCE_BANDS:
-        top = confidence <= hi if hi >= 1.0 else confidence < hi
-        out[f"conf {lo:g}-{hi:g}"] = (confidence >= lo) & top
-    return out
+def confidence_masks(confidence: np.ndarray, bands: int = CONFIDENCE_BANDS
+                     ) -> dict[str, np.ndarray]:
+    """``conf qK`` masks: the K-th of ``bands`` equal shares of the pixels with a confidence
+    (> 0) by rank, ``q1`` the least confident; ties stay together (a score, not a probability,
+    so ranks rather than fixed values)."""
+    c = np.asarray(confidence, dtype=np.float32)
+    have = np.isfinite(c) & (c > 0)
+    if not have.any():
+        return {}
+    edges = np.quantile(c[have], np.linspace(0, 1, bands + 1)[1:-1])
+    k = np.searchsorted(edges, c, side="right")
+    return {f"conf q{j + 1}": have & (k == j) for j in range(bands)}
 
 
 def region_masks(gt: np.ndarray, instances: np.ndarray | None, agents: np.ndarray | None,
@@ -243,7 +248,7 @@ def _evaluate_cmd(args: argparse.Namespace) -> int:
     for name, by_prot in res["results"].items():
         for prot, regs in by_prot.items():
             print(format_row(f"{name} [{prot}]", regs["all"]))
-            bands = [b for b in regs if b.startswith("conf ")]
+            bands = sorted(b for b in regs if b.startswith("conf "))
             for band in bands:      # accuracy by confidence band, with its share of the pixels
                 share = regs[band]["pixels"] / max(sum(regs[b]["pixels"] for b in bands), 1)
                 print(format_row(f"  {band} {100 * share:4.1f}%", regs[band]))

@@ -364,13 +364,14 @@ def fuse_frame(model: BackgroundModel, left_rgb: np.ndarray, disparity: np.ndarr
     if confidence is None:
         confidence = texture_confidence(cv2.cvtColor(left_rgb, cv2.COLOR_RGB2GRAY))
     conf = np.where(take_own, np.float32(FOREGROUND_CONFIDENCE) * confidence, model.confidence)
-    out[model.columns < out] = np.nan      # a match outside the right image is no measurement
+    # no measurement: a match outside the right image, or disparity <= 0 (infinitely far)
+    out[(model.columns < out) | ~(out > 0)] = np.nan
     conf = np.where(np.isfinite(out), conf * depth_precision(out), 0).astype(np.float32)
     return FusedFrame(out, conf, take_own)
 
 
 def depth_precision(disparity: np.ndarray) -> np.ndarray:
-    """d / (d + PRECISION_PX): the same disparity error is a larger share of a far depth, so
-    confidence in a depth falls with its disparity (1/2 at ``PRECISION_PX``)."""
+    """(d / (d + PRECISION_PX))^2: the same disparity error is a larger share of a far depth,
+    so confidence in a depth falls with its disparity (1/4 at ``PRECISION_PX``)."""
     d = np.nan_to_num(disparity, nan=0.0).clip(0, None)
-    return d / (d + np.float32(PRECISION_PX))
+    return (d / (d + np.float32(PRECISION_PX))) ** 2
