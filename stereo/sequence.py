@@ -18,7 +18,6 @@ import os
 from dataclasses import dataclass
 from typing import Any, Iterator
 
-import cv2
 import numpy as np
 
 from staticdepth.errors import InputError
@@ -27,8 +26,8 @@ from staticdepth.stereo.fill import fill_from_background
 from staticdepth.stereo.match import create_matcher, num_disparities_for
 from staticdepth.stereo.pipeline import DEFAULT_NUM_DISPARITIES, StereoConfig, _median_rows
 from staticdepth.stereo.temporal import (BackgroundModel, TemporalConfig, build_background,
-                                         config_key, depth_precision, fuse_frame, sample_indices,
-                                         texture_confidence)
+                                         config_key, depth_precision, fuse_frame,
+                                         match_confidence, sample_indices)
 
 CONFIDENCE_SUFFIX = "-confidence"
 
@@ -40,16 +39,6 @@ class SequenceStereoResult:
     num_disparities: int
     density: float             # share of pixels with a depth, over all frames
     background_reused: bool
-
-
-def match_confidence(left_rgb: np.ndarray, disparity: np.ndarray) -> np.ndarray:
-    """A single frame's match reliability: texture x local smoothness of the disparity (3x3 std);
-    0 where the disparity is invalid."""
-    d = np.where(np.isfinite(disparity), disparity, 0).astype(np.float32)
-    m = cv2.blur(d, (3, 3))
-    std = np.sqrt(np.maximum(cv2.blur(d * d, (3, 3)) - m * m, 0))
-    conf = texture_confidence(cv2.cvtColor(left_rgb, cv2.COLOR_RGB2GRAY)) * np.exp(-2.0 * std)
-    return np.where(np.isfinite(disparity), conf, 0).astype(np.float32)
 
 
 def frame_confidence(left_rgb: np.ndarray, disparity: np.ndarray) -> np.ndarray:
@@ -146,7 +135,7 @@ def stereo_sequence(path: str | os.PathLike, name: str, config: StereoConfig | N
                 L, R = r.left(i), r.right(i)
                 d = match(L, R)
                 if model is not None:
-                    fused = fuse_frame(model, L, d, match_confidence(L, d))
+                    fused = fuse_frame(model, L, d)
                     d, conf = fused.disparity, fused.confidence
                 else:
                     conf = frame_confidence(L, d)

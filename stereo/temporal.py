@@ -95,23 +95,9 @@ class BackgroundModel:
     right: np.ndarray         # uint8 RGB plate
     disparity: np.ndarray     # float32 px, NaN = unknown
     confidence: np.ndarray    # float32 in [0, 1], 0 where unknown
-    noise_dn: float           # robust std of a sample's grey level around the plate
+    noise_dn: float           # robust std of a sample's channel values about the plates
     change_dn: float          # the foreground threshold used per frame
     foreground_px: float
-
-    def __post_init__(self):
-        g = cv2.cvtColor(self.left, cv2.COLOR_RGB2GRAY)
-        object.__setattr__(self, "_grey", g)
-        cols = np.broadcast_to(np.arange(g.shape[1], dtype=np.float32)[None, :], g.shape)
-        object.__setattr__(self, "_columns", cols)
-
-    @property
-    def columns(self) -> np.ndarray:
-        return self._columns  # type: ignore[attr-defined]
-
-    @property
-    def grey(self) -> np.ndarray:
-        return self._grey  # type: ignore[attr-defined]
 
     def to_bytes(self, key: str = "") -> bytes:
         """An ``.npz`` image of the model (with a free ``key``, e.g. the config's hash)."""
@@ -197,11 +183,12 @@ def match_plates(match_scaled: MatchFn, left: np.ndarray, right: np.ndarray, sca
 
 
 def _nanmedian(stack: np.ndarray) -> np.ndarray:
-    import warnings
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmedian(stack, axis=0).astype(np.float32)
+    """Median over axis 0 ignoring NaN (NaN where all are): sorting puts NaN last."""
+    srt = np.sort(stack, axis=0)
+    n = np.isfinite(stack).sum(axis=0)
+    lo = np.take_along_axis(srt, np.maximum((n - 1) // 2, 0)[None], 0)[0]
+    hi = np.take_along_axis(srt, np.maximum(n // 2, 0)[None], 0)[0]
+    return np.where(n > 0, (lo + hi) / 2, np.nan).astype(np.float32)
 
 
 def build_background(pairs: Iterable[tuple[np.ndarray, np.ndarray]], match: MatchFn,
@@ -223,21 +210,22 @@ def build_background(pairs: Iterable[tuple[np.ndarray, np.ndarray]], match: Matc
     if not lefts:
         raise InputError("no frames to build a background from")
     L_stack, R_stack = np.stack(lefts), np.stack(rights)
-    med_l = np.median(L_stack, axis=0).astype(np.float32)
-    med_u8 = med_l.round().astype(np.uint8)
-    # robust per-channel noise of a sample about the median (MAD; 0 with too few samples)
-    noise = float(1.4826 * np.median(np.abs(L_stack[::max(1, len(lefts) // 8)] - med_l))) \
-        if len(lefts) > 2 else 0.0
+    # a robust reference from at most 9 samples, then the plates: the mean of the samples that
+    # match it (static at the pixel: less noise than a median), the reference where none does
+    step = max(1, len(lefts) // 9)
+    ref_l = np.median(L_stack[::step], axis=0).astype(np.float32)
+    ref_r = np.median(R_stack[::step], axis=0).astype(np.float32)
+    # robust per-channel noise of a sample about the reference (MAD; 0 with too few samples)
+    noise = float(1.4826 * np.median(np.abs(L_stack[::step] - ref_l))) if len(lefts) > 2 \
+        else 0.0
     change_dn = max(c.change_dn, c.change_sigmas * noise)
-    # static[k]: the sample shows the background at the pixel
-    static = np.stack([appearance_change(x, med_u8) <= change_dn for x in lefts])
-    # the plates: the mean of the static samples (less noise than the median), the median where
-    # no sample is static; the right plate uses the left view's static test shifted by nothing -
-    # agents rarely cover the same pixel in most samples, so its median is robust on its own
-    plate_l = _static_mean(L_stack, static, med_l)
-    plate_r = np.median(R_stack, axis=0).round().astype(np.uint8)
+    ref_l8, ref_r8 = (np.round(x).astype(np.uint8) for x in (ref_l, ref_r))
+    static = np.stack([appearance_change(x, ref_l8) <= change_dn for x in lefts])
+    static_r = np.stack([appearance_change(x, ref_r8) <= change_dn for x in rights])
+    plate_l = _static_mean(L_stack, static, ref_l)
+    plate_r = _static_mean(R_stack, static_r, ref_r)
     plate_g = cv2.cvtColor(plate_l, cv2.COLOR_RGB2GRAY).astype(np.float32)
-    del L_stack, R_stack
+    del L_stack, R_stack, static_r
 
     scale = c.plate_scale
     disp, gap = match_plates(match_scaled or match, plate_l, plate_r, scale, c.lr_px)
@@ -272,15 +260,27 @@ def build_background(pairs: Iterable[tuple[np.ndarray, np.ndarray]], match: Matc
         with np.errstate(invalid="ignore"):
             rel = scatter / np.maximum(np.nan_to_num(disparity, nan=1e-3), 1e-3)
         conf = conf * np.exp(-rel / np.float32(REL_SCATTER))
-    conf = np.where(np.isfinite(disparity), conf, 0).astype(np.float32)
-    return BackgroundModel(plate_l, plate_r, disparity, conf, noise, change_dn, c.foreground_px)
+    disparity = _measurable(disparity)
+    conf = np.where(np.isfinite(disparity), conf * depth_precision(disparity), 0)
+    return BackgroundModel(plate_l, plate_r, disparity, conf.astype(np.float32), noise,
+                           change_dn, c.foreground_px)
+
+
+def _measurable(disparity: np.ndarray, u0: int = 0) -> np.ndarray:
+    """NaN where a disparity is no measurement: <= 0 (infinitely far) or a match outside the
+    right image (column u < d; ``u0`` is the first column of ``disparity``)."""
+    d = np.array(disparity, dtype=np.float32)
+    cols = np.arange(u0, u0 + d.shape[1], dtype=np.float32)[None, :]
+    d[(cols < d) | ~(d > 0)] = np.nan
+    return d
 
 
 def _static_mean(stack: np.ndarray, static: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     """Per-pixel mean of the samples flagged static; ``fallback`` where none is."""
-    w = static.astype(np.float32)[..., None]
-    n = w.sum(axis=0)
-    total = (stack.astype(np.float32) * w).sum(axis=0)
+    total = np.zeros(stack.shape[1:], np.float32)
+    for img, m in zip(stack, static):
+        cv2.accumulate(img, total, mask=m.view(np.uint8))
+    n = static.sum(axis=0, dtype=np.float32)[..., None]
     mean = np.where(n > 0, total / np.maximum(n, 1), fallback)
     return np.clip(np.round(mean), 0, 255).astype(np.uint8)
 
@@ -351,27 +351,43 @@ def foreground_mask(model: BackgroundModel, left_rgb: np.ndarray, disparity: np.
     return fg.view(bool) | (nearer & near_change), changed
 
 
-def fuse_frame(model: BackgroundModel, left_rgb: np.ndarray, disparity: np.ndarray,
-               confidence: np.ndarray | None = None) -> FusedFrame:
+def match_confidence(left_rgb: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+    """A single frame's match reliability: texture x local smoothness of the disparity (3x3 std);
+    0 where the disparity is invalid."""
+    d = np.where(np.isfinite(disparity), disparity, 0).astype(np.float32)
+    m = cv2.blur(d, (3, 3))
+    std = np.sqrt(np.maximum(cv2.blur(d * d, (3, 3)) - m * m, 0))
+    conf = texture_confidence(cv2.cvtColor(left_rgb, cv2.COLOR_RGB2GRAY)) * np.exp(-2.0 * std)
+    return np.where(np.isfinite(disparity), conf, 0).astype(np.float32)
+
+
+def fuse_frame(model: BackgroundModel, left_rgb: np.ndarray, disparity: np.ndarray
+               ) -> FusedFrame:
     """One frame: its own disparity on the foreground, the background's elsewhere.
 
     A foreground pixel without its own match stays a hole (the occlusion band beside an agent is
-    background: its appearance did not change, so it takes the background). ``confidence`` is the
-    frame's own per-pixel confidence (default: texture), scaled by ``FOREGROUND_CONFIDENCE``.
+    background: its appearance did not change, so it takes the background). Foreground pixels
+    get the frame's own confidence (:func:`match_confidence` x depth precision) times
+    ``FOREGROUND_CONFIDENCE``; the work is done on the foreground's bounding box only.
     """
     take_own, _ = foreground_mask(model, left_rgb, disparity)
-    out = np.where(take_own, disparity, model.disparity).astype(np.float32)
-    if confidence is None:
-        confidence = texture_confidence(cv2.cvtColor(left_rgb, cv2.COLOR_RGB2GRAY))
-    conf = np.where(take_own, np.float32(FOREGROUND_CONFIDENCE) * confidence, model.confidence)
-    # no measurement: a match outside the right image, or disparity <= 0 (infinitely far)
-    out[(model.columns < out) | ~(out > 0)] = np.nan
-    conf = np.where(np.isfinite(out), conf * depth_precision(out), 0).astype(np.float32)
+    out = model.disparity.copy()
+    conf = model.confidence.copy()
+    x, y, w, h = cv2.boundingRect(take_own.view(np.uint8))
+    if w and h:
+        box = np.s_[y:y + h, x:x + w]
+        d = _measurable(disparity[box], x)
+        c = np.float32(FOREGROUND_CONFIDENCE) * match_confidence(left_rgb[box], d) \
+            * depth_precision(d)
+        m = take_own[box]
+        out[box][m] = d[m]
+        conf[box][m] = np.where(np.isfinite(d[m]), c[m], 0)
     return FusedFrame(out, conf, take_own)
 
 
 def depth_precision(disparity: np.ndarray) -> np.ndarray:
     """(d / (d + PRECISION_PX))^2: the same disparity error is a larger share of a far depth,
     so confidence in a depth falls with its disparity (1/4 at ``PRECISION_PX``)."""
-    d = np.nan_to_num(disparity, nan=0.0).clip(0, None)
-    return (d / (d + np.float32(PRECISION_PX))) ** 2
+    d = np.where(disparity > 0, disparity, 0).astype(np.float32)
+    p = d / (d + np.float32(PRECISION_PX))
+    return p * p

@@ -18,7 +18,6 @@ import pytest
 
 from staticdepth.cli import main
 from staticdepth.stereo.match import create_matcher
-from staticdepth.stereo.sequence import match_confidence
 from staticdepth.stereo.temporal import (TemporalConfig, build_background, fuse_frame,
                                          sample_indices, smooth_planar)
 from stereo_scene import Scene, SceneRenderer, Tally, confidence_halves, region_scores
@@ -67,7 +66,7 @@ def fusion_scores(which: str):
         gd = fB / f["depth"]
         bg = f["instances"] == 0
         d = match(f["left"], f["right"])
-        fused = fuse_frame(model, f["left"], d, match_confidence(f["left"], d))
+        fused = fuse_frame(model, f["left"], d)
         for name, dd in (("frame", d), ("fused", fused.disparity)):
             t[f"{name}_bg"].add(region_scores(dd, gd, bg, fB))
             t[f"{name}_agents"].add(region_scores(dd, gd, ~bg, fB))
