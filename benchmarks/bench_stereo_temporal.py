@@ -27,8 +27,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from stereo_scene import (Scene, SceneRenderer, Tally, confidence_halves,  # noqa: E402
-                          region_scores)
+from stereo_scene import FusionScore, Scene, SceneRenderer  # noqa: E402
 
 from staticdepth.stereo.match import create_matcher  # noqa: E402
 from staticdepth.stereo.temporal import (TemporalConfig, build_background,  # noqa: E402
@@ -74,10 +73,8 @@ def run(which: str, n: int, noise: float, size: tuple[int, int]) -> None:
     model = build_background(((frames[i]["left"], frames[i]["right"]) for i in picks), match,
                              lambda a, b: up.match(a, b).disparity, c)
     t_build = time.perf_counter() - t0
-    t = {k: Tally() for k in ("frame_bg", "fused_bg", "frame_agents", "fused_agents")}
-    conf, err, rel = [], [], []
+    score = FusionScore(fB)
     t_bare = t_fuse = t_ours = 0.0
-    u = np.arange(w)[None, :]
     for f in frames:
         bgr = [np.ascontiguousarray(f[v][..., ::-1]) for v in ("left", "right")]
         s = time.perf_counter()
@@ -89,16 +86,8 @@ def run(which: str, n: int, noise: float, size: tuple[int, int]) -> None:
         s = time.perf_counter()
         fused = fuse_frame(model, f["left"], d)
         t_fuse += time.perf_counter() - s
-        gd = fB / f["depth"]
-        bg = f["instances"] == 0
-        for name, dd in (("frame", d), ("fused", fused.disparity)):
-            t[f"{name}_bg"].add(region_scores(dd, gd, bg, fB))
-            t[f"{name}_agents"].add(region_scores(dd, gd, ~bg, fB))
-        v = np.isfinite(fused.disparity) & np.isfinite(gd) & (u >= gd)
-        conf.append(fused.confidence[v])
-        err.append(np.abs(fused.disparity - gd)[v])
-        rel.append(np.abs(fB / fused.disparity[v] - f["depth"][v]) / f["depth"][v])
-    halves = confidence_halves(np.concatenate(conf), np.concatenate(err), np.concatenate(rel))
+        score.add(f, d, fused)
+    t, halves = score.t, score.halves()
 
     print(f"\n{which}: {w}x{h}, {n} frames, noise {noise:g} DN, {n_disp} disparities")
     print(f"  {'region':12} {'method':9} {'bad-1 %':>8} {'AbsRel':>8} {'holes %':>8}")

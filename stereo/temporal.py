@@ -6,23 +6,26 @@ and the agents passing in front of it change. Two passes over the (rectified) fr
 
 1. :func:`build_background` reads ``samples`` frames spread over the sequence (never more, so
    memory is bounded by ``samples`` frames whatever the length) and makes
-   - the *background plates*: the per-pixel median of the sampled left and right images, which
-     removes the agents (present in fewer than half of the samples at a pixel) and averages the
-     sensor noise away;
+   - the *background plates*: per pixel, the mean of the samples that look like the median of a
+     few samples (static there), which removes the agents and averages the sensor noise away;
    - the *background disparity*: the plates matched once, upsampled ``plate_scale`` times (finer
-     sub-pixel disparities; affordable because it is done once), left-right checked; its holes
-     take the median of the disparities of ``disparity_samples`` frames over the frames where the
-     pixel is static (its appearance within the noise of the plate);
-   - the background confidence: left-right agreement of the plates x temporal stability (share of
-     the sampled frames whose own disparity agrees within ``stable_px``) x texture.
-2. :func:`fuse_frame` per frame: the foreground test (appearance change against the plate, or a
-   disparity nearer than the background beside such a change) keeps the frame's own disparity on
-   the agents; everywhere else the pixel takes the background disparity, which also fills the
+     disparities; affordable because it is done once), left-right checked; its holes take the
+     median disparity of ``disparity_samples`` frames where static; then local affine fits
+     (:func:`smooth_planar`) remove the matching noise on planes (ground, walls);
+   - the background confidence: left-right agreement x stability (share of the sampled frames
+     whose own disparity agrees within ``stable_px``) x texture x plane-fit scatter relative to
+     the disparity x depth precision (:func:`depth_precision`).
+2. :func:`fuse_frame` per frame: the foreground test (colour change against the plate, or a
+   disparity off the background's beside such a change) keeps the frame's own disparity on the
+   agents; everywhere else the pixel takes the background disparity, which also fills the
    occlusion holes every agent leaves beside it.
 
->>> model = build_background(sample_pairs, match, num_samples=len(sample_pairs))
->>> fused = fuse_frame(model, left_rgb, match(left_rgb, right_rgb).disparity)
+>>> model = build_background(sampled_pairs, match, match_upsampled, TemporalConfig())
+>>> fused = fuse_frame(model, left_rgb, match(left_rgb, right_rgb))
 >>> fused.disparity, fused.confidence, fused.foreground
+
+``match`` is any ``(left_rgb, right_rgb) -> disparity`` (float32, NaN = invalid), e.g. an SGBM or
+ONNX matcher's ``.match(l, r).disparity``.
 """
 from __future__ import annotations
 
@@ -43,11 +46,11 @@ from staticdepth.stereo.fill import lr_consistent
 # A matcher as the fusion sees it: rectified RGB pair -> left disparity (float32, NaN = invalid).
 MatchFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
-FOREGROUND_CONFIDENCE = 0.25       # a single frame's match never outranks a stable background
-FILLED_CONFIDENCE = 0.25          # background holes filled from the per-frame disparity samples
-REL_SCATTER = 0.1                # relative disparity scatter at which confidence falls by 1/e
-PRECISION_PX = 4.0  # disparity at which the depth-precision factor is 1/2
-TEXTURE_DN = 4.0                  # local grey-level std (DN) at which texture confidence is 1/2
+FOREGROUND_CONFIDENCE = 0.25   # a single frame's match ranks below a stable background
+FILLED_CONFIDENCE = 0.25       # background holes filled from the per-frame disparity samples
+REL_SCATTER = 0.1              # plane-fit scatter / disparity at which confidence falls by 1/e
+PRECISION_PX = 4.0             # disparity at which the depth-precision factor is 1/4
+TEXTURE_DN = 4.0               # local grey-level std (DN) at which texture confidence is 1/2
 
 
 @dataclass(frozen=True)
@@ -59,7 +62,7 @@ class TemporalConfig:
     plate_scale: int = 2           # the plates are matched upsampled this many times
     change_dn: float = 6.0         # least colour change (5x5 mean, DN) that marks a foreground
     change_sigmas: float = 3.0     # ... or this many times the measured noise, if larger
-    foreground_px: float = 0.5     # nearer than the background by this much -> foreground
+    foreground_px: float = 0.5     # off the background by this much beside a change: foreground
     stable_px: float = 1.0         # a sample agrees with the background within this
     lr_px: float = 1.0             # left-right agreement of the plates
     plane_radius: int = 4          # background smoothing: local affine fit in (2r+1)^2 windows
@@ -172,13 +175,11 @@ def match_plates(match_scaled: MatchFn, left: np.ndarray, right: np.ndarray, sca
     dl = np.where(ok, dl, np.nan)
     gap = np.where(np.isfinite(gap), gap, np.inf).astype(np.float32)
     if scale > 1:   # back to the original grid: the median of each scale x scale block
-        blocks = lambda a: a.reshape(h, scale, w, scale).transpose(0, 2, 1, 3).reshape(h, w, -1)
-        with np.errstate(all="ignore"):
-            import warnings
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                dl = np.nanmedian(blocks(dl), axis=2) / scale
-        gap = np.min(blocks(gap), axis=2) / scale
+        def blocks(a):
+            return a.reshape(h, scale, w, scale).transpose(1, 3, 0, 2).reshape(-1, h, w)
+
+        dl = _nanmedian(blocks(dl)) / scale
+        gap = np.min(blocks(gap), axis=0) / scale
     return dl.astype(np.float32), gap.astype(np.float32)
 
 
@@ -340,15 +341,16 @@ def appearance_change(rgb: np.ndarray, plate_rgb: np.ndarray) -> np.ndarray:
 def foreground_mask(model: BackgroundModel, left_rgb: np.ndarray, disparity: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     """(foreground, changed): pixels to take from the frame itself, and those whose appearance
-    changed. Foreground = the changed pixels (gaps closed) plus, within 3 px of them, pixels whose
-    own disparity is nearer than the background by ``foreground_px``."""
+    changed. Foreground = the changed pixels (gaps closed) plus, within 5 px of them, pixels whose
+    own disparity differs from the background's by more than ``foreground_px`` (an agent whose
+    colour happens to match the background there)."""
     changed = appearance_change(left_rgb, model.left) > model.change_dn
     ch8 = changed.view(np.uint8)
     fg = cv2.morphologyEx(ch8, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
     near_change = cv2.dilate(ch8, np.ones((11, 11), np.uint8)).view(bool)
     with np.errstate(invalid="ignore"):
-        nearer = np.abs(disparity - model.disparity) > np.float32(model.foreground_px)
-    return fg.view(bool) | (nearer & near_change), changed
+        off = np.abs(disparity - model.disparity) > np.float32(model.foreground_px)
+    return fg.view(bool) | (off & near_change), changed
 
 
 def match_confidence(left_rgb: np.ndarray, disparity: np.ndarray) -> np.ndarray:

@@ -205,3 +205,31 @@ def confidence_halves(confidence: np.ndarray, errors_px: np.ndarray, rel_errors:
     return {"bad1": (float(np.mean(errors_px[top] > 1)), float(np.mean(errors_px[bottom] > 1))),
             "mae": (float(np.mean(errors_px[top])), float(np.mean(errors_px[bottom]))),
             "abs_rel": (float(np.mean(rel_errors[top])), float(np.mean(rel_errors[bottom])))}
+
+
+class FusionScore:
+    """Per-frame against fused disparities on one scene: tallies per region (``frame_bg``,
+    ``fused_bg``, ``frame_agents``, ``fused_agents``) and the fused confidence's halves."""
+
+    def __init__(self, fB: float):
+        self.fB = fB
+        self.t = {k: Tally() for k in ("frame_bg", "fused_bg", "frame_agents", "fused_agents")}
+        self._conf, self._err, self._rel = [], [], []
+
+    def add(self, frame: dict, disparity: np.ndarray, fused) -> None:
+        """One frame (its ``depth`` and ``instances``), its own disparity and its FusedFrame."""
+        fB, depth = self.fB, frame["depth"]
+        gd = fB / depth
+        bg = frame["instances"] == 0
+        for name, dd in (("frame", disparity), ("fused", fused.disparity)):
+            self.t[f"{name}_bg"].add(region_scores(dd, gd, bg, fB))
+            self.t[f"{name}_agents"].add(region_scores(dd, gd, ~bg, fB))
+        u = np.arange(gd.shape[1])[None, :]
+        v = np.isfinite(fused.disparity) & np.isfinite(gd) & (u >= gd)
+        self._conf.append(fused.confidence[v])
+        self._err.append(np.abs(fused.disparity - gd)[v])
+        self._rel.append(np.abs(fB / fused.disparity[v] - depth[v]) / depth[v])
+
+    def halves(self) -> dict[str, tuple[float, float]]:
+        return confidence_halves(*(np.concatenate(x) for x in (self._conf, self._err,
+                                                                self._rel)))

@@ -20,7 +20,7 @@ from staticdepth.cli import main
 from staticdepth.stereo.match import create_matcher
 from staticdepth.stereo.temporal import (TemporalConfig, build_background, fuse_frame,
                                          sample_indices, smooth_planar)
-from stereo_scene import Scene, SceneRenderer, Tally, confidence_halves, region_scores
+from stereo_scene import FusionScore, Scene, SceneRenderer
 
 N_FRAMES, NOISE_DN = 30, 4.0
 
@@ -59,23 +59,11 @@ def fusion_scores(which: str):
     picks = sample_indices(len(frames), c.samples)
     model = build_background(((frames[i]["left"], frames[i]["right"]) for i in picks), match,
                              lambda a, b: up.match(a, b).disparity, c)
-    t = {k: Tally() for k in ("frame_bg", "fused_bg", "frame_agents", "fused_agents")}
-    conf, err, rel = [], [], []
-    u = np.arange(w)[None, :]
+    score = FusionScore(fB)
     for f in frames:
-        gd = fB / f["depth"]
-        bg = f["instances"] == 0
         d = match(f["left"], f["right"])
-        fused = fuse_frame(model, f["left"], d)
-        for name, dd in (("frame", d), ("fused", fused.disparity)):
-            t[f"{name}_bg"].add(region_scores(dd, gd, bg, fB))
-            t[f"{name}_agents"].add(region_scores(dd, gd, ~bg, fB))
-        v = np.isfinite(fused.disparity) & np.isfinite(gd) & (u >= gd)
-        conf.append(fused.confidence[v])
-        err.append(np.abs(fused.disparity - gd)[v])
-        rel.append(np.abs(fB / fused.disparity[v] - f["depth"][v]) / f["depth"][v])
-    halves = confidence_halves(np.concatenate(conf), np.concatenate(err), np.concatenate(rel))
-    return t, halves
+        score.add(f, d, fuse_frame(model, f["left"], d))
+    return score.t, score.halves()
 
 
 @pytest.mark.parametrize("which", ["own", "synth"])
