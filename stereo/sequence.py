@@ -126,7 +126,9 @@ def stereo_sequence(path: str | os.PathLike, name: str, config: StereoConfig | N
                                         lambda a, b: scaled.match(a, b).disparity, temporal, key)
         d_min = np.float32(f_px * baseline / c.max_depth_m)
         conf_tmp = temporary_path(path, f"{name}-confidence.npy")
-        confidence = np.lib.format.open_memmap(conf_tmp, mode="w+", dtype=np.float16,
+        # the confidence waits on disk (1/255 steps) until the depth is stored: memory stays
+        # one frame, whatever the length
+        confidence = np.lib.format.open_memmap(conf_tmp, mode="w+", dtype=np.uint8,
                                                shape=(n_frames, h, w))
         counted = [0]
 
@@ -142,8 +144,9 @@ def stereo_sequence(path: str | os.PathLike, name: str, config: StereoConfig | N
                 if c.fill:
                     d = fill_from_background(d, median_rows=_median_rows(h))
                     d = np.maximum(d, d_min)      # every pixel a depth, at most max_depth_m
-                confidence[i] = conf
                 z = depth_from_disparity(d, f_px, baseline, None if c.fill else c.max_depth_m)
+                conf = np.where(np.isfinite(z), np.clip(conf, 0, 1), 0)   # 0: no depth
+                confidence[i] = np.round(conf * 255)
                 counted[0] += int(np.isfinite(z).sum())
                 yield z
 
@@ -161,7 +164,7 @@ def stereo_sequence(path: str | os.PathLike, name: str, config: StereoConfig | N
     try:
         confidence.flush()
         add_prediction(path, name + CONFIDENCE_SUFFIX,
-                       (confidence[i].astype(np.float32) for i in range(n_frames)),
+                       (confidence[i] * np.float32(1 / 255) for i in range(n_frames)),
                        {"kind": "confidence", "of": name})
     finally:
         del confidence
