@@ -21,9 +21,28 @@ DISTANCE_BANDS_M = ((0.0, 10.0), (10.0, 20.0), (20.0, 40.0), (40.0, 80.0))
 GROUND_TOLERANCE_M = 0.10
 
 
-def default_protocol(name: str) -> str:
-    """Metric predictions (``*-metric``, the stereo baseline) are evaluated without rescaling."""
-    return "metric" if name.endswith("-metric") or name.startswith("stereo-baseline") else "median"
+CONFIDENCE_BANDS = 4     # accuracy by confidence: quartiles of each frame's confidence
+
+
+def default_protocol(name: str, attrs: dict[str, Any] | None = None) -> str:
+    """Metric predictions (``*-metric``, the stereo baseline, attribute ``metric``, e.g. stereo
+    ground truth from ``stereo --sequence``) are evaluated without rescaling."""
+    metric = name.endswith("-metric") or name.startswith("stereo-baseline")
+    return "metric" if metric or int((attrs or {}).get("metric", 0)) else "median"
+
+
+def confidence_masks(confidence: np.ndarray, bands: int = CONFIDENCE_BANDS
+                     ) -> dict[str, np.ndarray]:
+    """``conf qK`` masks: the K-th of ``bands`` equal shares of the pixels with a confidence
+    (> 0) by rank, ``q1`` the least confident; ties stay together (a score, not a probability,
+    so ranks rather than fixed values)."""
+    c = np.asarray(confidence, dtype=np.float32)
+    have = np.isfinite(c) & (c > 0)
+    if not have.any():
+        return {}
+    edges = np.quantile(c[have], np.linspace(0, 1, bands + 1)[1:-1])
+    k = np.searchsorted(edges, c, side="right")
+    return {f"conf q{j + 1}": have & (k == j) for j in range(bands)}
 
 
 def region_masks(gt: np.ndarray, instances: np.ndarray | None, agents: np.ndarray | None,
@@ -67,7 +86,10 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
     with SequenceReader(path) as r:
         if not r.has("depth"):
             raise InputError("sequence has no ground-truth depth to evaluate against", r.path)
-        names = list(names) if names else r.predictions()
+        attrs = {n: r.prediction_attrs(n) for n in r.predictions()}
+        # confidence maps (attribute kind = confidence) are not depth: they split their depth
+        names = list(names) if names else [n for n in r.predictions()
+                                           if attrs[n].get("kind") != "confidence"]
         missing = [n for n in names if n not in r.predictions()]
         if missing:
             raise InputError(f"no prediction(s) {missing} (has {r.predictions()})", r.path)
@@ -81,7 +103,10 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
         if r.meta.mounting is not None:
             plane = (r.meta.mounting.normal, r.meta.mounting.height_m)
         per: dict[tuple[str, str, str], list[dict]] = {}
-        prot_of = {n: list(protocols) if protocols else [default_protocol(n)] for n in names}
+        prot_of = {n: list(protocols) if protocols else [default_protocol(n, attrs.get(n))]
+                   for n in names}
+        conf_of = {n: attrs[n].get("confidence") for n in names
+                   if attrs[n].get("confidence") in attrs}
         for i in progress(frames, desc="evaluate", unit="frame"):
             gt = r.depth(i)
             inst = r.instances(i) if r.has("instances") else None
@@ -92,10 +117,12 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
                 continue
             for name in names:
                 pred = r.prediction(name, i)
+                bands = confidence_masks(r.prediction(conf_of[name], i)) if name in conf_of \
+                    else {}
                 for prot in prot_of[name]:
                     # one scale per image from all valid pixels; regions are evaluated with it
                     scaled, s = apply_protocol(pred, gt, prot, vm)
-                    for reg, m in masks.items():
+                    for reg, m in {**masks, **bands}.items():
                         if not (vm & m).any():
                             continue
                         res = depth_metrics(scaled, gt, min_depth=min_depth, max_depth=max_depth,
@@ -107,6 +134,7 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
     for (name, prot, reg), rows in per.items():
         avg = average(rows)
         avg["scale_median"] = float(np.median([x["scale"] for x in rows]))
+        avg["pixels"] = int(sum(x["n"] for x in rows))
         results.setdefault(name, {}).setdefault(prot, {})[reg] = avg
     return {"sequence": name_seq, "path": os.fspath(path), "split": split,
             "frames": len(frames), "results": results}
@@ -229,6 +257,10 @@ def _evaluate_cmd(args: argparse.Namespace) -> int:
     for name, by_prot in res["results"].items():
         for prot, regs in by_prot.items():
             print(format_row(f"{name} [{prot}]", regs["all"]))
+            bands = sorted(b for b in regs if b.startswith("conf "))
+            for band in bands:      # accuracy by confidence band, with its share of the pixels
+                share = regs[band]["pixels"] / max(sum(regs[b]["pixels"] for b in bands), 1)
+                print(format_row(f"  {band} {100 * share:4.1f}%", regs[band]))
     if args.json:
         _write_json(args.json, res)
     return 0

@@ -59,7 +59,13 @@ def register(sub) -> None:
     p.add_argument("--min-depth", type=float, help="nearest depth (m): sets the disparity range")
     p.add_argument("--max-depth", type=float, default=80.0, help="depth cap (m)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="matcher option, e.g. --set uniqueness=20")
+                   help="matcher option, e.g. --set uniqueness=20 (temporal fusion: "
+                        "--set temporal.samples=40)")
+    p.add_argument("--sequence", help="a sequence file with left/right streams: store its stereo "
+                                      "depth as prediction --out-name (and NAME-confidence)")
+    p.add_argument("--out-name", help="prediction name for --sequence")
+    p.add_argument("--temporal", action="store_true",
+                   help="--sequence: fuse the static background over the frames")
     p.set_defaults(func=cmd_stereo)
 
     p = sub.add_parser("mount", help="camera height and ground plane from a board on the ground",
@@ -137,6 +143,8 @@ def _config(args, **extra):
 
 
 def cmd_stereo(args: argparse.Namespace) -> int:
+    if args.sequence or args.out_name or args.temporal:
+        return _stereo_on_sequence(args)
     if args.recording and (args.left or args.right or args.rectified):
         raise InputError("give either --recording or --left/--right, not both")
     if not args.recording and not (args.left and args.right):
@@ -178,6 +186,34 @@ def _stereo_pair(args) -> int:
         write_ply(args.ply, pipe.points(res), res.left_rect)
     print(f"disparity: {100 * res.valid.mean():.1f}% measured"
           f"{', filled to 100%' if args.fill else ''} -> {args.disparity_out}")
+    return 0
+
+
+def _stereo_on_sequence(args) -> int:
+    """``--sequence SEQ.h5 --out-name NAME [--temporal] [--fill]``: see stereo/sequence.py."""
+    from staticdepth.cli import parse_overrides
+    from staticdepth.stereo.sequence import stereo_sequence
+    from staticdepth.stereo.temporal import TemporalConfig
+
+    if not (args.sequence and args.out_name):
+        raise InputError("--sequence, --out-name and --temporal go together: "
+                         "stereo --sequence SEQ.h5 --out-name NAME [--temporal]")
+    if args.left or args.right or args.recording or args.rectified or args.out:
+        raise InputError("--sequence reads the sequence's own left/right streams: drop --left, "
+                         "--right, --recording, --rectified and --out")
+    overrides = parse_overrides(args.set)
+    temporal = {k[len("temporal."):]: v for k, v in overrides.items() if k.startswith("temporal.")}
+    if temporal and not args.temporal:
+        raise InputError("temporal.* settings need --temporal")
+    args.set = [f"{k}={v}" for k, v in overrides.items() if not k.startswith("temporal.")]
+    extra = {"num_disparities": _num_disparities(args.max_disparity)} if args.max_disparity \
+        else {}
+    res = stereo_sequence(args.sequence, args.out_name, _config(args, **extra),
+                          TemporalConfig.from_dict(temporal, "--set temporal.*")
+                          if args.temporal else None)
+    print(f"{res.frames} frames, {res.num_disparities} disparities, {100 * res.density:.1f}% "
+          f"of pixels with depth{' (background model reused)' if res.background_reused else ''}"
+          f" -> predictions {res.name!r} and {res.name + '-confidence'!r} in {args.sequence}")
     return 0
 
 

@@ -63,11 +63,14 @@ def fill_from_background(disparity: np.ndarray, median_rows: int = 21) -> np.nda
     is the right guess); then the filled pixels (only those) are replaced by the median over
     ``median_rows`` rows of the filled map, which removes streaks copied from a single wrong
     neighbour. Rows without any valid pixel take the nearest filled row (the one below on a tie);
-    an all-invalid map is 0.
+    an all-invalid map is 0. A disparity <= 0 (infinite depth: a match at the end of the search
+    range, no depth at all) is a hole too, so every filled pixel has a positive disparity.
     Returns float32 (H, W) without NaN.
     """
     d = np.asarray(disparity, dtype=np.float32)
-    holes = np.isnan(d)
+    holes = ~(d > 0)
+    if holes.any():
+        d = np.where(holes, np.float32(np.nan), d)
     if not holes.any():
         return d.copy()
     if holes.all():

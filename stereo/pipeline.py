@@ -132,6 +132,9 @@ class StereoPipeline:
         if self.config.fill:
             disparity = fill_from_background(disparity,
                                              median_rows=_median_rows(disparity.shape[0]))
+            # dense means every pixel has a depth: nothing beyond the depth cap
+            d_min = np.float32(self.camera.fx * self.baseline_m / self.config.max_depth_m)
+            disparity = np.maximum(disparity, d_min)
         depth = depth_from_disparity(disparity, self.camera.fx, self.baseline_m,
                                      self.config.max_depth_m)
         return StereoResult(disparity.astype(np.float32, copy=False), depth, out.valid,
