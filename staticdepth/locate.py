@@ -44,6 +44,7 @@ POS_DTYPE = np.dtype([("frame", np.int32), ("time_s", np.float64), ("track", np.
                       ("v", np.float32), ("X", np.float64), ("Y", np.float64), ("Z", np.float64),
                       ("ground_x", np.float64), ("ground_y", np.float64),
                       ("distance_m", np.float64), ("source", "U5"), ("occluded", np.bool_),
+                      ("rider", np.bool_),
                       ("speed_mps", np.float64), ("left", np.float32), ("right", np.float32),
                       ("top_v", np.float32)])
 
@@ -139,7 +140,7 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
     n, d = gframe.normal, gframe.camera_height_m
     chunks = []
     with SequenceReader(seq_path) as r:
-        K, H = r.camera.K, r.height
+        K, H, W = r.camera.K, r.height, r.width
         times = r.timestamps()
         pred = None
         if depth_pred == "auto":
@@ -164,7 +165,9 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
             out["v"] = det["foot_v"] + conf.edge_px
             radius = np.where(det["class_id"] == PERSON, conf.person_radius_m, 0.0)
             below = [_ids_below(inst, det[k], conf.contact_px) for k in range(len(det))]
-            occl = np.array([bool(b) for b in below]) | (det["foot_v"] >= H - 1)
+            cut = (det["left"] <= 0) | (det["right"] >= W - 1) | (det["foot_v"] >= H - 1)
+            occl = np.array([bool(b) for b in below]) | cut      # cut by the image's edge
+            P = gf.contact_points(K, n, d, out["u"], out["v"], radius)
             # a rider stands on its bicycle or motorcycle: it takes the vehicle's contact
             cls_of = dict(zip(det["instance_id"].tolist(), det["class_id"].tolist()))
             row_of = {iid: k for k, iid in enumerate(det["instance_id"].tolist())}
@@ -172,13 +175,16 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
                 ride = [b for b in below[k] if cls_of.get(b) in RIDEABLE_CLASSES]
                 if ride:
                     j = row_of[ride[0]]
-                    out["u"][k], out["v"][k], radius[k] = out["u"][j], out["v"][j], 0.0
+                    out["u"][k], out["v"][k], P[k] = out["u"][j], out["v"][j], P[j]
                     occl[k] = occl[j]
-            P = gf.contact_points(K, n, d, out["u"], out["v"], radius)
+                    out["rider"][k] = True
+            Z = r.prediction(pred, i) if pred is not None else None
+            if Z is not None:               # a static object (bench, kerb) hides the feet
+                occl |= _static_occluder(Z, K, n, d, out["u"], out["v"] - conf.edge_px,
+                                         conf.contact_px) & ~out["rider"]
             out["occluded"] = occl
             out["source"] = "plane"
-            if pred is not None and occl.any():
-                Z = r.prediction(pred, i)
+            if Z is not None and occl.any():
                 for k in np.flatnonzero(occl):
                     z = Z[inst == det["instance_id"][k]]
                     z = z[np.isfinite(z) & (z > 0)]
@@ -210,18 +216,36 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
     return np.sort(pos, order=["frame", "track"])
 
 
-def _ids_below(inst: np.ndarray, det, contact_px: int) -> list[int]:
-    """Other instance ids within ``contact_px`` rows under the detection's lowest row (its
-    columns, +-1): the contact is hidden (or, for a rider, on its vehicle)."""
+def _static_occluder(Z: np.ndarray, K, n, d: float, u, v_low, rows: int,
+                     ratio: float = 0.9) -> np.ndarray:
+    """Whether the metric depth map, ``rows`` rows under each lowest row, sees something clearly
+    nearer than the ground plane there (< ``ratio`` x the plane's depth): a static occluder that
+    no instance map shows."""
+    from staticdepth.geometry.plane import plane_depth_at_pixels
+
+    h, w = Z.shape
+    uu = np.clip(np.round(np.asarray(u)).astype(int), 0, w - 1)
+    vv = np.asarray(v_low).astype(int) + rows
+    inside = vv < h
+    vv = np.minimum(vv, h - 1)
+    zp = plane_depth_at_pixels(K, n, d, uu, vv)
+    zm = Z[vv, uu]
+    with np.errstate(invalid="ignore"):
+        return inside & np.isfinite(zm) & np.isfinite(zp) & (zp > 0) & (zm < ratio * zp)
+
+
+def _ids_below(inst: np.ndarray, det, contact_px: int, side_px: int = 2) -> list[int]:
+    """Other instance ids that touch the silhouette's lowest row: within ``contact_px`` rows under
+    it or ``side_px`` rows above it, in its columns +- ``side_px`` (a nearer agent beside or in
+    front of the feet). The contact is then hidden (or, for a rider, on its vehicle)."""
     h, w = inst.shape
     v = int(det["foot_v"])
-    u0, u1 = max(int(det["left"]) - 1, 0), min(int(det["right"]) + 2, w)
-    patch = inst[min(v + 1, h):min(v + 1 + contact_px, h), u0:u1]
-    row = inst[v, u0:u1]
-    cols = np.flatnonzero(row == det["instance_id"])      # under the lowest row's own pixels
-    if len(cols) == 0 or patch.size == 0:
+    row = inst[v]
+    cols = np.flatnonzero(row == det["instance_id"])
+    if len(cols) == 0:
         return []
-    patch = patch[:, max(cols.min() - 1, 0):cols.max() + 2]
+    patch = inst[max(v - side_px, 0):min(v + 1 + contact_px, h),
+                 max(cols.min() - side_px, 0):min(cols.max() + side_px + 1, w)]
     ids = np.unique(patch)
     return [int(i) for i in ids if i != 0 and i != det["instance_id"]]
 
@@ -253,7 +277,7 @@ def pairs(pos: np.ndarray, close_m: float = 2.0, classes=(PERSON,)) -> list[dict
 
 
 POS_COLUMNS = ("frame", "time_s", "track", "class", "score", "u", "v", "X", "Y", "Z", "ground_x",
-               "ground_y", "distance_m", "source", "occluded", "speed_mps")
+               "ground_y", "distance_m", "source", "occluded", "rider", "speed_mps")
 
 
 def positions_csv(pos: np.ndarray) -> str:
@@ -265,7 +289,7 @@ def positions_csv(pos: np.ndarray) -> str:
         w.writerow([int(p["frame"]), f"{p['time_s']:.3f}", int(p["track"]), cls,
                     f"{p['score']:.3f}", f"{p['u']:.1f}", f"{p['v']:.1f}"]
                    + [f"{p[k]:.3f}" for k in ("X", "Y", "Z", "ground_x", "ground_y", "distance_m")]
-                   + [p["source"], int(p["occluded"]),
+                   + [p["source"], int(p["occluded"]), int(p["rider"]),
                       "" if not np.isfinite(p["speed_mps"]) else f"{p['speed_mps']:.3f}"])
     return buf.getvalue()
 
