@@ -150,7 +150,6 @@ def export_model(model_spec: str, summary_path: str, seq_path: str, out: str, *,
     ``check_frames`` frames of the sequence; returns the constants and the check's figures."""
     import torch
 
-    from staticdepth.dataset.h5 import SequenceReader
     from staticdepth.fileio import atomic_path
     from staticdepth.models import TorchDepthModel, load_model
 
