@@ -375,7 +375,7 @@ def _run(args) -> int:
     from staticdepth import locate_draw
 
     if args.bev:
-        locate_draw.write_bev(args.bev, pos, close=pr)
+        locate_draw.write_bev(args.bev, pos)
     if args.annotate:
         locate_draw.write_annotated(args.annotate, args.sequence, pos, pr, args.annotate_frames)
     src_counts = {s: int(np.count_nonzero(pos["source"] == s)) for s in ("plane", "depth")}

@@ -120,6 +120,7 @@ def annotate_frame(image: np.ndarray, pos_frame: np.ndarray, pairs_frame: list) 
         pa, pb = (int(a["u"]), int(a["v"])), (int(b["u"]), int(b["v"]))
         cv2.line(img, pa, pb, RED, 2, cv2.LINE_AA)
         mid = ((pa[0] + pb[0]) // 2, (pa[1] + pb[1]) // 2 - 4)
+        cv2.putText(img, f"{pr['distance_m']:.1f}m", mid, FONT, 0.4, (255, 255, 255), 3, cv2.LINE_AA)
         cv2.putText(img, f"{pr['distance_m']:.1f}m", mid, FONT, 0.4, RED, 1, cv2.LINE_AA)
     for p in pos_frame:
         col = RED if int(p["track"]) in close_tracks else track_colour(int(p["track"]))
@@ -127,7 +128,9 @@ def annotate_frame(image: np.ndarray, pos_frame: np.ndarray, pairs_frame: list) 
         if np.all(np.isfinite([l, r, t])):
             cv2.rectangle(img, (int(l), int(t)), (int(r), int(b)), col, 2 if col == RED else 1)
         label = f"{int(p['track'])}: {p['distance_m']:.1f}m" + ("*" if p["source"] == "depth" else "")
-        cv2.putText(img, label, (int(p["u"]) - 20, int(b) + 12), FONT, 0.38, col, 1, cv2.LINE_AA)
+        org = (int(p["u"]) - 20, int(b) + 12)
+        cv2.putText(img, label, org, FONT, 0.38, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(img, label, org, FONT, 0.38, col, 1, cv2.LINE_AA)
         cv2.circle(img, (int(round(p["u"])), int(round(p["v"]))), 2, col, -1)
     return img
 
