@@ -165,3 +165,36 @@ def test_locate_command_outputs(tmp_path):
     for name in ("bev.png", "frames.gif", "frames_sheet.png"):
         assert (tmp_path / name).stat().st_size > 1000
     assert main(argv + ["--camera-height", "5", "--close-m", "0"]) == 2
+
+
+def test_hidden_feet_use_the_metric_map(tmp_path):
+    """A static box (no instance) hides a person's feet: the plane alone places it too far; a
+    metric depth map (here the scene's true depth, stored as adapt's prediction) flags the contact
+    as hidden and locates the person from its own depth (source 'depth')."""
+    from staticdepth.dataset.h5 import add_prediction
+
+    scene = UprightScene(n_people=3, seed=5, bench=True)
+    seq = str(tmp_path / "bench.h5")
+    truth = scene.write(seq, frames=1)
+    T = truth[0][0]
+    pos = locate(seq, scene.normal, scene.height_m, LocateConfig(), depth_pred=None)
+    p0 = pos[pos["track"] == 0][0]
+    err_plane = np.linalg.norm([p0["X"] - T[0], p0["Y"] - T[1], p0["Z"] - T[2]]) / np.linalg.norm(T)
+    assert not p0["occluded"] and err_plane > 0.05        # nothing in the instances shows it
+    add_prediction(seq, "ft-align-metric", [scene.render(0)["depth"].astype(np.float32)],
+                   {"metric": True})
+    pos = locate(seq, scene.normal, scene.height_m, LocateConfig())
+    p0 = pos[pos["track"] == 0][0]
+    assert p0["occluded"] and p0["source"] == "depth"
+    err = np.linalg.norm([p0["X"] - T[0], p0["Y"] - T[1], p0["Z"] - T[2]]) / np.linalg.norm(T)
+    assert err < 0.05, (err, err_plane)
+    others = pos[pos["track"] != 0]
+    assert np.all(others["source"] == "plane")            # visible feet keep the plane
+    assert main(["locate", seq, "--plane", str(_plane_json(tmp_path, scene)), "--camera-height",
+                 "5", "--depth", "nothing", "--out", str(tmp_path / "p.csv")]) == 2
+
+
+def _plane_json(tmp_path, scene):
+    path = tmp_path / "plane.json"
+    path.write_text(json.dumps({"normal": scene.normal.tolist()}))
+    return path

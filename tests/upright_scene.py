@@ -25,6 +25,7 @@ class UprightScene:
     n_people: int = 10
     fps: float = 10.0
     seed: int = 0
+    bench: bool = False        # a static box (no instance) hiding person 0's feet in frame 0
 
     def __post_init__(self):
         rng = np.random.default_rng(self.seed)
@@ -89,8 +90,29 @@ class UprightScene:
             nearer = t_hit < best
             best[nearer] = t_hit[nearer]
             inst[nearer] = k + 1
+        if self.bench:                                     # axis-aligned box, slab method
+            lo, hi = self.bench_box()
+            with np.errstate(invalid="ignore", divide="ignore"):
+                t0 = (lo - self.C) / D
+                t1 = (hi - self.C) / D
+            t_near = np.nanmax(np.minimum(t0, t1), axis=1)
+            t_far = np.nanmin(np.maximum(t0, t1), axis=1)
+            hit = (t_near <= t_far) & (t_near > 0) & (t_near < best)
+            best[hit] = t_near[hit]
+            inst[hit] = 0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t_ground = np.where(D[:, 2] < 0, -oz / D[:, 2], np.inf)
+        depth = np.minimum(best, t_ground)                  # camera z of the hit (r_z = 1)
         feet_w = np.column_stack([self.positions(i), np.zeros(self.n_people)])
-        return {"instances": inst.reshape(h, w), "contacts": self.cam_from_world(feet_w)}
+        return {"instances": inst.reshape(h, w), "contacts": self.cam_from_world(feet_w),
+                "depth": np.where(np.isfinite(depth), depth, np.nan).reshape(h, w)}
+
+    def bench_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """A 1.6 m wide, 0.3 m deep, 0.6 m high box 0.7 m in front of person 0 at frame 0."""
+        px, py = self.start[0]
+        toward = -np.array([px, py]) / np.hypot(px, py)       # from the person to the camera
+        cx, cy = np.array([px, py]) + 0.7 * toward
+        return np.array([cx - 0.8, cy - 0.15, 0.0]), np.array([cx + 0.8, cy + 0.15, 0.6])
 
     def write(self, path: str, frames: int) -> list[np.ndarray]:
         """A sequence file with the instances and agent rows (track = person); returns the true
