@@ -13,7 +13,9 @@ model's own ``predict`` and the numpy :func:`~staticdepth.geometry.alignment.ali
 mask: a deployed camera has no detector in the loop; ``adapt`` additionally gives each detected
 agent its contact depth). Keys read from the adapt summary: ``plane.normal`` (or
 ``planes.agents.normal``), ``camera_height_m``, ``scale.ft-align`` (else the camera height),
-``config.eps``, ``config.erode_px``, ``config.detector``, ``config.detector_model``, ``size``.
+``config.eps``, ``config.erode_px``, ``config.detector``, ``config.detector_model``, and
+``ground_polygon`` when present (the ground region's vertices in pixels; otherwise the feet hull
+is rebuilt from the sequence's agents or by running the summary's detector again).
 """
 from __future__ import annotations
 
@@ -50,6 +52,11 @@ def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str 
                 raise InputError(f"the ground mask is {G.shape[1]}x{G.shape[0]}, the camera "
                                  f"{W}x{H}", ground_mask_png)
             how = f"mask {ground_mask_png}"
+        elif isinstance(s.get("ground_polygon"), list) and len(s["ground_polygon"]) >= 3:
+            from staticdepth.geometry.alignment import ground_mask_from_polygon
+
+            G = ground_mask_from_polygon(s["ground_polygon"], W, H)
+            how = "the summary's ground_polygon"
         else:
             G, how = _ground_from_feet(r, cfg, log)
     return {"K": K, "width": W, "height": H, "normal": n_g, "camera_height_m": h_c,

@@ -111,3 +111,34 @@ def test_export_bad_inputs(deployment, tmp_path):
     assert not (tmp_path / "x.onnx").exists()
     assert main(["predict", "--model", f"builtin:{d / 'm.pt'}", "--summary", str(summary),
                  "--input", str(seq), "--out", str(tmp_path / "o")]) == 2   # no --sequence
+
+
+def test_ground_region_sources(deployment, tmp_path):
+    """The ground region: the summary's polygon when it has one, else the feet hull of the
+    sequence's agents (adapt's), else a given mask."""
+    from staticdepth.deploy import deployment_constants
+    from staticdepth.geometry.alignment import ground_mask_from_feet
+
+    d, seq, summary = deployment
+    c = deployment_constants(str(summary), str(seq))
+    with SequenceReader(seq) as r:
+        rows = np.concatenate([r.agents(i) for i in r.split("adapt")])
+    feet = np.stack([rows["foot_u"], rows["foot_v"]], 1)
+    assert np.array_equal(c["ground"], ground_mask_from_feet(feet[feet[:, 1] >= 0], 200, 100,
+                                                             200 / 80.0))
+    s = json.loads(summary.read_text())
+    s["ground_polygon"] = [[10, 99], [190, 99], [150, 60], [50, 60]]
+    poly = tmp_path / "p.json"
+    poly.write_text(json.dumps(s))
+    c = deployment_constants(str(poly), str(seq))
+    assert c["ground"][80, 100] and not c["ground"][40, 100] and "polygon" in c["ground_from"]
+    mask = np.zeros((100, 200), np.uint8)
+    mask[70:, :] = 255
+    cv2.imwrite(str(tmp_path / "g.png"), mask)
+    c = deployment_constants(str(summary), str(seq), str(tmp_path / "g.png"))
+    assert c["ground"].sum() == 30 * 200
+    cv2.imwrite(str(tmp_path / "small.png"), mask[:50])
+    from staticdepth.errors import InputError
+
+    with pytest.raises(InputError, match="ground mask"):
+        deployment_constants(str(summary), str(seq), str(tmp_path / "small.png"))
