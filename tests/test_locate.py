@@ -198,3 +198,30 @@ def _plane_json(tmp_path, scene):
     path = tmp_path / "plane.json"
     path.write_text(json.dumps({"normal": scene.normal.tolist()}))
     return path
+
+
+def test_locate_with_the_motion_detector(tmp_path):
+    """No instances in the file: the motion detector finds the people, the tracker links them,
+    and their visible contacts land where the truth is."""
+    from staticdepth.dataset.h5 import SequenceReader, SequenceWriter
+
+    scene = UprightScene(n_people=5, seed=6)
+    full = str(tmp_path / "full.h5")
+    truth = scene.write(full, frames=16)
+    seq = str(tmp_path / "video.h5")               # the same frames, as a video would give them
+    with SequenceReader(full) as r:
+        meta = r.meta
+        with SequenceWriter(seq, meta, streams=("left",)) as w:
+            for i in range(len(r)):
+                w.append(left=r.left(i), timestamp=float(r.timestamps()[i]))
+    pos = locate(seq, scene.normal, scene.height_m, LocateConfig(), detector="motion")
+    vis = pos[~pos["occluded"]]
+    assert len(vis) >= 30
+    rel = []
+    for p in vis:
+        P = np.array([p["X"], p["Y"], p["Z"]])
+        T = truth[int(p["frame"])][np.argmin(np.linalg.norm(truth[int(p["frame"])] - P, axis=1))]
+        rel.append(np.linalg.norm(P - T) / np.linalg.norm(T))
+    assert np.median(rel) <= 0.02, np.median(rel)
+    # tracks: a person keeps one id over most of its frames
+    assert len(np.unique(pos["track"])) <= 2 * scene.n_people

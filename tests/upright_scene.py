@@ -126,6 +126,8 @@ class UprightScene:
                             adapt_frames=frames, camera_height_m=self.height_m)
         truth = []
         rng = np.random.default_rng(self.seed + 1)
+        background = rng.integers(40, 110, (self.height, self.width, 3), dtype=np.uint8)
+        colours = rng.integers(190, 255, (self.n_people + 1, 3), dtype=np.uint8)
         with SequenceWriter(path, meta, streams=("left", "instances")) as wr:
             for i in range(frames):
                 out = self.render(i)
@@ -135,7 +137,8 @@ class UprightScene:
                 rows["instance_id"] = ids
                 rows["class_id"] = 0
                 rows["track_id"] = ids.astype(int) - 1
-                img = rng.integers(60, 200, (self.height, self.width, 3), dtype=np.uint8)
+                img = np.where(out["instances"][..., None] > 0, colours[out["instances"]],
+                               background)
                 wr.append(left=img, instances=out["instances"], agents=rows,
                           timestamp=i / self.fps)
                 truth.append(out["contacts"])
