@@ -229,10 +229,18 @@ class MetricOnnx:
         return len(inp.shape) == 3 and inp.type == "tensor(uint8)"
 
     def predict(self, image: np.ndarray) -> np.ndarray:
+        """A frame of another size with the same aspect (the video before ``import-video
+        --width``) is resized to the model's; the depth is at the model's size."""
         img = np.ascontiguousarray(image, dtype=np.uint8)
         if img.shape != self.shape:
-            raise InputError(f"frame is {img.shape}, the exported model takes {self.shape}",
-                             self.path)
+            h, w = self.shape[:2]
+            if (img.ndim != 3 or img.shape[2] != 3
+                    or abs(img.shape[1] / img.shape[0] - w / h) > 0.01 * w / h):
+                raise InputError(f"frame is {img.shape}, the exported model takes {self.shape}",
+                                 self.path)
+            import cv2
+
+            img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
         return self.session.run(None, {self.name: img})[0]
 
 

@@ -81,6 +81,14 @@ def test_predict_formats(deployment, capsys):
         first = m.predict(r.left(0))
     got = np.load(d / "npy" / "000000.npy")
     assert len(list((d / "npy").glob("*.npy"))) == 3 and np.allclose(got, first)
+    with SequenceReader(seq) as r:                   # the raw video's size: resized to the model's
+        big = cv2.resize(r.left(0), (400, 200), interpolation=cv2.INTER_NEAREST)
+    assert m.predict(big).shape == (100, 200)
+    assert np.median(np.abs(m.predict(big) - first) / first) < 0.01
+    from staticdepth.errors import InputError
+
+    with pytest.raises(InputError, match="exported model takes"):
+        m.predict(np.zeros((100, 100, 3), np.uint8))
     assert main(["predict", "--model", str(onnx_path), "--input", str(seq), "--out",
                  str(d / "png"), "--format", "png16", "--max-frames", "2"]) == 0
     png = cv2.imread(str(d / "png" / "000000.png"), cv2.IMREAD_UNCHANGED)
