@@ -263,11 +263,13 @@ def _frames(source: str, every: int = 1, max_frames: int | None = None) -> Itera
 
 
 def make_predictor(model: str, summary: str | None, sequence: str | None,
-                   ground_mask_png: str | None = None, log=print):
+                   ground_mask_png: str | None = None, log=print, device: str = "auto"):
     """(callable image -> depth, 'metric' | 'relative', description)."""
     path = model[5:] if model.startswith("onnx:") else model
     if path.endswith(".onnx") and MetricOnnx.is_metric(path):
-        m = MetricOnnx(path)
+        providers = (["CUDAExecutionProvider", "CPUExecutionProvider"]
+                     if device.startswith("cuda") else None)
+        m = MetricOnnx(path, providers)
         return m.predict, "metric", f"exported metric model {path}"
     from staticdepth.geometry.alignment import depth_from_inverse
     from staticdepth.models import TorchDepthModel, load_model
@@ -276,7 +278,7 @@ def make_predictor(model: str, summary: str | None, sequence: str | None,
     if isinstance(net, TorchDepthModel):
         from staticdepth.cli import resolve_device
 
-        net.to(resolve_device("auto"))
+        net.to(resolve_device(device))
     if summary:
         if not sequence:
             raise InputError("--summary needs --sequence (the camera and its ground region)")
@@ -289,7 +291,7 @@ def make_predictor(model: str, summary: str | None, sequence: str | None,
 
 def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
             summary: str | None = None, sequence: str | None = None, every: int = 1,
-            max_frames: int | None = None, log=print) -> dict[str, Any]:
+            max_frames: int | None = None, device: str = "auto", log=print) -> dict[str, Any]:
     """Stream frames through a model into ``out_dir``; returns frames, fps and the kind."""
     import cv2
 
@@ -298,7 +300,7 @@ def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
 
     if fmt not in ("png16", "npy", "mp4"):
         raise InputError(f"--format must be png16, npy or mp4, got {fmt!r}")
-    fn, kind, desc = make_predictor(model, summary, sequence, log=log)
+    fn, kind, desc = make_predictor(model, summary, sequence, log=log, device=device)
     log(f"model: {desc}")
     os.makedirs(out_dir, exist_ok=True)
     writer, tmp_ctx, rng = None, None, None
@@ -378,6 +380,9 @@ def register(sub) -> None:
     p.add_argument("--sequence", help="the adapted sequence (with --summary)")
     p.add_argument("--every", type=int, default=1)
     p.add_argument("--max-frames", type=int, default=None)
+    from staticdepth.cli import add_device_argument
+
+    add_device_argument(p)
     p.set_defaults(func=_run_predict)
 
 
@@ -394,7 +399,8 @@ def _run_export(args) -> int:
 
 def _run_predict(args) -> int:
     rep = predict(args.model, args.input, args.out, args.format, summary=args.summary,
-                  sequence=args.sequence, every=args.every, max_frames=args.max_frames)
+                  sequence=args.sequence, every=args.every, max_frames=args.max_frames,
+                  device=args.device)
     print(f"{rep['frames']} frames of {rep['kind']} depth -> {rep['out']}: "
           f"{rep['fps_model']:.1f} frames/s (model), {rep['fps_total']:.1f} frames/s overall")
     return 0
