@@ -33,9 +33,12 @@ COMMAND_MODULES = [
     "staticdepth.stereo.rig_cli",    # import-rig
     "staticdepth.dataset.cli",       # synth, inspect, verify
     "staticdepth.dataset.commands",  # pack, import-kitti, import-carla, export, publish
+    "staticdepth.dataset.video",     # import-video
     "staticdepth.ground_plane",      # ground-plane
     "staticdepth.align",             # align
     "staticdepth.adapt",             # adapt, train-builtin
+    "staticdepth.locate",            # locate
+    "staticdepth.deploy",            # export-model, predict
     "staticdepth.baseline.cli",      # baseline train, baseline predict
     "staticdepth.evaluate",          # metrics, evaluate
     "staticdepth.report",            # report

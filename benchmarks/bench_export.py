@@ -1,0 +1,90 @@
+"""Exported ONNX (image -> metric depth) vs the torch/numpy pipeline it replaces: speed and agreement.
+
+Usage: python benchmarks/bench_export.py [--model builtin:PATH.pt] [--frames 20] [--size 400x200]
+       [--threads N]
+
+A synthetic scene (``demo`` preset) with its true plane stands for an adapted camera; the model is
+the given built-in network, else the user cache's, else a freshly initialised ``TinyDepthNet`` of
+the default widths (speed does not depend on the weights). Both paths run on the CPU with the same
+number of threads over the same frames; printed: frames per second of each, their ratio (goal >=
+2), and the median / 99th-percentile relative difference of the metric depth (goal <= 0.5%).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+
+import numpy as np
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", default=None)
+    ap.add_argument("--frames", type=int, default=20)
+    ap.add_argument("--size", default="400x200")
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args()
+    import onnxruntime as ort
+    import torch
+
+    from staticdepth.dataset.h5 import SequenceReader
+    from staticdepth.dataset.synth_io import render_to_file
+    from staticdepth.deploy import (MetricOnnx, deployment_constants, export_model,
+                                    metric_depth_reference)
+    from staticdepth.models import load_model
+    from staticdepth.models.registry import default_builtin_path
+    from staticdepth.models.tiny import builtin_model, save_builtin
+
+    torch.set_num_threads(args.threads)
+    w, h = (int(x) for x in args.size.split("x"))
+    tmp = tempfile.mkdtemp(prefix="bench_export_")
+    seq = os.path.join(tmp, "s.h5")
+    render_to_file(seq, preset_name="demo", n_frames=args.frames, adapt_frames=args.frames,
+                   seed=0, overrides={"width": w, "height": h})
+    spec = args.model
+    if spec is None and os.path.isfile(default_builtin_path()):
+        spec = "builtin"
+    if spec is None:
+        torch.manual_seed(0)
+        save_builtin(os.path.join(tmp, "m.pt"), builtin_model())
+        spec = f"builtin:{os.path.join(tmp, 'm.pt')}"
+    with SequenceReader(seq) as r:
+        m = r.meta.mounting
+        frames = [r.left(i) for i in range(len(r))]
+    summary = os.path.join(tmp, "s.adapt.json")
+    with open(summary, "w") as f:
+        json.dump({"plane": {"normal": m.normal.tolist()}, "camera_height_m": m.height_m,
+                   "scale": {"ft-align": m.height_m}, "config": {"detector": "gt"}}, f)
+    out = os.path.join(tmp, "m.onnx")
+    info = export_model(spec, summary, seq, out, check_frames=3, log=lambda s: None)
+    model = load_model(spec)
+    c = deployment_constants(summary, seq, log=lambda s: None)
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = args.threads
+    onnx = MetricOnnx(out)
+    onnx.session = ort.InferenceSession(out, so, providers=["CPUExecutionProvider"])
+
+    def run(fn):
+        fn(frames[0])                                   # warm-up
+        t0 = time.perf_counter()
+        outs = [fn(im) for im in frames]
+        return len(frames) / (time.perf_counter() - t0), outs
+
+    fps_ref, ref = run(lambda im: metric_depth_reference(model, im, c))
+    fps_onnx, got = run(onnx.predict)
+    rel = np.concatenate([np.abs(g - r_)[np.isfinite(r_)] / r_[np.isfinite(r_)]
+                          for g, r_ in zip(got, ref)])
+    print(f"model {spec}, {w}x{h}, {len(frames)} frames, {args.threads} threads")
+    print(f"torch/numpy pipeline: {fps_ref:.2f} frames/s")
+    print(f"exported ONNX:        {fps_onnx:.2f} frames/s")
+    print(f"ratio ONNX / pipeline: {fps_onnx / fps_ref:.2f}x (goal >= 2)")
+    print(f"metric depth difference: median {100 * np.median(rel):.4f}%, p99 "
+          f"{100 * np.percentile(rel, 99):.3f}% (goal: median <= 0.5%); export's own check "
+          f"{100 * info['median_rel_diff']:.4f}%")
+
+
+if __name__ == "__main__":
+    main()

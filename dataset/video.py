@@ -1,0 +1,231 @@
+"""Import a video, an image folder or a camera URL into a sequence file (``staticdepth import-video``).
+
+The step before ``adapt`` for a deployed camera: frames are streamed one at a time (a video or
+stream through ``cv2.VideoCapture``, a folder image by image), never loaded whole, into a
+sequence file with ``gt_kind = "none"`` (no ground truth) and the ``left`` stream only.
+
+Intrinsics come from a camera or rig JSON (:func:`staticdepth.geometry.camera.load_camera`; scaled
+when the frames are a uniformly resized version of the calibrated size) or, without one, from a
+stated horizontal field-of-view guess (square pixels, principal point at the image centre). Which
+of the two was used is recorded in the file's provenance (``intrinsics``) and returned, so that the
+command prints it. Timestamps: the video's own position (``CAP_PROP_POS_MSEC``), else frame index /
+fps; for a URL the wall clock since the first frame.
+"""
+from __future__ import annotations
+
+import glob
+import math
+import os
+import time
+from dataclasses import dataclass
+from typing import Iterator
+
+import cv2
+import numpy as np
+
+from staticdepth.errors import InputError
+
+IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm", ".webp")
+DEFAULT_FOV_DEG = 60.0
+
+
+@dataclass(frozen=True)
+class VideoFrame:
+    index: int            # index in the source (before --every)
+    timestamp: float      # seconds
+    rgb: np.ndarray       # (H, W, 3) uint8
+
+
+def is_url(source: str) -> bool:
+    return "://" in source
+
+
+def _to_rgb(img: np.ndarray, where: str) -> np.ndarray:
+    if img is None:
+        raise InputError("corrupt or unreadable frame", where)
+    if img.dtype != np.uint8:
+        raise InputError(f"expected 8-bit frames, got {img.dtype}", where)
+    if img.ndim == 2:
+        return np.repeat(img[..., None], 3, axis=2)
+    return np.ascontiguousarray(img[..., 2::-1])      # BGR(A) -> RGB
+
+
+def image_files(folder: str) -> list[str]:
+    files = sorted(f for f in glob.glob(os.path.join(folder, "*"))
+                   if f.lower().endswith(IMAGE_EXTS) and os.path.isfile(f))
+    if not files:
+        raise InputError(f"no images ({', '.join(IMAGE_EXTS)}) in the folder", folder)
+    return files
+
+
+def iter_frames(source: str, *, every: int = 1, max_frames: int | None = None,
+                fps: float | None = None) -> Iterator[VideoFrame]:
+    """Yield every ``every``-th frame of a video file, a camera/stream URL or an image folder, at
+    most ``max_frames`` of them, one at a time. ``fps`` sets the frame rate of a folder (default
+    10) or overrides a video's."""
+    if every < 1:
+        raise InputError(f"--every must be >= 1, got {every}")
+    if max_frames is not None and max_frames < 1:
+        raise InputError(f"--max-frames must be >= 1, got {max_frames}")
+    if fps is not None and not fps > 0:
+        raise InputError(f"--fps must be positive, got {fps}")
+    n_out = 0
+    if os.path.isdir(source):
+        rate = fps or 10.0
+        for i, path in enumerate(image_files(source)):
+            if i % every:
+                continue
+            data = np.fromfile(path, dtype=np.uint8)
+            img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+            yield VideoFrame(i, i / rate, _to_rgb(img, path))
+            n_out += 1
+            if max_frames is not None and n_out >= max_frames:
+                return
+        return
+    url = is_url(source)
+    if not url and not os.path.isfile(source):
+        raise InputError("no such video file, image folder or URL", source)
+    cap = cv2.VideoCapture(source)
+    if not cap.isOpened():
+        raise InputError("cv2.VideoCapture cannot open it", source)
+    try:
+        rate = fps or cap.get(cv2.CAP_PROP_FPS) or 0.0
+        if not (rate > 0 and math.isfinite(rate)):
+            rate = 0.0
+        t0 = time.monotonic()
+        i = -1
+        while True:
+            ok = cap.grab()
+            if not ok:
+                if i < 0:
+                    raise InputError("no frame could be read", source)
+                return
+            i += 1
+            if i % every:
+                continue
+            ok, img = cap.retrieve()
+            if not ok:
+                raise InputError(f"frame {i} cannot be decoded", source)
+            if url:
+                t = time.monotonic() - t0
+            elif rate:
+                t = i / rate
+            else:
+                t = cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
+            yield VideoFrame(i, float(t), _to_rgb(img, f"{source} frame {i}"))
+            n_out += 1
+            if max_frames is not None and n_out >= max_frames:
+                return
+    finally:
+        cap.release()
+
+
+def camera_for(width: int, height: int, camera_json: str | None, fov_deg: float | None):
+    """(Camera, provenance text): the calibrated camera (scaled to the frame size) or a FOV guess."""
+    from staticdepth.geometry.camera import Camera, load_camera
+
+    if camera_json and fov_deg is not None:
+        raise InputError("give either --camera or --fov-deg, not both")
+    if camera_json:
+        cam = load_camera(camera_json)
+        if (cam.width, cam.height) != (width, height):
+            sx, sy = width / cam.width, height / cam.height
+            if abs(sx - sy) > 0.01 * max(sx, sy):
+                raise InputError(f"the camera is {cam.width}x{cam.height}, the frames "
+                                 f"{width}x{height}: not a uniform resize", camera_json)
+            cam = cam.scaled(sx, sy)
+        return cam, f"camera JSON {os.path.abspath(camera_json)}"
+    fov = DEFAULT_FOV_DEG if fov_deg is None else float(fov_deg)
+    if not 1.0 <= fov <= 179.0:
+        raise InputError(f"--fov-deg must lie in [1, 179], got {fov}")
+    cam = Camera.from_fov(width, height, fov)
+    how = "given" if fov_deg is not None else "default"
+    return cam, (f"GUESS: horizontal field of view {fov:g} deg ({how}; square pixels, principal "
+                 f"point at the centre; f = {cam.fx:.1f} px)")
+
+
+def import_video(source: str, out: str, *, camera_json: str | None = None,
+                 fov_deg: float | None = None, every: int = 1, max_frames: int | None = None,
+                 adapt_frames: int | None = None, width: int | None = None,
+                 fps: float | None = None, name: str | None = None,
+                 overwrite: bool = False) -> dict:
+    """Stream ``source`` into the sequence file ``out``; returns a report dict (frames, size,
+    intrinsics, adapt_frames, path). ``width`` resizes frames (aspect kept; intrinsics follow);
+    ``adapt_frames`` None = every frame is in the adaptation split (clipped to the frames read)."""
+    from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
+    from staticdepth.fileio import exclusive_lock
+    from staticdepth.progress import progress
+
+    if adapt_frames is not None and adapt_frames < 0:
+        raise InputError(f"--adapt-frames must be >= 0, got {adapt_frames}")
+    if width is not None and width < 16:
+        raise InputError(f"--width must be >= 16, got {width}")
+    frames = iter_frames(source, every=every, max_frames=max_frames, fps=fps)
+    first = next(frames)
+    h0, w0 = first.rgb.shape[:2]
+    size = (w0, h0) if width is None else (int(width), int(round(h0 * width / w0)))
+    cam, how = camera_for(size[0], size[1], camera_json, fov_deg)
+    label = name or os.path.splitext(os.path.basename(source.rstrip("/")))[0] or "video"
+    meta = SequenceMeta(name=label, camera=cam, gt_kind="none", source="video", adapt_frames=0,
+                        provenance={"input": source, "intrinsics": how, "every": every,
+                                    "max_frames": max_frames, "resized_from": [w0, h0]})
+    with exclusive_lock(out):
+        w = SequenceWriter(out, meta, streams=("left",), overwrite=overwrite)
+        try:
+            for fr in progress(_chain(first, frames), total=max_frames, desc="import", unit="frame"):
+                img = fr.rgb
+                if img.shape[:2] != (h0, w0):
+                    raise InputError(f"frame {fr.index} is {img.shape[1]}x{img.shape[0]}, the "
+                                     f"first was {w0}x{h0}", source)
+                if (w0, h0) != size:
+                    img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+                w.append(left=img, timestamp=fr.timestamp)
+            n = len(w)
+            k = n if adapt_frames is None else min(adapt_frames, n)
+            w.set_attr("adapt_frames", int(k))
+            path = w.close()
+        except BaseException:
+            w.abort()
+            raise
+    return {"path": path, "frames": n, "size": size, "intrinsics": how, "adapt_frames": k,
+            "adapt_clipped": adapt_frames is not None and adapt_frames > n, "fx": cam.fx}
+
+
+def _chain(first: VideoFrame, rest: Iterator[VideoFrame]) -> Iterator[VideoFrame]:
+    yield first
+    yield from rest
+
+
+def register(sub) -> None:
+    p = sub.add_parser("import-video",
+                       help="import a video, an image folder or a camera URL (no ground truth)",
+                       description="Stream frames into a sequence file (gt_kind none) for "
+                                   "`staticdepth adapt`: intrinsics from a camera/rig JSON or a "
+                                   "stated field-of-view guess, recorded in the file.")
+    p.add_argument("source", help="video file, image folder, or a camera/stream URL (rtsp://...)")
+    p.add_argument("--out", required=True, help="output sequence file (.h5)")
+    p.add_argument("--camera", default=None, help="camera or rig JSON (intrinsics)")
+    p.add_argument("--fov-deg", type=float, default=None,
+                   help=f"horizontal field of view guess when no --camera (default {DEFAULT_FOV_DEG:g})")
+    p.add_argument("--every", type=int, default=1, help="keep every K-th frame")
+    p.add_argument("--max-frames", type=int, default=None, help="stop after N kept frames")
+    p.add_argument("--adapt-frames", type=int, default=None,
+                   help="the first N frames form the adaptation split (default: all)")
+    p.add_argument("--width", type=int, default=None, help="resize frames to this width")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frame rate of an image folder (default 10), or override a video's")
+    p.add_argument("--name", default=None, help="sequence name (default: the input's name)")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=_run)
+
+
+def _run(args) -> int:
+    rep = import_video(args.source, args.out, camera_json=args.camera, fov_deg=args.fov_deg,
+                       every=args.every, max_frames=args.max_frames,
+                       adapt_frames=args.adapt_frames, width=args.width, fps=args.fps,
+                       name=args.name, overwrite=args.overwrite)
+    print(f"intrinsics: {rep['intrinsics']}")
+    note = " (clipped to the frames read)" if rep["adapt_clipped"] else ""
+    print(f"wrote {rep['frames']} frames of {rep['size'][0]}x{rep['size'][1]} to {rep['path']}; "
+          f"adaptation split: the first {rep['adapt_frames']}{note}")
+    return 0

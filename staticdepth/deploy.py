@@ -1,0 +1,406 @@
+"""Deploy an adapted network on its camera: ``export-model`` (one ONNX file, image -> metric depth)
+and ``predict`` (stream a video, folder or sequence through a model to metric depth).
+
+For a fixed camera the agents' plane, the ground region and the metric scale are constants, so the
+whole chain of ``adapt`` after fine-tuning fits in one graph:
+
+    uint8 RGB (H, W, 3) -> /255, resize, normalise -> network -> relative inverse depth D
+    -> Z = 1 / max(D, eps) -> scene alignment (METHOD.md 4; geometry/alignment_torch.py)
+    -> x scale (METHOD.md 5: the camera height) -> metric depth (H, W) float32
+
+The reference it is checked against, :func:`metric_depth_reference`, is the same chain with the
+model's own ``predict`` and the numpy :func:`~staticdepth.geometry.alignment.align_depth` (no agent
+mask: a deployed camera has no detector in the loop; ``adapt`` additionally gives each detected
+agent its contact depth). Keys read from the adapt summary: ``plane.normal`` (or
+``planes.agents.normal``), ``camera_height_m``, ``scale.ft-align`` (else the camera height),
+``config.eps``, ``config.erode_px``, ``config.detector``, ``config.detector_model``, and
+``ground_polygon`` when present (the ground region's vertices in pixels; otherwise the feet hull
+is rebuilt from the sequence's agents or by running the summary's detector again).
+"""
+from __future__ import annotations
+
+import os
+import time
+import warnings
+from typing import Any, Iterator
+
+import numpy as np
+
+from staticdepth.errors import InputError
+
+
+# -- the constants of a deployment -------------------------------------------------------------
+def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str | None = None,
+                         log=print) -> dict[str, Any]:
+    """K, size, plane normal, scale, eps and the ground mask for the exported graph."""
+    from staticdepth.dataset.h5 import SequenceReader
+    from staticdepth.geometry.camera import read_json
+    from staticdepth.locate import plane_from_summary
+
+    s = read_json(summary_path)
+    n_g, h_c = plane_from_summary(s, summary_path)
+    scale = (s.get("scale") or {}).get("ft-align") if isinstance(s.get("scale"), dict) else None
+    scale = float(scale) if scale else h_c
+    cfg = s.get("config") if isinstance(s.get("config"), dict) else {}
+    with SequenceReader(seq_path) as r:
+        K, W, H = r.camera.K, r.width, r.height
+        if ground_mask_png:
+            from staticdepth.dataset.pack import read_image
+
+            G = read_image(ground_mask_png, flags=0) > 0
+            if G.shape != (H, W):
+                raise InputError(f"the ground mask is {G.shape[1]}x{G.shape[0]}, the camera "
+                                 f"{W}x{H}", ground_mask_png)
+            how = f"mask {ground_mask_png}"
+        elif isinstance(s.get("ground_polygon"), list) and len(s["ground_polygon"]) >= 3:
+            from staticdepth.geometry.alignment import ground_mask_from_polygon
+
+            G = ground_mask_from_polygon(s["ground_polygon"], W, H)
+            how = "the summary's ground_polygon"
+        else:
+            G, how = _ground_from_feet(r, cfg, log)
+    return {"K": K, "width": W, "height": H, "normal": n_g, "camera_height_m": h_c,
+            "scale": scale, "eps": float(cfg.get("eps", 1e-6)), "ground": G, "ground_from": how}
+
+
+def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:
+    """adapt's ground region: the eroded hull of the adaptation split's foot points (the
+    sequence's agents, else the summary's detector run again on the adaptation frames)."""
+    from staticdepth.geometry.alignment import ground_mask_from_feet
+    from staticdepth.locate import FrameSeq
+
+    W, H = reader.width, reader.height
+    split = reader.split("adapt")
+    if len(split) == 0:
+        split = range(len(reader))
+    det = cfg.get("detector", "motion")
+    if reader.has("instances") and det in ("gt", None):
+        rows = [reader.agents(i) for i in split]
+    else:
+        from staticdepth.detectors import make_detector
+
+        opts = {"model": cfg.get("detector_model", "")} if det in ("yolox", "mask2former") else {}
+        log(f"ground region: running the {det} detector on {len(split)} adaptation frames")
+
+        class _Split(FrameSeq):
+            def __len__(self):
+                return len(split)
+
+            def __getitem__(self, i):
+                if isinstance(i, slice):
+                    return [self.r.left(split[k]) for k in range(*i.indices(len(self)))]
+                return self.r.left(split[int(i)])
+
+        rows = [r for _, r in make_detector(det, **opts).detect_sequence(_Split(reader))]
+    feet = [np.stack([r["foot_u"], r["foot_v"]], 1) for r in rows if len(r)]
+    feet = np.concatenate(feet) if feet else np.zeros((0, 2))
+    feet = feet[feet[:, 1] >= 0]
+    erode = cfg.get("erode_px")
+    erode = W / 80.0 if erode is None else float(erode)
+    return ground_mask_from_feet(feet, W, H, erode), f"feet hull of {len(feet)} detections"
+
+
+def metric_depth_reference(model, image: np.ndarray, c: dict[str, Any]) -> np.ndarray:
+    """The pipeline the export must reproduce: predict, 1/max(D, eps), align (numpy), x scale."""
+    from staticdepth.geometry.alignment import align_depth, depth_from_inverse
+
+    Z = depth_from_inverse(model.predict(image), c["eps"])
+    return align_depth(Z, c["K"], c["normal"], 1.0, c["ground"]).depth * np.float32(c["scale"])
+
+
+# -- the exported graph --------------------------------------------------------------------------
+def metric_graph(model, c: dict[str, Any]):
+    """A torch module mapping (H, W, 3) uint8 RGB to (H, W) float32 metric depth."""
+    import torch
+    from torch import nn
+
+    import torch.nn.functional as F
+
+    from staticdepth.geometry.alignment_torch import PlaneAlignment
+
+    H, W = c["height"], c["width"]
+    h, w = model.input_size(H, W)
+
+    class MetricDepth(nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.net = model.net
+            self.align = PlaneAlignment(c["K"], c["width"], c["height"], c["normal"], 1.0,
+                                        c["ground"])
+            self.eps, self.scale = float(c["eps"]), float(c["scale"])
+
+        def forward(self, image: torch.Tensor) -> torch.Tensor:
+            # TorchDepthModel.forward with the sizes fixed (the camera's): resize, normalise,
+            # run, resize back
+            x = image.to(torch.float32).permute(2, 0, 1)[None] / 255.0
+            if (h, w) != (H, W):
+                x = F.interpolate(x, size=(h, w), mode="bicubic", align_corners=False)
+            x = (x - model._mean) / model._std
+            y = self.net(**{model.input_kw: x}) if model.input_kw else self.net(x)
+            if model.output is not None:
+                y = getattr(y, model.output) if hasattr(y, model.output) else y[model.output]
+            if y.dim() == 3:
+                y = y[:, None]
+            if tuple(y.shape[-2:]) != (H, W):
+                y = F.interpolate(y, size=(H, W), mode="bilinear", align_corners=False)
+            D = y[0, 0]
+            Z = 1.0 / torch.clamp(D, min=self.eps)
+            return self.align(Z) * self.scale
+
+    return MetricDepth().eval()
+
+
+def export_model(model_spec: str, summary_path: str, seq_path: str, out: str, *,
+                 ground_mask_png: str | None = None, check_frames: int = 5, opset: int = 17,
+                 log=print) -> dict[str, Any]:
+    """Write the ONNX file ``out`` and check it against :func:`metric_depth_reference` on
+    ``check_frames`` frames of the sequence; returns the constants and the check's figures."""
+    import torch
+
+    from staticdepth.fileio import atomic_path
+    from staticdepth.models import TorchDepthModel, load_model
+
+    model = load_model(model_spec)
+    if not isinstance(model, TorchDepthModel):
+        raise InputError(f"export needs a torch model (builtin:, torch:, hf:), got {model_spec!r}")
+    model.to("cpu").net.eval()
+    c = deployment_constants(summary_path, seq_path, ground_mask_png, log)
+    graph = metric_graph(model, c)
+    dummy = torch.zeros((c["height"], c["width"], 3), dtype=torch.uint8)
+    with atomic_path(out, "onnx") as tmp, warnings.catch_warnings():
+        warnings.simplefilter("ignore")              # tracer notes on the fixed sizes
+        with torch.no_grad():
+            kw = {"dynamo": False} if "dynamo" in torch.onnx.export.__code__.co_varnames else {}
+            torch.onnx.export(graph, (dummy,), tmp, input_names=["image"],
+                              output_names=["depth_m"], opset_version=opset, **kw)
+    info = {k: c[k] for k in ("width", "height", "camera_height_m", "scale", "ground_from")}
+    info["normal"] = np.asarray(c["normal"]).tolist()
+    info["path"] = out
+    info.update(check_export(out, model, c, seq_path, check_frames))
+    return info
+
+
+def check_export(onnx_path: str, model, c: dict[str, Any], seq_path: str, frames: int = 5
+                 ) -> dict[str, float]:
+    """Median and 99th-percentile relative difference of the ONNX output vs the reference."""
+    from staticdepth.dataset.h5 import SequenceReader
+
+    sess = MetricOnnx(onnx_path)
+    rels = []
+    with SequenceReader(seq_path) as r:
+        for i in np.linspace(0, len(r) - 1, min(frames, len(r))).astype(int):
+            img = r.left(int(i))
+            ref = metric_depth_reference(model, img, c)
+            got = sess.predict(img)
+            ok = np.isfinite(ref) & (ref > 0)
+            rels.append(np.abs(got[ok] - ref[ok]) / ref[ok])
+    rel = np.concatenate(rels)
+    return {"check_frames": len(rels), "median_rel_diff": float(np.median(rel)),
+            "p99_rel_diff": float(np.percentile(rel, 99))}
+
+
+class MetricOnnx:
+    """An exported metric model: (H, W, 3) uint8 RGB -> (H, W) metric depth."""
+
+    def __init__(self, path: str, providers=None):
+        import onnxruntime as ort
+
+        if not os.path.isfile(path):
+            raise InputError("ONNX model file not found", path)
+        try:
+            self.session = ort.InferenceSession(path, providers=list(providers or
+                                                                     ["CPUExecutionProvider"]))
+        except Exception as e:
+            raise InputError(f"onnxruntime cannot load it ({type(e).__name__})", path) from None
+        inp = self.session.get_inputs()[0]
+        if len(inp.shape) != 3 or inp.type != "tensor(uint8)":
+            raise InputError("not an exported metric model (expects one (H, W, 3) uint8 input)",
+                             path)
+        self.name, self.shape, self.path = inp.name, tuple(inp.shape), path
+
+    @staticmethod
+    def is_metric(path: str) -> bool:
+        import onnxruntime as ort
+
+        try:
+            inp = ort.InferenceSession(path, providers=["CPUExecutionProvider"]).get_inputs()[0]
+        except Exception:
+            return False
+        return len(inp.shape) == 3 and inp.type == "tensor(uint8)"
+
+    def predict(self, image: np.ndarray) -> np.ndarray:
+        """A frame of another size with the same aspect (the video before ``import-video
+        --width``) is resized to the model's; the depth is at the model's size."""
+        img = np.ascontiguousarray(image, dtype=np.uint8)
+        if img.shape != self.shape:
+            h, w = self.shape[:2]
+            if (img.ndim != 3 or img.shape[2] != 3
+                    or abs(img.shape[1] / img.shape[0] - w / h) > 0.01 * w / h):
+                raise InputError(f"frame is {img.shape}, the exported model takes {self.shape}",
+                                 self.path)
+            import cv2
+
+            img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+        return self.session.run(None, {self.name: img})[0]
+
+
+# -- predict -------------------------------------------------------------------------------------
+def _frames(source: str, every: int = 1, max_frames: int | None = None) -> Iterator[np.ndarray]:
+    if source.endswith(".h5") and os.path.isfile(source):
+        from staticdepth.dataset.h5 import SequenceReader
+
+        with SequenceReader(source) as r:
+            idx = range(0, len(r), every)
+            for k, i in enumerate(idx):
+                if max_frames is not None and k >= max_frames:
+                    return
+                yield r.left(i)
+        return
+    from staticdepth.dataset.video import iter_frames
+
+    for fr in iter_frames(source, every=every, max_frames=max_frames):
+        yield fr.rgb
+
+
+def make_predictor(model: str, summary: str | None, sequence: str | None,
+                   ground_mask_png: str | None = None, log=print, device: str = "auto"):
+    """(callable image -> depth, 'metric' | 'relative', description)."""
+    path = model[5:] if model.startswith("onnx:") else model
+    if path.endswith(".onnx") and MetricOnnx.is_metric(path):
+        providers = (["CUDAExecutionProvider", "CPUExecutionProvider"]
+                     if device.startswith("cuda") else None)
+        m = MetricOnnx(path, providers)
+        return m.predict, "metric", f"exported metric model {path}"
+    from staticdepth.geometry.alignment import depth_from_inverse
+    from staticdepth.models import TorchDepthModel, load_model
+
+    net = load_model(model if ":" in model or model == "builtin" else f"onnx:{model}")
+    if isinstance(net, TorchDepthModel):
+        from staticdepth.cli import resolve_device
+
+        net.to(resolve_device(device))
+    if summary:
+        if not sequence:
+            raise InputError("--summary needs --sequence (the camera and its ground region)")
+        c = deployment_constants(summary, sequence, ground_mask_png, log)
+        return (lambda im: metric_depth_reference(net, im, c)), "metric", \
+            f"{model} + alignment + scale x{c['scale']:.3f} (numpy pipeline)"
+    return (lambda im: depth_from_inverse(net.predict(im))), "relative", \
+        f"{model} (relative depth 1/D: give --summary and --sequence for metres)"
+
+
+def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
+            summary: str | None = None, sequence: str | None = None, every: int = 1,
+            max_frames: int | None = None, device: str = "auto", log=print) -> dict[str, Any]:
+    """Stream frames through a model into ``out_dir``; returns frames, fps and the kind."""
+    import cv2
+
+    from staticdepth.fileio import atomic_path, atomic_write_bytes
+    from staticdepth.progress import progress
+
+    if fmt not in ("png16", "npy", "mp4"):
+        raise InputError(f"--format must be png16, npy or mp4, got {fmt!r}")
+    fn, kind, desc = make_predictor(model, summary, sequence, log=log, device=device)
+    log(f"model: {desc}")
+    os.makedirs(out_dir, exist_ok=True)
+    writer, tmp_ctx, rng = None, None, None
+    n, t_model, t0 = 0, 0.0, time.perf_counter()
+    try:
+        for img in progress(_frames(source, every, max_frames), desc="predict", unit="frame"):
+            t = time.perf_counter()
+            depth = np.asarray(fn(img), dtype=np.float32)
+            t_model += time.perf_counter() - t
+            if fmt == "npy":
+                import io
+
+                buf = io.BytesIO()
+                np.save(buf, depth)
+                atomic_write_bytes(os.path.join(out_dir, f"{n:06d}.npy"), buf.getvalue())
+            elif fmt == "png16":
+                q = np.where(np.isfinite(depth), np.clip(np.round(depth * 256), 0, 65535), 0)
+                ok, enc = cv2.imencode(".png", q.astype(np.uint16))
+                atomic_write_bytes(os.path.join(out_dir, f"{n:06d}.png"), enc.tobytes())
+            else:
+                if writer is None:
+                    tmp_ctx = atomic_path(os.path.join(out_dir, "depth.mp4"), "mp4")
+                    tmp = tmp_ctx.__enter__()
+                    writer = cv2.VideoWriter(tmp + ".mp4", cv2.VideoWriter_fourcc(*"mp4v"), 10.0,
+                                             (depth.shape[1], depth.shape[0]))
+                    fin = np.log(depth[np.isfinite(depth) & (depth > 0)])
+                    rng = np.percentile(fin, [2, 98]) if len(fin) else (0.0, 1.0)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    x = (np.log(depth) - rng[0]) / max(rng[1] - rng[0], 1e-6)
+                g = (255 * (1 - np.clip(np.nan_to_num(x, nan=1.0), 0, 1))).astype(np.uint8)
+                writer.write(cv2.applyColorMap(g, cv2.COLORMAP_TURBO))
+            n += 1
+        if writer is not None:
+            writer.release()
+            os.replace(tmp + ".mp4", tmp)
+            tmp_ctx.__exit__(None, None, None)
+    except BaseException as e:
+        if tmp_ctx is not None:
+            tmp_ctx.__exit__(type(e), e, e.__traceback__)
+        raise
+    if n == 0:
+        raise InputError("no frame was read", source)
+    wall = time.perf_counter() - t0
+    return {"frames": n, "fps_model": n / t_model, "fps_total": n / wall, "kind": kind,
+            "out": out_dir}
+
+
+# -- command line --------------------------------------------------------------------------------
+def register(sub) -> None:
+    p = sub.add_parser("export-model", help="the adapted network + alignment + metric scale as one "
+                                            "ONNX file (image -> metric depth)",
+                       description="Export, for one fixed camera, the adapted network with the "
+                                   "agents' plane, the ground region and the metric scale baked "
+                                   "in: (H, W, 3) uint8 RGB -> (H, W) float32 metres. Checked "
+                                   "against the torch/numpy pipeline on a few frames.")
+    p.add_argument("--model", required=True, help="the adapted torch model: builtin:PATH.pt "
+                                                  "(adapt --save-model), torch:FILE, hf:DIR")
+    p.add_argument("--summary", required=True, help="adapt summary (SEQ.adapt.json)")
+    p.add_argument("--sequence", required=True, help="the adapted sequence (camera, agents)")
+    p.add_argument("--ground-mask", help="ground region PNG (default: adapt's feet hull)")
+    p.add_argument("--out", required=True, help="output .onnx")
+    p.add_argument("--check-frames", type=int, default=5)
+    p.add_argument("--opset", type=int, default=17)
+    p.set_defaults(func=_run_export)
+
+    p = sub.add_parser("predict", help="stream a video, folder or sequence through a model to "
+                                       "(metric) depth",
+                       description="Depth for every frame with any model spec; metric with an "
+                                   "exported model, or with --summary and --sequence. Prints "
+                                   "frames per second.")
+    p.add_argument("--model", required=True, help="exported .onnx, or a model SPEC")
+    p.add_argument("--input", required=True, help="video, image folder, URL or SEQ.h5")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--format", default="png16", choices=("png16", "npy", "mp4"),
+                   help="png16: uint16 depth x256 (0 = unknown); npy: float32; mp4: colour map")
+    p.add_argument("--summary", help="adapt summary (metric output for a model SPEC)")
+    p.add_argument("--sequence", help="the adapted sequence (with --summary)")
+    p.add_argument("--every", type=int, default=1)
+    p.add_argument("--max-frames", type=int, default=None)
+    from staticdepth.cli import add_device_argument
+
+    add_device_argument(p)
+    p.set_defaults(func=_run_predict)
+
+
+def _run_export(args) -> int:
+    info = export_model(args.model, args.summary, args.sequence, args.out,
+                        ground_mask_png=args.ground_mask, check_frames=args.check_frames,
+                        opset=args.opset)
+    print(f"exported {info['width']}x{info['height']} -> metric depth: {info['path']} (scale "
+          f"{info['scale']:.3f}, ground region: {info['ground_from']})")
+    print(f"check on {info['check_frames']} frames vs the torch/numpy pipeline: median relative "
+          f"difference {100 * info['median_rel_diff']:.4f}%, p99 {100 * info['p99_rel_diff']:.3f}%")
+    return 0
+
+
+def _run_predict(args) -> int:
+    rep = predict(args.model, args.input, args.out, args.format, summary=args.summary,
+                  sequence=args.sequence, every=args.every, max_frames=args.max_frames,
+                  device=args.device)
+    print(f"{rep['frames']} frames of {rep['kind']} depth -> {rep['out']}: "
+          f"{rep['fps_model']:.1f} frames/s (model), {rep['fps_total']:.1f} frames/s overall")
+    return 0

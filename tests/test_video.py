@@ -1,0 +1,85 @@
+"""import-video: frames streamed from a video, a folder or the real vtest.avi into a sequence
+file with stated intrinsics."""
+from __future__ import annotations
+
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from staticdepth.cli import main
+from staticdepth.dataset.h5 import SequenceReader
+from staticdepth.dataset.video import camera_for, import_video
+from staticdepth.errors import InputError
+
+
+def _video(path, n=12, w=64, h=48, fps=5.0):
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
+    assert vw.isOpened()
+    for i in range(n):
+        vw.write(np.full((h, w, 3), 10 + 20 * i, np.uint8))      # frame i has grey 10 + 20 i
+    vw.release()
+
+
+def test_video_every_max_frames_fov_guess(tmp_path, capsys):
+    src = tmp_path / "v.avi"
+    _video(src)
+    out = tmp_path / "v.h5"
+    assert main(["import-video", str(src), "--out", str(out), "--every", "2", "--max-frames", "4",
+                 "--fov-deg", "90"]) == 0
+    printed = capsys.readouterr().out
+    assert "GUESS" in printed and "90" in printed
+    with SequenceReader(out) as r:
+        assert len(r) == 4 and r.meta.gt_kind == "none" and r.streams() == ["left"]
+        grey = [float(r.left(i).mean()) for i in range(4)]
+        assert np.allclose(grey, [10 + 20 * k for k in (0, 2, 4, 6)], atol=4)   # MJPG loss
+        assert np.allclose(r.timestamps(), [0.0, 0.4, 0.8, 1.2])
+        assert abs(r.camera.fx - 64 / (2 * math.tan(math.radians(45)))) < 1e-9
+        assert "GUESS" in r.meta.provenance["intrinsics"]
+        assert len(r.split("adapt")) == 4                          # default: every frame
+
+
+def test_folder_with_camera_json_scaled(tmp_path):
+    d = tmp_path / "imgs"
+    d.mkdir()
+    for i in range(5):
+        cv2.imwrite(str(d / f"{i:03d}.png"), np.full((48, 64, 3), 30 * i, np.uint8))
+    cam = tmp_path / "cam.json"
+    cam.write_text(json.dumps({"fx": 200.0, "fy": 200.0, "cx": 63.5, "cy": 47.5,
+                               "width": 128, "height": 96}))
+    rep = import_video(str(d), str(tmp_path / "f.h5"), camera_json=str(cam), adapt_frames=3,
+                       fps=2.0)
+    assert rep["frames"] == 5 and rep["adapt_frames"] == 3
+    with SequenceReader(tmp_path / "f.h5") as r:
+        assert abs(r.camera.fx - 100.0) < 1e-9                     # calibrated at twice the size
+        assert np.allclose(r.timestamps(), np.arange(5) / 2.0)
+        assert "camera JSON" in r.meta.provenance["intrinsics"]
+    cam.write_text(json.dumps({"fx": 200.0, "fy": 200.0, "cx": 63.5, "cy": 47.5,
+                               "width": 128, "height": 128}))
+    with pytest.raises(InputError, match="not a uniform resize"):
+        camera_for(64, 48, str(cam), None)
+
+
+def test_bad_inputs(tmp_path):
+    assert main(["import-video", str(tmp_path / "none.avi"), "--out", str(tmp_path / "x.h5")]) == 2
+    src = tmp_path / "v.avi"
+    _video(src, n=3)
+    assert main(["import-video", str(src), "--out", str(tmp_path / "x.h5"), "--camera",
+                 "c.json", "--fov-deg", "60"]) == 2
+    assert main(["import-video", str(src), "--out", str(tmp_path / "x.h5"), "--every", "0"]) == 2
+    (tmp_path / "empty").mkdir()
+    assert main(["import-video", str(tmp_path / "empty"), "--out", str(tmp_path / "x.h5")]) == 2
+    assert not (tmp_path / "x.h5").exists()
+
+
+def test_vtest_streamed(shared_data, tmp_path):
+    video = shared_data / "video" / "vtest.avi"
+    if not video.exists():
+        pytest.skip(f"{video} not found")
+    rep = import_video(str(video), str(tmp_path / "vt.h5"), max_frames=5, width=384)
+    assert rep["frames"] == 5 and rep["size"] == (384, 288)
+    with SequenceReader(tmp_path / "vt.h5") as r:
+        assert np.allclose(np.diff(r.timestamps()), 0.1)           # 10 frames per second
+        assert r.left(0).std() > 10                                  # a real picture
