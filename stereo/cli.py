@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
@@ -56,6 +57,9 @@ def register(sub) -> None:
     p.add_argument("--max-depth", type=float, default=80.0, help="depth cap (m)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="matcher option, e.g. --set uniqueness=20")
+    p.add_argument("--skip-rectification-check", action="store_true",
+                   help="do not check that matched features of the first (rectified) pair lie on "
+                        "the same rows")
     p.set_defaults(func=cmd_stereo)
 
     p = sub.add_parser("mount", help="camera height and ground plane from a board on the ground",
@@ -154,7 +158,8 @@ def _stereo_pair(args) -> int:
     if left.shape != right.shape:
         raise InputError(f"left is {left.shape[1]}x{left.shape[0]} but right is "
                          f"{right.shape[1]}x{right.shape[0]}", args.right)
-    check_rectified(left, right, source=args.left)
+    if not args.skip_rectification_check:
+        check_rectified(left, right, source=args.left, warn=_warn)
     h, w = left.shape[:2]
     unit = Camera.from_intrinsics(1.0, 1.0, (w - 1) / 2, (h - 1) / 2, w, h)
     rig = StereoRig.load(args.rig) if args.rig else StereoRig.rectified(unit, 1.0)
@@ -166,6 +171,10 @@ def _stereo_pair(args) -> int:
     print(f"disparity: {100 * res.valid.mean():.1f}% measured"
           f"{', filled to 100%' if args.fill else ''} -> {args.disparity_out}")
     return 0
+
+
+def _warn(message: str) -> None:
+    print(f"staticdepth stereo: {message}", file=sys.stderr)
 
 
 def _num_disparities(max_disparity: int) -> int:
@@ -247,7 +256,8 @@ def _stereo_sequence(args) -> int:
     first_l, first_r = next(frames.pairs(0))
     pipe.check_frame(first_l, first_r, frames.first)
     rl, rr = pipe.rectifier.rectify(first_l, first_r)
-    check_rectified(rl, rr, source=f"{rig_name} (after rectifying {frames.first})")
+    if not args.skip_rectification_check:
+        check_rectified(rl, rr, source=f"{rig_name} (after rectifying {frames.first})", warn=_warn)
     name = args.name or os.path.splitext(os.path.basename(args.out))[0]
     source = (f"stereo recording {args.recording}" if args.recording
               else f"stereo {args.left} {args.right}")
