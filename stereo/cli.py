@@ -148,29 +148,49 @@ def cmd_stereo(args: argparse.Namespace) -> int:
 def _stereo_pair(args) -> int:
     from staticdepth.stereo.io import read_rgb, write_disparity, write_ply
     from staticdepth.stereo.pipeline import StereoPipeline
-    from staticdepth.stereo.rectify import check_rectified
 
     if not args.max_disparity or args.max_disparity <= 0:
         raise InputError("--rectified needs --max-disparity N (a positive number of pixels)")
     if not args.disparity_out:
         raise InputError("--rectified needs --disparity-out FILE (.pfm, .png or .npy)")
+    if args.ply and not args.rig:
+        raise InputError("--ply with --rectified needs --rig (the focal length and baseline that "
+                         "make disparities metric)")
     left, right = read_rgb(args.left), read_rgb(args.right)
     if left.shape != right.shape:
         raise InputError(f"left is {left.shape[1]}x{left.shape[0]} but right is "
                          f"{right.shape[1]}x{right.shape[0]}", args.right)
-    if not args.skip_rectification_check:
-        check_rectified(left, right, source=args.left, warn=_warn)
+    check = _rectification(args, left, right, args.left)
     h, w = left.shape[:2]
     unit = Camera.from_intrinsics(1.0, 1.0, (w - 1) / 2, (h - 1) / 2, w, h)
     rig = StereoRig.load(args.rig) if args.rig else StereoRig.rectified(unit, 1.0)
     pipe = StereoPipeline(rig, _config(args, num_disparities=_num_disparities(args.max_disparity)))
     res = pipe.process(left, right)
+    _disparity_warnings(check, pipe, res)
     write_disparity(args.disparity_out, res.disparity)
-    if args.ply and args.rig:
+    if args.ply:
         write_ply(args.ply, pipe.points(res), res.left_rect)
     print(f"disparity: {100 * res.valid.mean():.1f}% measured"
           f"{', filled to 100%' if args.fill else ''} -> {args.disparity_out}")
     return 0
+
+
+def _rectification(args, left_rect, right_rect, source: str):
+    """The rectification check of the first rectified pair (its matches feed the warnings)."""
+    from staticdepth.stereo.rectify import check_rectified, measure_rectification
+
+    if args.skip_rectification_check:
+        return measure_rectification(left_rect, right_rect)
+    return check_rectified(left_rect, right_rect, source=source, warn=_warn)
+
+
+def _disparity_warnings(check, pipe, res) -> None:
+    """Warn when the disparity range clips the scene or the views look swapped."""
+    from staticdepth.stereo.diagnose import stereo_warnings
+
+    measured = np.where(res.valid, res.disparity, np.nan)
+    for message in stereo_warnings(check, pipe.num_disparities, measured):
+        _warn(f"warning: {message}")
 
 
 def _warn(message: str) -> None:
@@ -234,7 +254,6 @@ def _stereo_sequence(args) -> int:
     from staticdepth.progress import progress
     from staticdepth.stereo.io import check_image_headers, write_ply
     from staticdepth.stereo.pipeline import StereoPipeline
-    from staticdepth.stereo.rectify import check_rectified
 
     frames = _sequence_input(args)
     if args.rig:
@@ -256,8 +275,7 @@ def _stereo_sequence(args) -> int:
     first_l, first_r = next(frames.pairs(0))
     pipe.check_frame(first_l, first_r, frames.first)
     rl, rr = pipe.rectifier.rectify(first_l, first_r)
-    if not args.skip_rectification_check:
-        check_rectified(rl, rr, source=f"{rig_name} (after rectifying {frames.first})", warn=_warn)
+    check = _rectification(args, rl, rr, f"{rig_name} (after rectifying {frames.first})")
     name = args.name or os.path.splitext(os.path.basename(args.out))[0]
     source = (f"stereo recording {args.recording}" if args.recording
               else f"stereo {args.left} {args.right}")
@@ -277,6 +295,8 @@ def _stereo_sequence(args) -> int:
             res = pipe.process(L, R)
             ts = None if frames.timestamps is None else frames.timestamps[i]
             writer.append(left=res.left_rect, right=res.right_rect, depth=res.depth, timestamp=ts)
+            if i == 0:
+                _disparity_warnings(check, pipe, res)
             if i == 0 and args.ply:
                 write_ply(args.ply, pipe.points(res), res.left_rect)
     except BaseException:

@@ -7,7 +7,7 @@ needs no maps. Otherwise the rig's stored ``stereoRectify`` outputs are used (or
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -100,6 +100,8 @@ class RectificationCheck:
     matches: int        # distinct mutual ORB matches (ratio test)
     inliers: int        # matches the fitted row-offset model explains within the tolerance
     offset_px: float    # median |dy| of the inliers (about 0 for a rectified pair)
+    disparities: np.ndarray = field(default_factory=lambda: np.zeros(0), compare=False)
+    # u_left - u_right of the inliers: positive for a left/right pair in the right order
 
     @property
     def conclusive(self) -> bool:
@@ -135,7 +137,8 @@ def measure_rectification(left_rgb: np.ndarray, right_rgb: np.ndarray, *, n_feat
             best = inl
     if best.sum() < 3:
         return RectificationCheck(n, int(best.sum()), float("nan"))
-    return RectificationCheck(n, int(best.sum()), float(np.median(np.abs(dy[best]))))
+    return RectificationCheck(n, int(best.sum()), float(np.median(np.abs(dy[best]))),
+                              pl[best, 0] - pr[best, 0])
 
 
 def check_rectified(left_rgb: np.ndarray, right_rgb: np.ndarray, max_offset_px: float = 2.0,
