@@ -17,7 +17,8 @@ def register(sub) -> None:
     p = sub.add_parser("calibrate", help="stereo calibration from board image pairs",
                        description="Calibrate a stereo rig from image pairs of a chessboard or "
                                    "ChArUco board; writes the rig JSON every other command reads.")
-    p.add_argument("--pattern", choices=("chessboard", "charuco"), default="chessboard")
+    p.add_argument("--pattern", choices=("chessboard", "charuco"), default="chessboard",
+                   help="calibration board type")
     p.add_argument("--board", required=True, help="inner corners (chessboard) or squares "
                                                   "(ChArUco), COLSxROWS, e.g. 9x6")
     p.add_argument("--square", type=float, required=True, help="square side in metres")
@@ -25,8 +26,10 @@ def register(sub) -> None:
     p.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco ArUco dictionary")
     p.add_argument("--left", required=True, help="left images: folder or glob")
     p.add_argument("--right", required=True, help="right images: folder or glob")
-    p.add_argument("--min-pairs", type=int, default=5)
+    p.add_argument("--min-pairs", type=int, default=5,
+                   help="fewest pairs with the board found (after dropping outliers)")
     p.add_argument("--out", required=True, help="rig JSON to write")
+    _overwrite(p)
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("stereo", help="depth from stereo pairs (SGBM or an ONNX network)",
@@ -41,7 +44,7 @@ def register(sub) -> None:
                                        "`staticdepth capture` folder or DIR/left, DIR/right")
     p.add_argument("--out", help="sequence file to write (.h5); resumes a killed run")
     p.add_argument("--name", help="sequence name (default: the output's stem)")
-    p.add_argument("--overwrite", action="store_true")
+    _overwrite(p)
     p.add_argument("--rectified", action="store_true", help="one already rectified pair, no rig")
     p.add_argument("--max-disparity", type=int, help="disparity range in px, rounded up to 16 "
                                                      "(sequences: default from --min-depth)")
@@ -65,16 +68,32 @@ def register(sub) -> None:
     p = sub.add_parser("mount", help="camera height and ground plane from a board on the ground",
                        description="Estimate the left camera's pose over the ground from views of "
                                    "a board lying flat on it, and store it in the rig.")
-    p.add_argument("--rig", required=True)
+    p.add_argument("--rig", required=True, help="rig JSON (from calibrate or import-rig)")
     p.add_argument("--images", required=True, help="raw left images of the board: folder or glob")
-    p.add_argument("--pattern", choices=("chessboard", "charuco"), default="chessboard")
-    p.add_argument("--board", required=True, help="COLSxROWS")
+    p.add_argument("--pattern", choices=("chessboard", "charuco"), default="chessboard",
+                   help="board type")
+    p.add_argument("--board", required=True, help="inner corners (chessboard) or squares "
+                                                  "(ChArUco), COLSxROWS")
     p.add_argument("--square", type=float, required=True, help="square side in metres")
-    p.add_argument("--marker", type=float, default=0.0)
-    p.add_argument("--dictionary", default="DICT_4X4_50")
+    p.add_argument("--marker", type=float, default=0.0, help="ChArUco marker side in metres")
+    p.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco ArUco dictionary")
     p.add_argument("--thickness", type=float, default=0.0, help="board thickness in metres")
-    p.add_argument("--out", required=True, help="rig JSON to write (may be --rig itself)")
+    p.add_argument("--out", required=True, help="rig JSON to write (may be --rig itself: the rig "
+                                                "is updated in place)")
+    _overwrite(p)
     p.set_defaults(func=cmd_mount)
+
+
+def _overwrite(p) -> None:
+    from staticdepth.cli import add_overwrite_argument
+
+    add_overwrite_argument(p)
+
+
+def _refuse_existing(*paths, overwrite: bool) -> None:
+    from staticdepth.cli import refuse_existing
+
+    refuse_existing(*paths, overwrite=overwrite)
 
 
 def _board(args):
@@ -88,6 +107,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from staticdepth.stereo.calibrate import calibrate_stereo
     from staticdepth.stereo.io import expand_images
 
+    _refuse_existing(args.out, overwrite=args.overwrite)
     cal = calibrate_stereo(expand_images(args.left), expand_images(args.right), _board(args),
                            min_pairs=args.min_pairs)
     for f in cal.not_found:
@@ -106,6 +126,8 @@ def cmd_mount(args: argparse.Namespace) -> int:
     from staticdepth.stereo.io import expand_images
     from staticdepth.stereo.mount import mount_from_board
 
+    if os.path.abspath(args.out) != os.path.abspath(args.rig):
+        _refuse_existing(args.out, overwrite=args.overwrite)
     rig = StereoRig.load(args.rig)
     est = mount_from_board(rig, expand_images(args.images), _board(args),
                            thickness_m=args.thickness)
@@ -156,6 +178,7 @@ def _stereo_pair(args) -> int:
     if args.ply and not args.rig:
         raise InputError("--ply with --rectified needs --rig (the focal length and baseline that "
                          "make disparities metric)")
+    _refuse_existing(args.disparity_out, args.ply, overwrite=args.overwrite)
     left, right = read_rgb(args.left), read_rgb(args.right)
     if left.shape != right.shape:
         raise InputError(f"left is {left.shape[1]}x{left.shape[0]} but right is "
@@ -255,6 +278,7 @@ def _stereo_sequence(args) -> int:
     from staticdepth.stereo.io import check_image_headers, write_ply
     from staticdepth.stereo.pipeline import StereoPipeline
 
+    _refuse_existing(args.ply, overwrite=args.overwrite)
     frames = _sequence_input(args)
     if args.rig:
         rig = StereoRig.load(args.rig)
