@@ -22,6 +22,7 @@ COMMAND_MODULES = [
     "staticdepth.stereo.rig_cli",    # import-rig
     "staticdepth.dataset.cli",       # synth, inspect, verify
     "staticdepth.dataset.commands",  # pack, import-kitti, import-carla, export, publish
+    "staticdepth.observations",      # observations
     "staticdepth.ground_plane",      # ground-plane
     "staticdepth.align",             # align
     "staticdepth.adapt",             # adapt, train-builtin
@@ -75,6 +76,11 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "publish": ("staticdepth.dataset.commands",
                 "make a release folder: sequences, export, card, manifest",
                 "staticdepth publish K1.h5 --out release/ --licence CC-BY-4.0 --citation '...'"),
+    "observations": ("staticdepth.observations",
+                     "agents' foot points and heights (obs.csv) for ground-plane",
+                     "staticdepth observations c1.h5 --camera-out cam.json --out obs.csv\n"
+                     "  staticdepth observations vtest.avi --detector yolox "
+                     "--detector-model yolox_nano.onnx --out obs.csv"),
     "ground-plane": ("staticdepth.ground_plane", "ground plane from agents' foot points and heights",
                      "staticdepth ground-plane --observations obs.csv --intrinsics cam.json "
                      "--agent-height 1.7 --out plane.json"),
