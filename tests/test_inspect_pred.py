@@ -36,3 +36,14 @@ def test_inspect_pred_sheet_without_ground_truth(tmp_path, capsys):
     assert "exists already; pass --overwrite" in capsys.readouterr().err
     assert main(["inspect", str(seq), "--sheet", str(sheet), "--pred", "ft", "--overwrite"]) == 2
     assert "no prediction 'ft'" in capsys.readouterr().err
+
+
+def test_report_without_ground_truth_shows_predictions_without_metrics(tmp_path, capsys):
+    seq = tmp_path / "site.h5"
+    _no_gt_sequence(seq)
+    out = tmp_path / "rep"
+    assert main(["report", f"site={seq}", "--out", str(out)]) == 0
+    html = (out / "report_site.html").read_text()
+    assert "no ground truth: the predictions are shown without metrics" in html
+    assert "base: depth (relative; no ground truth)" in html
+    assert "Table 1" not in html and not (out / "tables_1.csv").exists()
