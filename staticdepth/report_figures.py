@@ -47,7 +47,7 @@ def _bar(colours: np.ndarray, ticks: Sequence[tuple[float, str]], caption: str) 
         cv2.putText(bar, text, (int(np.clip(x - tw / 2, 0, w - tw)), 28), FONT, 0.35, (0, 0, 0),
                     1, cv2.LINE_AA)
     (cw, _), _ = cv2.getTextSize(caption, FONT, 0.35, 1)
-    if cw < w // 3:
+    if caption and cw < w // 3:
         cv2.putText(bar, caption, (w - cw - 2, 12), FONT, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
     return bar
 
@@ -67,7 +67,7 @@ def error_colour_bar(width: int, vmax: float = 0.5) -> np.ndarray:
     colours = cv2.applyColorMap((t * 255).astype(np.uint8)[None, :],
                                 cv2.COLORMAP_HOT)[0, :, ::-1]
     ticks = [(v / vmax, f"{v:g}") for v in (0, 0.1, 0.2, 0.3, 0.4, 0.5) if v <= vmax]
-    return _bar(np.ascontiguousarray(colours), ticks, "|pred-gt|/gt")
+    return _bar(np.ascontiguousarray(colours), ticks, "")
 
 
 def depth_range(depth: np.ndarray) -> tuple[float, float] | None:
@@ -109,23 +109,23 @@ def draw_planes(image: np.ndarray, K: np.ndarray, planes: Mapping[str, tuple[np.
         z = plane_depth_map(K, np.asarray(n, float), float(d), w, h)
         colour = PLANE_COLOURS.get(name, (255, 255, 255))
         for zc in depths_m:
-            m = (np.nan_to_num(z, nan=1e9) < zc).astype(np.uint8)
-            cnts, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-            cv2.drawContours(out, cnts, -1, colour, 1, cv2.LINE_AA)
-            pts = np.concatenate(cnts).reshape(-1, 2) if cnts else np.zeros((0, 2), int)
-            pts = pts[(pts[:, 1] > 0) & (pts[:, 1] < h - 1) & (pts[:, 0] > 0) & (pts[:, 0] < w - 1)]
-            if len(pts):
-                # label each line near a column of its own, so the planes' labels do not overlap
-                u0 = w * (0.15 + 0.25 * k)
-                p = pts[np.argmin(np.abs(pts[:, 0] - u0))]
-                cv2.putText(out, f"{zc:g}m", (int(p[0]) + 2, int(p[1]) - 2), FONT, 0.33, colour,
-                            1, cv2.LINE_AA)
+            inside = (np.nan_to_num(z, nan=1e9) < zc).astype(np.uint8)
+            line = (inside > 0) & (cv2.erode(inside, np.ones((3, 3), np.uint8),
+                                             borderType=cv2.BORDER_REPLICATE) == 0)
+            vs, us = np.nonzero(line)
+            if not len(vs):
+                continue
+            out[vs, us] = colour
+            # label each line near a column of its own, so the planes' labels do not overlap
+            j = np.argmin(np.abs(us - w * (0.15 + 0.25 * k)))
+            cv2.putText(out, f"{zc:g}m", (int(us[j]) + 2, int(vs[j]) - 2), FONT, 0.33, colour,
+                        1, cv2.LINE_AA)
         cv2.rectangle(out, (2, 4 + 14 * k), (12, 12 + 14 * k), colour, -1)
         cv2.putText(out, name, (16, 13 + 14 * k), FONT, 0.4, colour, 1, cv2.LINE_AA)
     return out
 
 
-def draw_tracks(image: np.ndarray, agents: np.ndarray, frame: int, last: int = 12,
+def draw_tracks(image: np.ndarray, agents: np.ndarray, frame: int, last: int = 6,
                 max_tracks: int = 25) -> np.ndarray:
     """The foot points of the ``last`` frames up to ``frame``, one colour per track (at most
     ``max_tracks``: the longest), the newest position as a larger dot."""
