@@ -6,7 +6,7 @@ import numpy as np
 from staticdepth import report_figures as rf
 from staticdepth.dataset import schema
 from staticdepth.dataset.inspect import colorize_depth
-from staticdepth.geometry import Camera, Mounting
+from staticdepth.geometry import Camera, Mounting, plane_depth_map
 
 
 def test_depth_colour_bar_matches_the_colours_of_the_map():
@@ -36,9 +36,11 @@ def test_planes_and_tracks_are_drawn():
     mnt = Mounting.from_pitch_roll(5.0, 30.0)
     img = np.zeros((80, 160, 3), np.uint8)
     drawn = rf.draw_planes(img, cam.K, {"true": (mnt.normal, mnt.height_m)})
-    g = drawn.astype(int)
-    green = (g[..., 1] > 100) & (g[..., 0] < g[..., 1] - 60)
-    assert green[45:].sum() > 100             # iso-depth lines below the horizon
+    green = np.all(drawn == rf.PLANE_COLOURS["true"], axis=2)
+    z = plane_depth_map(cam.K, mnt.normal, mnt.height_m, 160, 80)[:, 80]
+    row10 = int(np.nonzero(np.nan_to_num(z, nan=1e9) < 10)[0].min())   # 10 m at the centre
+    assert green[row10 - 1:row10 + 2, 70:90].any(axis=0).all()     # the 10 m line crosses there
+    assert green[:, 0].sum() <= 4 and green[-1].sum() <= 4        # no line along the frame
     ag = schema.empty_agents(30)
     ag["frame"] = np.repeat(np.arange(15), 2)
     ag["track_id"] = np.tile([1, 2], 15)
