@@ -150,7 +150,7 @@ def register(sub) -> None:
     p = sub.add_parser("run", help="run a scene recipe (import, adapt, baseline, evaluation)",
                        description="Run the stages of a recipe YAML in order, skipping stages "
                                    "whose outputs are present with the same settings.")
-    p.add_argument("recipe")
+    p.add_argument("recipe", help="recipe YAML (recipes/*.yaml)")
     p.add_argument("--var", action="append", default=[], metavar="KEY=VALUE",
                    help="set a recipe placeholder, e.g. --var root=/data/kitti_raw")
     p.add_argument("--only", nargs="*", help="run only these stages")
