@@ -81,7 +81,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
                      "staticdepth observations c1.h5 --camera-out cam.json --out obs.csv\n"
                      "  staticdepth observations vtest.avi --detector yolox "
                      "--detector-model yolox_nano.onnx --out obs.csv"),
-    "ground-plane": ("staticdepth.ground_plane", "ground plane from agents' foot points and heights",
+    "ground-plane": ("staticdepth.ground_plane",
+                     "ground plane from agents' foot points and heights",
                      "staticdepth ground-plane --observations obs.csv --intrinsics cam.json "
                      "--agent-height 1.7 --out plane.json"),
     "align": ("staticdepth.align", "align predicted depth to the agents' ground plane",
@@ -119,7 +120,7 @@ class _Formatter(argparse.HelpFormatter):
     def _get_help_string(self, action):
         text = action.help or ""
         if ("default" not in text.lower()
-                and action.default not in (None, False, argparse.SUPPRESS)
+                and action.default not in (None, False, [], "", argparse.SUPPRESS)
                 and action.option_strings):
             text += " (default: %(default)s)"
         return text

@@ -22,7 +22,8 @@ def register(sub) -> None:
                                    "depth network to it, train the stereo baseline, evaluate, and "
                                    "write the three tables and an HTML report.")
     p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
-    p.add_argument("--var", action="append", default=[], metavar="KEY=VALUE",
+    p.add_argument("--var", "--set", dest="var", action="append", default=[],
+                   metavar="KEY=VALUE",
                    help="change a demo setting, e.g. --var frames=80 --var adapt_epochs=10")
     p.add_argument("--force", action="store_true", help="rerun every stage")
     p.add_argument("--quick", action="store_true",

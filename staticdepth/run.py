@@ -151,7 +151,8 @@ def register(sub) -> None:
                        description="Run the stages of a recipe YAML in order, skipping stages "
                                    "whose outputs are present with the same settings.")
     p.add_argument("recipe", help="recipe YAML (recipes/*.yaml)")
-    p.add_argument("--var", action="append", default=[], metavar="KEY=VALUE",
+    p.add_argument("--var", "--set", dest="var", action="append", default=[],
+                   metavar="KEY=VALUE",
                    help="set a recipe placeholder, e.g. --var root=/data/kitti_raw")
     p.add_argument("--only", nargs="*", help="run only these stages")
     p.add_argument("--force", action="store_true", help="rerun stages even when up to date")

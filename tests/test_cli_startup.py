@@ -13,8 +13,8 @@ from staticdepth import cli
 
 HEAVY = ("torch", "scipy")
 PROBE = ("import sys\nfrom staticdepth.cli import main\ntry:\n    main(sys.argv[1:])\n"
-         "except SystemExit:\n    pass\nprint('LOADED', *[m for m in {heavy!r} if m in sys.modules],"
-         " file=sys.stderr)\n")
+         "except SystemExit:\n    pass\n"
+         "print('LOADED', *[m for m in {heavy!r} if m in sys.modules], file=sys.stderr)\n")
 
 
 @pytest.mark.parametrize("argv", [["--help"], [], ["--version"], ["inspect", "--help"],

@@ -31,7 +31,8 @@ def test_inspect_pred_sheet_without_ground_truth(tmp_path, capsys):
     assert img.shape == (2 * 120, 2 * 240, 3)
     row = img[120 + 60]                     # middle line of the prediction row, first frame
     near, far = row[20:100].mean(axis=0), row[140:220].mean(axis=0)
-    assert near[0] > near[2] + 50 and near[0] > far[0] + 50 and far[2] > far[0]  # near red, far blue
+    # near = red, far = blue
+    assert near[0] > near[2] + 50 and near[0] > far[0] + 50 and far[2] > far[0]
     assert main(["inspect", str(seq), "--sheet", str(sheet), "--pred", "base"]) == 2
     assert "exists already; pass --overwrite" in capsys.readouterr().err
     assert main(["inspect", str(seq), "--sheet", str(sheet), "--pred", "ft", "--overwrite"]) == 2
