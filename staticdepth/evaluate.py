@@ -173,6 +173,7 @@ def register(sub) -> None:
                    help="median: per-image median scaling; metric: none; lsq: scale and shift")
     p.add_argument("--max-depth", type=float, default=80.0, help="evaluation depth cap (m)")
     p.add_argument("--json", help="write averages and per-image values here")
+    _overwrite(p)
     p.set_defaults(func=_metrics_cmd)
 
     p = sub.add_parser("evaluate", help="evaluate the predictions stored in a sequence file",
@@ -186,14 +187,20 @@ def register(sub) -> None:
                    help="default: metric for *-metric and stereo-baseline, median otherwise")
     p.add_argument("--max-depth", type=float, default=80.0, help="evaluation depth cap (m)")
     p.add_argument("--json", help="write the full results here")
+    _overwrite(p)
     p.set_defaults(func=_evaluate_cmd)
 
 
+def _overwrite(p) -> None:
+    from staticdepth.cli import add_overwrite_argument
+
+    add_overwrite_argument(p)
+
+
 def _write_json(path: str, obj: Any) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as f:
-        json.dump(obj, f, indent=2)
-    os.replace(tmp, path)
+    from staticdepth.fileio import atomic_write_json
+
+    atomic_write_json(path, obj)
 
 
 def format_row(name: str, m: dict[str, float]) -> str:
@@ -205,6 +212,9 @@ def header() -> str:
 
 
 def _metrics_cmd(args: argparse.Namespace) -> int:
+    from staticdepth.cli import refuse_existing
+
+    refuse_existing(args.json, overwrite=args.overwrite)
     out = metrics_on_maps(load_maps(args.pred), load_maps(args.gt), args.protocol,
                           args.max_depth, args.pred, args.gt)
     print(header())
@@ -215,6 +225,9 @@ def _metrics_cmd(args: argparse.Namespace) -> int:
 
 
 def _evaluate_cmd(args: argparse.Namespace) -> int:
+    from staticdepth.cli import refuse_existing
+
+    refuse_existing(args.json, overwrite=args.overwrite)
     res = evaluate_sequence(args.sequence, args.pred, split=args.split,
                             protocols=args.protocol, max_depth=args.max_depth)
     print(f"{res['sequence']}: split {res['split']} ({res['frames']} frames)")
