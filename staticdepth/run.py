@@ -102,6 +102,23 @@ def load_recipe(path: str | os.PathLike, variables: Mapping[str, str] | None = N
     return {"name": r["name"], "out_dir": env["out_dir"], "stages": stages, "path": src}
 
 
+def _accepts(argv: list[str], flag: str) -> bool:
+    """Whether the command ``argv`` names takes ``flag`` (and does not have it yet)."""
+    import argparse
+
+    from staticdepth.cli import build_parser
+
+    if flag in argv:
+        return False
+    parser = build_parser(argv)
+    for word in (a for a in argv if not a.startswith("-")):
+        sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+        if sub is None or word not in sub.choices:
+            break
+        parser = sub.choices[word]
+    return any(flag in a.option_strings for a in parser._actions)
+
+
 def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str] | None = None,
                dry_run: bool = False, log=print) -> dict[str, str]:
     """Run the stages in order; returns {stage: "ran" | "skipped"}."""
@@ -124,6 +141,8 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
             log(f"[{recipe['name']}] {name}: up to date, skipped" if done else
                 f"[{recipe['name']}] {name}: not selected, skipped")
             continue
+        if any(os.path.exists(p) for p in st["outputs"]) and _accepts(argv, "--overwrite"):
+            argv.append("--overwrite")   # a stage that runs again replaces its own outputs
         log(f"[{recipe['name']}] {name}: staticdepth {' '.join(argv)}")
         if dry_run:
             status[name] = "dry-run"
