@@ -9,18 +9,20 @@ from staticdepth.errors import InputError
 
 
 def register(sub) -> None:
+    from staticdepth.cli import add_overwrite_argument
+
     p = sub.add_parser("synth", help="render a synthetic fixed-camera stereo sequence",
                        description="Render a synthetic sequence (known geometry) to a sequence "
                                    "file.")
     p.add_argument("--preset", default="demo", help="scene preset (demo, street, c1, c2, c3, r2)")
-    p.add_argument("--frames", type=int, default=60)
+    p.add_argument("--frames", type=int, default=60, help="number of frames to render")
     p.add_argument("--adapt-frames", type=int, default=None,
                    help="first N frames form the adaptation split (default: 40%%)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="scene seed (agents, textures)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a scene setting, e.g. --set camera_height_m=6")
     p.add_argument("--out", required=True, help="output sequence file (.h5)")
-    p.add_argument("--overwrite", action="store_true")
+    add_overwrite_argument(p)
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted run (<out>.partial)")
     p.add_argument("--restart", action="store_true",
@@ -30,9 +32,14 @@ def register(sub) -> None:
     p = sub.add_parser("inspect", help="summarise and check a sequence file",
                        description="Print a summary of a sequence file; fails on a truncated or "
                                    "inconsistent file. Optionally writes a thumbnail sheet.")
-    p.add_argument("file")
+    p.add_argument("file", help="sequence file (.h5)")
     p.add_argument("--sheet", help="write a PNG sheet of frames and depth here")
+    p.add_argument("--pred", action="append", default=[], metavar="NAME",
+                   help="add a stored prediction's row to the sheet (repeatable; works without "
+                        "ground truth)")
+    p.add_argument("--frames", type=int, default=6, help="frames (columns) on the sheet")
     p.add_argument("--json", help="write the summary as JSON here")
+    add_overwrite_argument(p)
     p.set_defaults(func=_inspect)
 
     p = sub.add_parser("verify", help="check integrity and checksums of sequences or a release",
@@ -59,16 +66,22 @@ def _inspect(args: argparse.Namespace) -> int:
     from staticdepth.dataset.h5 import SequenceReader
     from staticdepth.dataset.inspect import format_summary, summarize, thumbnail_sheet, write_png
 
+    from staticdepth.cli import refuse_existing
+    from staticdepth.fileio import atomic_write_text
+
+    if args.pred and not args.sheet:
+        raise InputError("--pred adds rows to the sheet: pass --sheet FILE.png too")
+    if args.frames < 1:
+        raise InputError(f"--frames must be at least 1, got {args.frames}")
+    refuse_existing(args.sheet, args.json, overwrite=args.overwrite)
     with SequenceReader(args.file) as r:
         info = summarize(r)
         print(format_summary(info))
         if args.sheet:
-            write_png(args.sheet, thumbnail_sheet(r))
+            write_png(args.sheet, thumbnail_sheet(r, n=args.frames, preds=args.pred))
             print(f"  sheet            {args.sheet}")
     if args.json:
-        from staticdepth.fileio import atomic_write_text
-
-        atomic_write_text(args.json, json.dumps(info, indent=2, default=str) + "\n")
+        atomic_write_text(args.json, json.dumps(info, indent=2, default=str))
     return 0
 
 

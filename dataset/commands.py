@@ -17,10 +17,12 @@ def _writer_options(p: argparse.ArgumentParser, executors: bool = True) -> None:
                    help="continue an interrupted run (<out>.partial)")
     p.add_argument("--restart", action="store_true",
                    help="discard an interrupted run's <out>.partial and start over")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace outputs that exist already (refused otherwise)")
     if executors:
         p.add_argument("--workers", type=int, default=1, help="local worker processes")
-        p.add_argument("--executor", default="serial", choices=("serial", "process", "ray"))
+        p.add_argument("--executor", default="serial", choices=("serial", "process", "ray"),
+                       help="where frames are processed (same file either way)")
         p.add_argument("--address", default=None,
                        help="Ray cluster address (with --executor ray; default: a local Ray)")
 
@@ -52,11 +54,12 @@ def register(sub) -> None:
                                    "camera 2, or from the official depth-completion maps.")
     p.add_argument("--root", required=True, help="KITTI raw root (holding <date>/ folders)")
     p.add_argument("--drives", nargs="+", required=True, help="e.g. 2011_09_28_drive_0016")
-    p.add_argument("--name", default=None)
+    p.add_argument("--name", default=None, help="sequence name (default: the output's stem)")
     p.add_argument("--right", action="store_true", help="also import image_03 as the right view")
     p.add_argument("--depth-maps", default=None,
                    help="root of the official depth-completion maps (used instead of the scans)")
-    p.add_argument("--camera-height", type=float, default=1.65)
+    p.add_argument("--camera-height", type=float, default=1.65,
+                   help="camera height over the road (m; KITTI's camera 2)")
     _writer_options(p)
     p.set_defaults(func=_import_kitti)
 
@@ -65,7 +68,7 @@ def register(sub) -> None:
                                    "sensor.json "
                                    "saved from CARLA's Python API into a sequence file.")
     p.add_argument("dir", help="CARLA export folder")
-    p.add_argument("--name", default=None)
+    p.add_argument("--name", default=None, help="sequence name (default: the output's stem)")
     p.add_argument("--legacy-tags", action="store_true",
                    help="semantic tags use CARLA's pre-0.9.14 numbering (Pedestrian 4, Vehicle 10)")
     _writer_options(p)
@@ -76,9 +79,10 @@ def register(sub) -> None:
                                    "calibration and split lists, one file per frame in frame "
                                    "order.")
     p.add_argument("file", help="sequence file (.h5)")
-    p.add_argument("--format", default="kitti", choices=("kitti",))
+    p.add_argument("--format", default="kitti", choices=("kitti",), help="export layout")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace outputs that exist already (refused otherwise)")
     p.set_defaults(func=_export)
 
     p = sub.add_parser("publish", help="make a release folder: sequences, export, card, manifest",
@@ -87,11 +91,12 @@ def register(sub) -> None:
                                    "SHA-256 manifest that `staticdepth verify DIR` checks.")
     p.add_argument("files", nargs="+", help="sequence files (.h5)")
     p.add_argument("--out", required=True, help="release folder")
-    p.add_argument("--title", default=None)
+    p.add_argument("--title", default=None, help="dataset title on the card")
     p.add_argument("--licence", default="unspecified", help="licence of the data (e.g. CC-BY-4.0)")
     p.add_argument("--citation", default=None, help="citation text or BibTeX")
     p.add_argument("--no-export", action="store_true", help="leave out the KITTI-style export")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace outputs that exist already (refused otherwise)")
     p.set_defaults(func=_publish)
 
 

@@ -34,13 +34,16 @@ def colorize_depth(depth: np.ndarray, vmin: float | None = None, vmax: float | N
 
 
 def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
-    """Write an RGB image atomically (temporary file, then rename)."""
+    """Write an RGB image atomically (:mod:`staticdepth.fileio`); the format follows the suffix
+    (PNG when there is none)."""
+    from staticdepth.fileio import atomic_write_bytes
+
     path = os.fspath(path)
-    root, ext = os.path.splitext(path)
-    tmp = f"{root}.tmp{os.getpid()}{ext or '.png'}"
-    if not cv2.imwrite(tmp, np.ascontiguousarray(rgb[..., ::-1] if rgb.ndim == 3 else rgb)):
-        raise InputError("cannot write image", path)
-    os.replace(tmp, path)
+    ext = os.path.splitext(path)[1] or ".png"
+    ok, buf = cv2.imencode(ext, np.ascontiguousarray(rgb[..., ::-1] if rgb.ndim == 3 else rgb))
+    if not ok:
+        raise InputError(f"cannot encode an image as {ext}", path)
+    atomic_write_bytes(path, buf.tobytes())
 
 
 def summarize(reader: SequenceReader, sample: int = 16) -> dict[str, Any]:
@@ -83,17 +86,42 @@ def format_summary(info: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def thumbnail_sheet(reader: SequenceReader, n: int = 6, thumb_width: int = 240) -> np.ndarray:
-    """A sheet of ``n`` evenly spaced frames: image over colourised depth (RGB uint8)."""
+def _label(tile: np.ndarray, text: str) -> np.ndarray:
+    """``text`` in white on a dark band over the tile's top-left corner (RGB uint8)."""
+    out = tile.copy()
+    scale = 0.4
+    (w, h), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+    out[:h + base + 4, :w + 6] //= 3
+    cv2.putText(out, text, (3, h + 2), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 1,
+                cv2.LINE_AA)
+    return out
+
+
+def thumbnail_sheet(reader: SequenceReader, n: int = 6, thumb_width: int = 240,
+                    preds: tuple[str, ...] | list[str] = ()) -> np.ndarray:
+    """A sheet of ``n`` evenly spaced frames (columns): the image, the colourised ground-truth
+    depth when the sequence has it, and each named prediction (rows, labelled; near = red).
+
+    Predictions are coloured per frame by their own percentiles (relative predictions have no
+    metric scale), so a sequence without ground truth can still be looked at.
+    """
+    missing = [p for p in preds if p not in reader.predictions()]
+    if missing:
+        raise InputError(f"no prediction {', '.join(map(repr, missing))} in the sequence "
+                         f"(it has: {', '.join(reader.predictions()) or 'none'})", reader.path)
     idx = np.unique(np.linspace(0, len(reader) - 1, min(n, len(reader))).astype(int))
     s = thumb_width / reader.width
     th = max(1, round(reader.height * s))
+    labelled = bool(preds)
     cols = []
     for i in idx:
         img = cv2.resize(reader.left(int(i)), (thumb_width, th), interpolation=cv2.INTER_AREA)
-        tiles = [img]
-        if reader.has("depth"):
-            dep = colorize_depth(reader.depth(int(i)))
-            tiles.append(cv2.resize(dep, (thumb_width, th), interpolation=cv2.INTER_NEAREST))
+        tiles = [_label(img, f"frame {int(i)}") if labelled else img]
+        rows = [("ground truth", reader.depth(int(i)))] if reader.has("depth") else []
+        rows += [(f"pred {p}", reader.prediction(p, int(i))) for p in preds]
+        for name, dep in rows:
+            tile = cv2.resize(colorize_depth(dep), (thumb_width, th),
+                              interpolation=cv2.INTER_NEAREST)
+            tiles.append(_label(tile, name) if labelled else tile)
         cols.append(np.concatenate(tiles, axis=0))
     return np.concatenate(cols, axis=1)

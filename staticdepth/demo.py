@@ -22,7 +22,8 @@ def register(sub) -> None:
                                    "depth network to it, train the stereo baseline, evaluate, and "
                                    "write the three tables and an HTML report.")
     p.add_argument("--out", default="demo_out", help="output folder (default: demo_out)")
-    p.add_argument("--var", action="append", default=[], metavar="KEY=VALUE",
+    p.add_argument("--var", "--set", dest="var", action="append", default=[],
+                   metavar="KEY=VALUE",
                    help="change a demo setting, e.g. --var frames=80 --var adapt_epochs=10")
     p.add_argument("--force", action="store_true", help="rerun every stage")
     p.add_argument("--quick", action="store_true",
@@ -31,13 +32,17 @@ def register(sub) -> None:
 
 
 QUICK = {"frames": "30", "adapt_frames": "20", "builtin_frames": "48", "builtin_epochs": "2",
-         "adapt_epochs": "2", "baseline_epochs": "2"}
+         "builtin_size": "128x64", "adapt_epochs": "2", "baseline_epochs": "2"}
+
+ORACLE = ("oracle inputs: the agents are the scene's ground-truth instances (--detector gt) and "
+          "the camera height is the true one stored in the rendered sequence; on real video use "
+          "--detector motion or yolox and leave the height to the agents' 1.7 m prior")
 
 
 def run(args: argparse.Namespace) -> int:
     from staticdepth.cli import parse_overrides
     from staticdepth.dataset.h5 import SequenceReader
-    from staticdepth.dataset.inspect import colorize_depth, write_png
+    from staticdepth.dataset.inspect import _label, colorize_depth, write_png
     from staticdepth.run import load_recipe, run_recipe
 
     t0 = time.perf_counter()
@@ -50,15 +55,24 @@ def run(args: argparse.Namespace) -> int:
         i = r.split("eval")[len(r.split("eval")) // 2]
         import numpy as np
 
-        rows = [r.left(i), colorize_depth(r.depth(i))]
-        for name in ("base", "ft-align-metric"):
+        gt = r.depth(i)
+        ok = np.isfinite(gt) & (gt > 0)
+        lo, hi = float(np.percentile(gt[ok], 2)), float(np.percentile(gt[ok], 98))
+        rows = [_label(r.left(i), f"frame {i}"),
+                _label(colorize_depth(gt, lo, hi), f"ground truth ({lo:.1f}-{hi:.1f} m)")]
+        labels = {"base": "base prediction (relative, own colour scale)",
+                  "ft-align-metric": "adapted, metric (ground truth's colour scale)"}
+        for name, text in labels.items():
             if name in r.predictions():
-                rows.append(colorize_depth(r.prediction(name, i)))
+                pred = r.prediction(name, i)
+                rows.append(_label(colorize_depth(pred, *((lo, hi) if "metric" in name
+                                                          else (None, None))), text))
         picture = np.concatenate(rows, axis=0)
     png = os.path.join(recipe["out_dir"], "demo_depth.png")
     write_png(png, picture)
     print(f"picture: {png} (frame {i}: image, ground truth, base prediction, adapted metric "
           f"prediction; turbo, near = red)")
     print(f"report: {os.path.join(recipe['out_dir'], 'report', 'report_demo.html')}")
+    print(ORACLE)
     print(f"demo finished in {time.perf_counter() - t0:.0f} s")
     return 0

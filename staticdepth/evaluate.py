@@ -200,26 +200,37 @@ def register(sub) -> None:
                                    "the paper (METHOD.md section 6).")
     p.add_argument("--pred", required=True, help=".npy (H x W or N x H x W) or folder of them")
     p.add_argument("--gt", required=True, help="same layout; metres, NaN or 0 = unknown")
-    p.add_argument("--protocol", choices=PROTOCOLS, default="median")
-    p.add_argument("--max-depth", type=float, default=80.0)
+    p.add_argument("--protocol", choices=PROTOCOLS, default="median",
+                   help="median: per-image median scaling; metric: none; lsq: scale and shift")
+    p.add_argument("--max-depth", type=float, default=80.0, help="evaluation depth cap (m)")
     p.add_argument("--json", help="write averages and per-image values here")
+    _overwrite(p)
     p.set_defaults(func=_metrics_cmd)
 
     p = sub.add_parser("evaluate", help="evaluate the predictions stored in a sequence file",
                        description="Metrics of pred/<name>/depth against the ground truth, per "
                                    "protocol and region (all, agents, ground, distance bands).")
-    p.add_argument("sequence")
+    p.add_argument("sequence", help="sequence file (.h5) with stored predictions")
     p.add_argument("--pred", nargs="*", help="prediction names (default: all stored)")
-    p.add_argument("--split", default="eval", choices=("eval", "adapt", "all"))
+    p.add_argument("--split", default="eval", choices=("eval", "adapt", "all"),
+                   help="frames to evaluate")
     p.add_argument("--protocol", nargs="*", choices=PROTOCOLS,
                    help="default: metric for *-metric and stereo-baseline, median otherwise")
-    p.add_argument("--max-depth", type=float, default=80.0)
+    p.add_argument("--max-depth", type=float, default=80.0, help="evaluation depth cap (m)")
     p.add_argument("--json", help="write the full results here")
+    _overwrite(p)
     p.set_defaults(func=_evaluate_cmd)
+
+
+def _overwrite(p) -> None:
+    from staticdepth.cli import add_overwrite_argument
+
+    add_overwrite_argument(p)
 
 
 def _write_json(path: str, obj: Any) -> None:
     from staticdepth.fileio import atomic_write_json
+
     atomic_write_json(path, obj)
 
 
@@ -238,6 +249,9 @@ def _check_json_output(args: argparse.Namespace) -> None:
 
 
 def _metrics_cmd(args: argparse.Namespace) -> int:
+    from staticdepth.cli import refuse_existing
+
+    refuse_existing(args.json, overwrite=args.overwrite)
     _check_json_output(args)
     out = metrics_on_maps(load_maps(args.pred), load_maps(args.gt), args.protocol,
                           args.max_depth, args.pred, args.gt)
@@ -249,6 +263,9 @@ def _metrics_cmd(args: argparse.Namespace) -> int:
 
 
 def _evaluate_cmd(args: argparse.Namespace) -> int:
+    from staticdepth.cli import refuse_existing
+
+    refuse_existing(args.json, overwrite=args.overwrite)
     _check_json_output(args)
     res = evaluate_sequence(args.sequence, args.pred, split=args.split,
                             protocols=args.protocol, max_depth=args.max_depth)

@@ -1,7 +1,9 @@
 """Figures and the one-file HTML report of a sequence (``staticdepth report``).
 
-Figures: colourised depth per stage, error maps per stage (the paper's Fig. 6), the ground planes
-(predicted, from agents, true) drawn on the image (Fig. 3), and the agents' tracks with foot points.
+Figures (:mod:`staticdepth.report_figures`, in the pipeline's order): colourised depth per stage
+with colour bars in metres, error maps per stage (the paper's Fig. 6), the ground planes
+(predicted, from agents, true) drawn on the image (Fig. 3), and the agents' recent tracks. A
+sequence without ground truth gets its figures without metrics.
 The HTML embeds every picture as a data URI, so it opens offline in any browser.
 """
 from __future__ import annotations
@@ -19,12 +21,8 @@ import numpy as np
 from staticdepth.dataset.inspect import colorize_depth
 from staticdepth.errors import InputError
 from staticdepth.evaluate import default_protocol, evaluate_sequence
-from staticdepth.geometry.plane import plane_depth_map
 from staticdepth.metrics import apply_protocol, valid_mask
 from staticdepth.tables import Table, table1, table2, table3, table_regions, write_tables
-
-PLANE_COLOURS = {"true": (40, 220, 40), "agents": (255, 160, 0), "predicted": (230, 40, 230)}
-
 
 def error_map(pred: np.ndarray, gt: np.ndarray, vmax: float = 0.5) -> np.ndarray:
     """|pred - gt| / gt coloured from black (0) through red to yellow (>= vmax); no gt = grey."""
@@ -37,40 +35,6 @@ def error_map(pred: np.ndarray, gt: np.ndarray, vmax: float = 0.5) -> np.ndarray
     return rgb
 
 
-def draw_planes(image: np.ndarray, K: np.ndarray,
-                planes: Mapping[str, tuple[np.ndarray, float]],
-                depths_m: Sequence[float] = (5, 10, 20, 40)) -> np.ndarray:
-    """Iso-depth contours of each ground plane (one colour per plane) over the image."""
-    out = image.copy()
-    h, w = image.shape[:2]
-    for label, (n, d) in planes.items():
-        z = plane_depth_map(K, np.asarray(n), float(d), w, h)
-        colour = PLANE_COLOURS.get(label, (255, 255, 255))
-        for zc in depths_m:
-            m = (np.nan_to_num(z, nan=1e9) < zc).astype(np.uint8)
-            cnts, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-            cv2.drawContours(out, cnts, -1, colour, 1, cv2.LINE_AA)
-        cv2.putText(out, label, (5, 15 + 15 * list(planes).index(label)),
-                    cv2.FONT_HERSHEY_SIMPLEX, 0.45, colour, 1, cv2.LINE_AA)
-    return out
-
-
-def draw_tracks(image: np.ndarray, agents: np.ndarray, max_tracks: int = 200) -> np.ndarray:
-    """Foot points of every agent row, joined per track."""
-    out = image.copy()
-    rows = agents[(agents["foot_v"] >= 0) & (agents["track_id"] >= 0)]
-    rng = np.random.default_rng(0)
-    for tid in np.unique(rows["track_id"])[:max_tracks]:
-        r = rows[rows["track_id"] == tid]
-        r = r[np.argsort(r["frame"])]
-        pts = np.stack([r["foot_u"], r["foot_v"]], 1).astype(np.int32)
-        colour = tuple(int(c) for c in rng.integers(60, 255, 3))
-        cv2.polylines(out, [pts.reshape(-1, 1, 2)], False, colour, 1, cv2.LINE_AA)
-        for p in pts:
-            cv2.circle(out, (int(p[0]), int(p[1])), 2, colour, -1)
-    return out
-
-
 def _png_uri(rgb: np.ndarray) -> str:
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
     if not ok:
@@ -78,18 +42,11 @@ def _png_uri(rgb: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(buf.tobytes()).decode()
 
 
-def _planes_from_summary(summary: Mapping[str, Any] | None) -> dict[str, tuple[np.ndarray, float]]:
-    planes: dict[str, tuple[np.ndarray, float]] = {}
-    for label in ("agents", "predicted"):
-        p = (summary or {}).get("planes", {}).get(label)
-        if p is not None:
-            planes[label] = (np.asarray(p["normal"], float), float(p["d"]))
-    return planes
-
-
 def sequence_figures(path: str | os.PathLike, summary: Mapping[str, Any] | None = None,
                      frame: int | None = None) -> list[tuple[str, np.ndarray]]:
-    """(caption, RGB image) pairs for one evaluation frame of a sequence."""
+    """(caption, RGB panel) pairs for one evaluation frame, in the pipeline's order (see
+    :mod:`staticdepth.report_figures`); without ground truth, the predictions alone."""
+    from staticdepth import report_figures as rf
     from staticdepth.dataset.h5 import SequenceReader
 
     figs: list[tuple[str, np.ndarray]] = []
@@ -98,30 +55,47 @@ def sequence_figures(path: str | os.PathLike, summary: Mapping[str, Any] | None 
         i = frame if frame is not None else (ev[len(ev) // 2] if len(ev) else 0)
         img = r.left(i)
         gt = r.depth(i) if r.has("depth") else None
-        figs.append((f"frame {i}: image", img))
-        if gt is not None:
-            figs.append(("ground truth depth", colorize_depth(gt)))
-        for name in r.predictions():
+        has_gt = gt is not None and valid_mask(gt).any()
+        rng = rf.depth_range(gt) if has_gt else None
+        figs.append((f"1. input: frame {i}", rf.label(img, f"frame {i}")))
+        if has_gt:
+            figs.append(("2. ground-truth depth (colours: inverse depth, near = red)",
+                         rf.depth_panel(gt, "ground truth", rng)))
+        k = len(figs) + 1
+        for name in rf.pipeline_sorted(r.predictions()):
             pred = r.prediction(name, i).astype(np.float64)
-            prot = default_protocol(name)
-            if gt is not None and valid_mask(gt).any():
+            if has_gt:
+                prot = default_protocol(name)
                 scaled, s = apply_protocol(pred, gt, prot, valid_mask(gt))
-                figs.append((f"{name}: depth ({prot}, scale {s:.3g})", colorize_depth(scaled)))
-                figs.append((f"{name}: relative error |pred-gt|/gt (black 0, yellow >= 0.5)",
-                             error_map(scaled, gt)))
+                figs.append((f"{k}. {name}: depth ({prot} protocol, scale {s:.3g})",
+                             rf.depth_panel(scaled, f"{name} ({prot})", rng)))
+                figs.append((f"{k}. {name}: relative error |pred - gt| / gt",
+                             rf.error_panel(error_map(scaled, gt), f"{name}: relative error")))
             else:
-                figs.append((f"{name}: depth", colorize_depth(pred)))
-        planes = _planes_from_summary(summary)
+                metric = bool(r.prediction_attrs(name).get("metric", False))
+                figs.append((f"{k}. {name}: depth ({'metric' if metric else 'relative'}; no "
+                             f"ground truth)", rf.depth_panel(pred, name, None)))
+            k += 1
+        planes = rf.summary_planes(summary)
+        agents = r.agents()
+        if "predicted" not in planes and "base" in r.predictions() and len(agents) and planes:
+            d = next(iter(planes.values()))[1]
+            fitted = rf.predicted_plane(r.prediction("base", i), r.camera.K, agents, d,
+                                        r.width, r.height)
+            if fitted is not None:
+                planes["predicted"] = fitted
         if r.meta.mounting is not None:
             planes = {"true": (r.meta.mounting.normal, r.meta.mounting.height_m), **planes}
         if planes:
-            # relative planes (predicted) are drawn at the scale of their own d: only their shape
-            figs.append(("ground planes: iso-depth lines at 5, 10, 20, 40 m "
-                         "(green true, orange from agents, magenta predicted)",
-                         draw_planes(img, r.camera.K, planes)))
-        agents = r.agents()
+            figs.append((f"{k}. ground planes: iso-depth lines in metres (green true, orange "
+                         "from the agents, magenta the base prediction's plane, its orientation "
+                         "only: scaled to the agents' height)",
+                         rf.label(rf.draw_planes(img, r.camera.K, planes), "ground planes")))
+            k += 1
         if len(agents):
-            figs.append(("agents' tracks and foot points (all frames)", draw_tracks(img, agents)))
+            figs.append((f"{k}. agents' foot points over the last 6 frames up to frame {i}, one "
+                         "colour per track (newest = dot)",
+                         rf.label(rf.draw_tracks(img, agents, i), "agents' tracks")))
     return figs
 
 
@@ -129,7 +103,8 @@ def write_html(path: str | os.PathLike, title: str, tables: Sequence[Table],
                figures: Sequence[tuple[str, np.ndarray]], notes: Sequence[str] = ()) -> None:
     style = ("body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:"
              "collapse;margin-bottom:1em}td,th{border:1px solid #999;padding:2px 6px;"
-             "text-align:right}figure{display:inline-block;margin:4px}img{max-width:560px}")
+             "text-align:right}figure{display:inline-block;vertical-align:top;margin:4px;"
+             "max-width:580px}img{max-width:560px}figcaption{font-size:small}")
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
              f"</title><style>{style}</style></head><body><h1>{html.escape(title)}</h1>"]
     parts += [f"<p>{html.escape(n)}</p>" for n in notes]
@@ -170,17 +145,26 @@ def build_report(sequences: Mapping[str, str], out_dir: str | os.PathLike,
 
         with SequenceReader(seq) as r:
             names = r.predictions()
+            has_gt = r.has("depth")
         if not names:
             raise InputError("no predictions to report (run adapt / baseline first)", seq)
-        evals[scene] = evaluate_sequence(seq, names, protocols=protos)["results"]
-    anchors = {scene: anchor_row(seq, summaries.get(scene)) for scene, seq in sequences.items()}
-    tables = [table1(evals), table2(anchors), table3(evals), table_regions(evals)]
-    paths = write_tables(tables, out_dir)
+        if has_gt:
+            evals[scene] = evaluate_sequence(seq, names, protocols=protos)["results"]
+    anchors = {scene: anchor_row(seq, summaries.get(scene)) for scene, seq in sequences.items()
+               if scene in evals}
+    tables = ([table1(evals), table2(anchors), table3(evals), table_regions(evals)]
+              if evals else [])
+    paths = write_tables(tables, out_dir) if tables else []
+    from staticdepth.report_figures import metric_definitions
+
     for scene, seq in sequences.items():
         figs = sequence_figures(seq, summaries.get(scene))
         p = os.path.join(out_dir, f"report_{_file_stem(scene)}.html")
-        write_html(p, f"staticdepth report: {scene}", tables, figs,
-                   notes=[f"sequence: {seq}"])
+        notes = [f"sequence: {seq}"]
+        notes += (metric_definitions() if scene in evals else
+                  ["no ground truth: the predictions are shown without metrics"])
+        write_html(p, f"staticdepth report: {scene}", tables if scene in evals else [], figs,
+                   notes=notes)
         paths.append(p)
     return {"tables": tables, "paths": paths, "evals": evals, "anchors": anchors}
 

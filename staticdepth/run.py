@@ -113,6 +113,21 @@ def load_recipe(path: str | os.PathLike, variables: Mapping[str, str] | None = N
     return {"name": r["name"], "out_dir": env["out_dir"], "stages": stages, "path": src}
 
 
+def _accepts(argv: list[str], flag: str) -> bool:
+    """Whether the command ``argv`` names takes ``flag`` (and does not have it yet)."""
+    import argparse
+
+    from staticdepth.cli import build_parser
+
+    if flag in argv:
+        return False
+    parser = build_parser(argv)
+    for word in (a for a in argv if not a.startswith("-")):
+        sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+        if sub is None or word not in sub.choices:
+            break
+        parser = sub.choices[word]
+    return any(flag in a.option_strings for a in parser._actions)
 def _read_state(state_path: str) -> dict[str, str]:
     """The stage hashes of earlier runs; a corrupt state file is an error naming it."""
     if not os.path.exists(state_path):
@@ -151,6 +166,8 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
             log(f"[{recipe['name']}] {name}: up to date, skipped" if done else
                 f"[{recipe['name']}] {name}: not selected, skipped")
             continue
+        if any(os.path.exists(p) for p in st["outputs"]) and _accepts(argv, "--overwrite"):
+            argv.append("--overwrite")   # a stage that runs again replaces its own outputs
         log(f"[{recipe['name']}] {name}: staticdepth {' '.join(argv)}")
         if dry_run:
             status[name] = "dry-run"
@@ -174,8 +191,9 @@ def register(sub) -> None:
     p = sub.add_parser("run", help="run a scene recipe (import, adapt, baseline, evaluation)",
                        description="Run the stages of a recipe YAML in order, skipping stages "
                                    "whose outputs are present with the same settings.")
-    p.add_argument("recipe")
-    p.add_argument("--var", action="append", default=[], metavar="KEY=VALUE",
+    p.add_argument("recipe", help="recipe YAML (recipes/*.yaml)")
+    p.add_argument("--var", "--set", dest="var", action="append", default=[],
+                   metavar="KEY=VALUE",
                    help="set a recipe placeholder, e.g. --var root=/data/kitti_raw")
     p.add_argument("--only", nargs="*", help="run only these stages")
     p.add_argument("--force", action="store_true", help="rerun stages even when up to date")

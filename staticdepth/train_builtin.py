@@ -19,7 +19,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from staticdepth.errors import InputError
-from staticdepth.finetune import FinetuneConfig, finetune
 
 FRAMES_PER_LAYOUT = 8      # frames rendered per scene seed (10 frames = 1 s apart)
 
@@ -81,6 +80,7 @@ def train_builtin(conf: TrainBuiltinConfig, *, out: str | os.PathLike, device=No
     """Render, train, save; returns (model, history)."""
     import torch
 
+    from staticdepth.finetune import FinetuneConfig, finetune
     from staticdepth.models.tiny import builtin_model, save_builtin
 
     from staticdepth.fileio import check_writable
@@ -113,12 +113,15 @@ def register(sub) -> None:
                        description="Train the toolkit's small depth network on synthetic "
                                    "street-level scenes (level camera, 1.6 m up). No download.")
     p.add_argument("--out", required=True, help="weights file to write (e.g. builtin.pt)")
-    p.add_argument("--frames", type=int, default=TrainBuiltinConfig.frames)
-    p.add_argument("--epochs", type=int, default=TrainBuiltinConfig.epochs)
+    p.add_argument("--frames", type=int, default=TrainBuiltinConfig.frames,
+                   help="street-level training frames to render")
+    p.add_argument("--epochs", type=int, default=TrainBuiltinConfig.epochs,
+                   help="passes over the training frames")
     p.add_argument("--size", default="384x192", help="training size WxH, multiples of 32")
-    p.add_argument("--lr", type=float, default=TrainBuiltinConfig.lr)
-    p.add_argument("--batch-size", type=int, default=TrainBuiltinConfig.batch_size)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--lr", type=float, default=TrainBuiltinConfig.lr, help="Adam learning rate")
+    p.add_argument("--batch-size", type=int, default=TrainBuiltinConfig.batch_size,
+                   help="frames per optimisation step")
+    p.add_argument("--seed", type=int, default=0, help="seed of the scenes and the training")
     from staticdepth.cli import add_device_argument
     add_device_argument(p)
     p.set_defaults(func=run)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from dataclasses import dataclass
 from typing import Callable, Iterator
 
@@ -16,7 +17,8 @@ def register(sub) -> None:
     p = sub.add_parser("calibrate", help="stereo calibration from board image pairs",
                        description="Calibrate a stereo rig from image pairs of a chessboard or "
                                    "ChArUco board; writes the rig JSON every other command reads.")
-    p.add_argument("--pattern", choices=("chessboard", "charuco"), default="chessboard")
+    p.add_argument("--pattern", choices=("chessboard", "charuco"), default="chessboard",
+                   help="calibration board type")
     p.add_argument("--board", required=True, help="inner corners (chessboard) or squares "
                                                   "(ChArUco), COLSxROWS, e.g. 9x6")
     p.add_argument("--square", type=float, required=True, help="square side in metres")
@@ -24,8 +26,10 @@ def register(sub) -> None:
     p.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco ArUco dictionary")
     p.add_argument("--left", required=True, help="left images: folder or glob")
     p.add_argument("--right", required=True, help="right images: folder or glob")
-    p.add_argument("--min-pairs", type=int, default=5)
+    p.add_argument("--min-pairs", type=int, default=5,
+                   help="fewest pairs with the board found (after dropping outliers)")
     p.add_argument("--out", required=True, help="rig JSON to write")
+    _overwrite(p)
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("stereo", help="depth from stereo pairs (SGBM or an ONNX network)",
@@ -40,7 +44,7 @@ def register(sub) -> None:
                                        "`staticdepth capture` folder or DIR/left, DIR/right")
     p.add_argument("--out", help="sequence file to write (.h5)")
     p.add_argument("--name", help="sequence name (default: the output's stem)")
-    p.add_argument("--overwrite", action="store_true")
+    _overwrite(p)
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted run (<out>.partial) with the same inputs")
     p.add_argument("--restart", action="store_true",
@@ -66,21 +70,40 @@ def register(sub) -> None:
     p.add_argument("--out-name", help="prediction name for --sequence")
     p.add_argument("--temporal", action="store_true",
                    help="--sequence: fuse the static background over the frames")
+    p.add_argument("--skip-rectification-check", action="store_true",
+                   help="do not check that matched features of the first (rectified) pair lie on "
+                        "the same rows")
     p.set_defaults(func=cmd_stereo)
 
     p = sub.add_parser("mount", help="camera height and ground plane from a board on the ground",
                        description="Estimate the left camera's pose over the ground from views of "
                                    "a board lying flat on it, and store it in the rig.")
-    p.add_argument("--rig", required=True)
+    p.add_argument("--rig", required=True, help="rig JSON (from calibrate or import-rig)")
     p.add_argument("--images", required=True, help="raw left images of the board: folder or glob")
-    p.add_argument("--pattern", choices=("chessboard", "charuco"), default="chessboard")
-    p.add_argument("--board", required=True, help="COLSxROWS")
+    p.add_argument("--pattern", choices=("chessboard", "charuco"), default="chessboard",
+                   help="board type")
+    p.add_argument("--board", required=True, help="inner corners (chessboard) or squares "
+                                                  "(ChArUco), COLSxROWS")
     p.add_argument("--square", type=float, required=True, help="square side in metres")
-    p.add_argument("--marker", type=float, default=0.0)
-    p.add_argument("--dictionary", default="DICT_4X4_50")
+    p.add_argument("--marker", type=float, default=0.0, help="ChArUco marker side in metres")
+    p.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco ArUco dictionary")
     p.add_argument("--thickness", type=float, default=0.0, help="board thickness in metres")
-    p.add_argument("--out", required=True, help="rig JSON to write (may be --rig itself)")
+    p.add_argument("--out", required=True, help="rig JSON to write (may be --rig itself: the rig "
+                                                "is updated in place)")
+    _overwrite(p)
     p.set_defaults(func=cmd_mount)
+
+
+def _overwrite(p) -> None:
+    from staticdepth.cli import add_overwrite_argument
+
+    add_overwrite_argument(p)
+
+
+def _refuse_existing(*paths, overwrite: bool) -> None:
+    from staticdepth.cli import refuse_existing
+
+    refuse_existing(*paths, overwrite=overwrite)
 
 
 def _board(args):
@@ -94,6 +117,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from staticdepth.stereo.calibrate import calibrate_stereo
     from staticdepth.stereo.io import expand_images
 
+    _refuse_existing(args.out, overwrite=args.overwrite)
     cal = calibrate_stereo(expand_images(args.left), expand_images(args.right), _board(args),
                            min_pairs=args.min_pairs)
     for f in cal.not_found:
@@ -112,6 +136,8 @@ def cmd_mount(args: argparse.Namespace) -> int:
     from staticdepth.stereo.io import expand_images
     from staticdepth.stereo.mount import mount_from_board
 
+    if os.path.abspath(args.out) != os.path.abspath(args.rig):
+        _refuse_existing(args.out, overwrite=args.overwrite)
     rig = StereoRig.load(args.rig)
     est = mount_from_board(rig, expand_images(args.images), _board(args),
                            thickness_m=args.thickness)
@@ -161,28 +187,32 @@ def cmd_stereo(args: argparse.Namespace) -> int:
 def _stereo_pair(args) -> int:
     from staticdepth.stereo.io import read_rgb, write_disparity, write_ply
     from staticdepth.stereo.pipeline import StereoPipeline
-    from staticdepth.stereo.rectify import check_rectified
 
     if not args.max_disparity or args.max_disparity <= 0:
         raise InputError("--rectified needs --max-disparity N (a positive number of pixels)")
     if not args.disparity_out:
         raise InputError("--rectified needs --disparity-out FILE (.pfm, .png or .npy)")
+    if args.ply and not args.rig:
+        raise InputError("--ply with --rectified needs --rig (the focal length and baseline that "
+                         "make disparities metric)")
+    _refuse_existing(args.disparity_out, args.ply, overwrite=args.overwrite)
     left, right = read_rgb(args.left), read_rgb(args.right)
     if left.shape != right.shape:
         raise InputError(f"left is {left.shape[1]}x{left.shape[0]} but right is "
                          f"{right.shape[1]}x{right.shape[0]}", args.right)
+    check = _rectification(args, left, right, args.left)
     h, w = left.shape[:2]
     if w <= _num_disparities(args.max_disparity) or h < 16:  # before OpenCV asserts on it
         raise InputError(f"image is {w}x{h}: too small to match (at least 16 rows, and wider "
                          f"than the disparity range {_num_disparities(args.max_disparity)} px)",
                          args.left)
-    check_rectified(left, right, source=args.left)
     unit = Camera.from_intrinsics(1.0, 1.0, (w - 1) / 2, (h - 1) / 2, w, h)
     rig = StereoRig.load(args.rig) if args.rig else StereoRig.rectified(unit, 1.0)
     pipe = StereoPipeline(rig, _config(args, num_disparities=_num_disparities(args.max_disparity)))
     res = pipe.process(left, right)
+    _disparity_warnings(check, pipe, res)
     write_disparity(args.disparity_out, res.disparity)
-    if args.ply and args.rig:
+    if args.ply:
         write_ply(args.ply, pipe.points(res), res.left_rect)
     print(f"disparity: {100 * res.valid.mean():.1f}% measured"
           f"{', filled to 100%' if args.fill else ''} -> {args.disparity_out}")
@@ -215,6 +245,26 @@ def _stereo_on_sequence(args) -> int:
           f"of pixels with depth{' (background model reused)' if res.background_reused else ''}"
           f" -> predictions {res.name!r} and {res.name + '-confidence'!r} in {args.sequence}")
     return 0
+def _rectification(args, left_rect, right_rect, source: str):
+    """The rectification check of the first rectified pair (its matches feed the warnings)."""
+    from staticdepth.stereo.rectify import check_rectified, measure_rectification
+
+    if args.skip_rectification_check:
+        return measure_rectification(left_rect, right_rect)
+    return check_rectified(left_rect, right_rect, source=source, warn=_warn)
+
+
+def _disparity_warnings(check, pipe, res) -> None:
+    """Warn when the disparity range clips the scene or the views look swapped."""
+    from staticdepth.stereo.diagnose import stereo_warnings
+
+    measured = np.where(res.valid, res.disparity, np.nan)
+    for message in stereo_warnings(check, pipe.num_disparities, measured):
+        _warn(f"warning: {message}")
+
+
+def _warn(message: str) -> None:
+    print(f"staticdepth stereo: {message}", file=sys.stderr)
 
 
 def _num_disparities(max_disparity: int) -> int:
@@ -278,8 +328,8 @@ def _stereo_sequence(args) -> int:
     from staticdepth.progress import progress
     from staticdepth.stereo.io import check_image_headers, write_ply
     from staticdepth.stereo.pipeline import StereoPipeline
-    from staticdepth.stereo.rectify import check_rectified
 
+    _refuse_existing(args.ply, overwrite=args.overwrite)
     frames = _sequence_input(args)
     if args.rig:
         rig = StereoRig.load(args.rig)
@@ -300,7 +350,7 @@ def _stereo_sequence(args) -> int:
     first_l, first_r = next(frames.pairs(0))
     pipe.check_frame(first_l, first_r, frames.first)
     rl, rr = pipe.rectifier.rectify(first_l, first_r)
-    check_rectified(rl, rr, source=f"{rig_name} (after rectifying {frames.first})")
+    check = _rectification(args, rl, rr, f"{rig_name} (after rectifying {frames.first})")
     name = args.name or os.path.splitext(os.path.basename(args.out))[0]
     source = (f"stereo recording {args.recording}" if args.recording
               else f"stereo {args.left} {args.right}")
@@ -321,6 +371,8 @@ def _stereo_sequence(args) -> int:
             res = pipe.process(L, R)
             ts = None if frames.timestamps is None else frames.timestamps[i]
             writer.append(left=res.left_rect, right=res.right_rect, depth=res.depth, timestamp=ts)
+            if i == 0:
+                _disparity_warnings(check, pipe, res)
             if i == 0 and args.ply:
                 write_ply(args.ply, pipe.points(res), res.left_rect)
     except BaseException:

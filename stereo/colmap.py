@@ -2,7 +2,9 @@
 
 COLMAP puts the top-left pixel's centre at (0.5, 0.5), OpenCV (and this toolkit) at (0, 0):
 ``cx_colmap = cx_opencv + 0.5`` (same for cy). Models read: SIMPLE_PINHOLE, PINHOLE,
-SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV; written: PINHOLE (no distortion) or OPENCV.
+SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV; written: PINHOLE (no distortion), OPENCV (k1 k2 p1 p2)
+or FULL_OPENCV (OpenCV's rational model k1 k2 p1 p2 k3 k4 k5 k6: every rig ``calibrate`` writes has
+a k3). Thin-prism or tilt terms (OpenCV's 12/14-coefficient models) have no COLMAP model.
 """
 from __future__ import annotations
 
@@ -21,16 +23,17 @@ MODELS = {"SIMPLE_PINHOLE": 3, "PINHOLE": 4, "SIMPLE_RADIAL": 4, "RADIAL": 5, "O
 def camera_to_colmap(camera: Camera) -> tuple[str, list[float]]:
     """(model, params) of a camera in COLMAP's pixel convention."""
     fx, fy, cx, cy = camera.fx, camera.fy, camera.cx + 0.5, camera.cy + 0.5
-    d = np.zeros(5)
-    d[:min(5, camera.dist.size)] = camera.dist[:5]
-    if camera.dist.size > 5 and np.any(camera.dist[5:] != 0):
-        raise InputError("COLMAP's OPENCV model holds k1 k2 p1 p2 only; this camera has more "
-                         "distortion terms")
-    if d[4] != 0:
-        raise InputError("COLMAP's OPENCV model has no k3; this camera's k3 is not zero")
+    dist = np.asarray(camera.dist, np.float64).ravel()
+    if dist.size > 8 and np.any(dist[8:] != 0):
+        raise InputError("COLMAP has no camera model with OpenCV's thin-prism/tilt distortion "
+                         "terms (this camera has more than k1 k2 p1 p2 k3 k4 k5 k6)")
+    d = np.zeros(8)
+    d[:min(8, dist.size)] = dist[:8]
     if not np.any(d):
         return "PINHOLE", [fx, fy, cx, cy]
-    return "OPENCV", [fx, fy, cx, cy, *d[:4]]
+    if not np.any(d[4:]):
+        return "OPENCV", [fx, fy, cx, cy, *d[:4]]
+    return "FULL_OPENCV", [fx, fy, cx, cy, *d]
 
 
 def camera_from_colmap(model: str, width: int, height: int, params, source: str | None = None

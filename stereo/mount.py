@@ -43,7 +43,10 @@ def pose_colmap(obj: np.ndarray, uv: np.ndarray, camera: Camera
     """``cam_from_board`` with pycolmap (robust + refined), or None when it is unavailable/fails."""
     if pycolmap is None:
         return None
-    model, params = camera_to_colmap(camera)
+    try:
+        model, params = camera_to_colmap(camera)
+    except InputError:      # distortion terms COLMAP has no model for: OpenCV alone
+        return None
     cam = pycolmap.Camera(model=model, width=camera.width, height=camera.height, params=params)
     res = pycolmap.estimate_and_refine_absolute_pose(
         np.asarray(uv, np.float64) + 0.5, np.asarray(obj, np.float64), cam)

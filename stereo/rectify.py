@@ -7,6 +7,8 @@ needs no maps. Otherwise the rig's stored ``stereoRectify`` outputs are used (or
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import cv2
 import numpy as np
 
@@ -71,34 +73,89 @@ class Rectifier:
                                    P=np.asarray(P)).reshape(-1, 2)
 
 
-def vertical_offsets(left_rgb: np.ndarray, right_rgb: np.ndarray, n_features: int = 2000
-                     ) -> np.ndarray:
-    """Vertical offsets ``v_right - v_left`` (px) of cross-checked ORB matches between the views."""
+def _ratio_matches(left_rgb: np.ndarray, right_rgb: np.ndarray, n_features: int, ratio: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Matched ORB positions (N, 2) left and right: Lowe's ratio test both ways, mutual best."""
     orb = cv2.ORB_create(n_features)
-    gl = cv2.cvtColor(left_rgb, cv2.COLOR_RGB2GRAY)
-    gr = cv2.cvtColor(right_rgb, cv2.COLOR_RGB2GRAY)
-    kl, dl = orb.detectAndCompute(gl, None)
-    kr, dr = orb.detectAndCompute(gr, None)
-    if dl is None or dr is None:
-        return np.zeros(0)
-    matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(dl, dr)
-    good = [m for m in matches if m.distance < 40]
-    return np.array([kr[m.trainIdx].pt[1] - kl[m.queryIdx].pt[1] for m in good])
+    kl, dl = orb.detectAndCompute(cv2.cvtColor(left_rgb, cv2.COLOR_RGB2GRAY), None)
+    kr, dr = orb.detectAndCompute(cv2.cvtColor(right_rgb, cv2.COLOR_RGB2GRAY), None)
+    if dl is None or dr is None or len(dl) < 2 or len(dr) < 2:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+
+    def distinct(a, b):
+        return {mn[0].queryIdx: mn[0].trainIdx for mn in bf.knnMatch(a, b, k=2)
+                if len(mn) == 2 and mn[0].distance < ratio * mn[1].distance}
+
+    fwd, back = distinct(dl, dr), distinct(dr, dl)
+    pairs = [(i, j) for i, j in fwd.items() if back.get(j) == i]
+    return (np.array([kl[i].pt for i, _ in pairs], np.float64).reshape(-1, 2),
+            np.array([kr[j].pt for _, j in pairs], np.float64).reshape(-1, 2))
+
+
+@dataclass(frozen=True)
+class RectificationCheck:
+    """Vertical misalignment of a pair: ``dy = v_right - v_left ~ a + b u + c v`` (RANSAC)."""
+
+    matches: int        # distinct mutual ORB matches (ratio test)
+    inliers: int        # matches the fitted row-offset model explains within the tolerance
+    offset_px: float    # median |dy| of the inliers (about 0 for a rectified pair)
+    disparities: np.ndarray = field(default_factory=lambda: np.zeros(0), compare=False)
+    # u_left - u_right of the inliers: positive for a left/right pair in the right order
+
+    @property
+    def conclusive(self) -> bool:
+        return self.inliers >= 20 and self.inliers >= 0.25 * self.matches
+
+
+def measure_rectification(left_rgb: np.ndarray, right_rgb: np.ndarray, *, n_features: int = 4000,
+                          ratio: float = 0.8, tol_px: float = 1.5, iterations: int = 500,
+                          seed: int = 0) -> RectificationCheck:
+    """Fit the vertical offset of matched features as an affine function of the position.
+
+    Repetitive texture (tiles, facades, a chessboard) yields confident but wrong matches; the
+    ratio test drops ambiguous ones and RANSAC keeps the largest consistent set, so the offset is
+    measured on true correspondences. A rectified pair gives ``offset_px`` near 0; a vertical
+    shift, rotation or scale error between the views gives its size in pixels.
+    """
+    pl, pr = _ratio_matches(left_rgb, right_rgb, n_features, ratio)
+    n = len(pl)
+    if n < 3:
+        return RectificationCheck(n, 0, float("nan"))
+    dy = pr[:, 1] - pl[:, 1]
+    A = np.column_stack([np.ones(n), pl])
+    rng = np.random.default_rng(seed)
+    best = np.zeros(n, bool)
+    for _ in range(iterations):
+        idx = rng.choice(n, 3, replace=False)
+        try:
+            coef = np.linalg.solve(A[idx], dy[idx])
+        except np.linalg.LinAlgError:
+            continue
+        inl = np.abs(A @ coef - dy) <= tol_px
+        if inl.sum() > best.sum():
+            best = inl
+    if best.sum() < 3:
+        return RectificationCheck(n, int(best.sum()), float("nan"))
+    return RectificationCheck(n, int(best.sum()), float(np.median(np.abs(dy[best]))),
+                              pl[best, 0] - pr[best, 0])
 
 
 def check_rectified(left_rgb: np.ndarray, right_rgb: np.ndarray, max_offset_px: float = 2.0,
-                    min_matches: int = 20, source: str | None = None) -> float | None:
+                    source: str | None = None, warn=print) -> RectificationCheck:
     """Raise :class:`InputError` if matched features sit on different rows (pair not rectified).
 
-    Returns the median absolute vertical offset (px), or None when too few features matched to
-    tell (textureless images).
+    The one rectification check (``stereo``, ``pack``). Too few consistent matches to tell
+    (textureless images) gives a warning, not an error. Callers offer
+    ``--skip-rectification-check`` instead of calling it.
     """
-    dy = vertical_offsets(left_rgb, right_rgb)
-    if len(dy) < min_matches:
-        return None
-    med = float(np.median(np.abs(dy)))
-    if med > max_offset_px:
-        raise InputError(f"images are not rectified: matched features are {med:.1f} px apart "
-                         f"vertically (median of {len(dy)} ORB matches, at most {max_offset_px} "
-                         f"allowed); calibrate the rig and pass --rig", source)
-    return med
+    res = measure_rectification(left_rgb, right_rgb)
+    if not res.conclusive:
+        warn(f"warning: cannot check that the pair is rectified ({res.inliers} consistent of "
+             f"{res.matches} distinct feature matches)" + (f": {source}" if source else ""))
+    elif res.offset_px > max_offset_px:
+        raise InputError(f"images are not rectified: matched features are {res.offset_px:.1f} px "
+                         f"apart vertically ({res.inliers} of {res.matches} distinct ORB matches "
+                         f"agree, at most {max_offset_px} px allowed); calibrate the rig and pass "
+                         f"--rig, or pass --skip-rectification-check", source)
+    return res

@@ -11,12 +11,16 @@ def register(sub) -> None:
                                    "that calibrate writes and stereo, pack and mount read.")
     p.add_argument("file", help="calibration file: DepthAI eepromToJson JSON, Middlebury "
                                 "calib.txt or KITTI calib_cam_to_cam.txt")
-    p.add_argument("--from", dest="kind", required=True, choices=("depthai", "middlebury", "kitti"))
+    p.add_argument("--from", dest="kind", required=True, choices=("depthai", "middlebury", "kitti"),
+                   help="the calibration file's format")
     p.add_argument("--camera", type=int, help="KITTI: left camera of the pair, 2 (colour, "
                                               "default) or 0 (grey)")
     p.add_argument("--size", help="WIDTHxHEIGHT of the recorded images when they are a resized "
                                   "version of the calibrated ones")
     p.add_argument("--out", required=True, help="rig JSON to write")
+    from staticdepth.cli import add_overwrite_argument
+
+    add_overwrite_argument(p)
     p.set_defaults(func=cmd_import_rig)
 
 
@@ -24,6 +28,9 @@ def cmd_import_rig(args: argparse.Namespace) -> int:
     from staticdepth.stereo.rectify import Rectifier
     from staticdepth.stereo.rig_import import import_rig, parse_size
 
+    from staticdepth.cli import refuse_existing
+
+    refuse_existing(args.out, overwrite=args.overwrite)
     size = parse_size(args.size) if args.size else None
     rig = import_rig(args.kind, args.file, camera=args.camera, size=size)
     rect = Rectifier(rig)          # validates the rig and gives the camera depth is computed in

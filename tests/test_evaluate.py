@@ -23,7 +23,9 @@ def test_metrics_command_on_npy(tmp_path, rng, capsys):
     assert res["abs_rel"] == pytest.approx(0, abs=1e-12) and len(res["per_image"]) == 3
     assert res["per_image"][0]["n"] == 19 * 30
     assert main(["metrics", "--protocol", "metric", "--pred", str(tmp_path / "pred.npy"),
-                 "--gt", str(tmp_path / "gt.npy"), "--json", str(out)]) == 0
+                 "--gt", str(tmp_path / "gt.npy"), "--json", str(out)]) == 2   # exists already
+    assert main(["metrics", "--protocol", "metric", "--pred", str(tmp_path / "pred.npy"),
+                 "--gt", str(tmp_path / "gt.npy"), "--json", str(out), "--overwrite"]) == 0
     assert json.loads(out.read_text())["abs_rel"] == pytest.approx(1.0)
     # folders of .npy in matching order
     (tmp_path / "P").mkdir(), (tmp_path / "G").mkdir()
@@ -31,7 +33,7 @@ def test_metrics_command_on_npy(tmp_path, rng, capsys):
         np.save(tmp_path / "P" / f"{i:03d}.npy", gt[i] * 1.1)
         np.save(tmp_path / "G" / f"{i:03d}.npy", gt[i])
     assert main(["metrics", "--protocol", "metric", "--pred", str(tmp_path / "P"), "--gt",
-                 str(tmp_path / "G"), "--json", str(out)]) == 0
+                 str(tmp_path / "G"), "--json", str(out), "--overwrite"]) == 0
     assert json.loads(out.read_text())["abs_rel"] == pytest.approx(0.1)
 
 

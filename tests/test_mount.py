@@ -114,10 +114,15 @@ def test_colmap_round_trip_and_pixel_centres(tmp_path):
     assert (simple.fx, simple.cx, simple.cy, simple.dist[0]) == (500, 320.0, 240.0, 0.1)
 
 
-def test_colmap_agrees_with_pycolmap():
+@pytest.mark.parametrize("dist, model_name", [
+    ([0.1, -0.02, 0.001, 0.002, 0], "OPENCV"),
+    ([-0.28, 0.05, 0.001, -0.0001, 0.1], "FULL_OPENCV"),                   # calibrate's k3
+    ([-0.28, 0.05, 0.001, -0.0001, 0.1, 0.02, -0.01, 0.005], "FULL_OPENCV")])  # rational model
+def test_colmap_agrees_with_pycolmap(dist, model_name):
     pycolmap = pytest.importorskip("pycolmap", reason="pycolmap not installed")
-    cam = Camera.from_intrinsics(500, 510, 320.0, 240.0, 640, 480, [0.1, -0.02, 0.001, 0.002, 0])
+    cam = Camera.from_intrinsics(500, 510, 320.0, 240.0, 640, 480, dist)
     model, params = camera_to_colmap(cam)
+    assert model == model_name
     pc = pycolmap.Camera(model=model, width=640, height=480, params=params)
     P = np.array([[0.3, -0.2, 2.0], [-0.5, 0.4, 3.0]])
     uv_colmap = np.asarray(pc.img_from_cam(P))
@@ -141,5 +146,5 @@ def test_colmap_bad_input(tmp_path):
         read_cameras_txt(p)
     with pytest.raises(InputError, match="not found"):
         read_cameras_txt(tmp_path / "missing.txt")
-    with pytest.raises(InputError, match="k3"):
-        camera_to_colmap(Camera.from_intrinsics(1, 1, 0, 0, 2, 2, [0, 0, 0, 0, 0.1]))
+    with pytest.raises(InputError, match="thin-prism"):
+        camera_to_colmap(Camera.from_intrinsics(1, 1, 0, 0, 2, 2, [0] * 8 + [0.1, 0, 0, 0]))
