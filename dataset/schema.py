@@ -7,7 +7,13 @@ Layout (N frames of H x W):
 - ``instances``  (N, H, W)    uint16 instance id map, 0 = background (optional)
 - ``agents``     (M,) table of AGENT_DTYPE rows: which instance of which frame is which agent
 - ``timestamps`` (N,) float64 seconds
-- ``crc32/<stream>`` (N,) uint32 checksums of each frame's raw bytes, for ``verify``
+- ``aux/<name>``  (N, H, W) extra per-frame maps (e.g. CARLA's ground mask)
+- ``crc32/<dataset>`` (N,) uint32 checksums of each frame's raw bytes of every per-frame dataset
+  (streams, ``aux/<name>``, ``pred/<name>/depth``); ``timestamps`` and ``agents`` carry a
+  ``crc32`` attribute over all their bytes; ``verify`` checks them all
+  (``staticdepth.dataset.integrity``)
+- ``fingerprint/inputs`` one digest per input frame, and the root attribute ``fingerprint``:
+  what ``--resume`` must find unchanged (``staticdepth.dataset.resume``)
 - ``pred/<name>/depth`` (N, H, W) float32 predictions added later (e.g. ``base``, ``ft-align``)
 Root attributes: see REQUIRED_ATTRS; JSON-valued ones are stored as strings.
 """

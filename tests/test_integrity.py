@@ -484,3 +484,55 @@ def test_a_signal_inside_an_hdf5_write_waits_for_the_frame(tmp_path, monkeypatch
         assert r.checksum_errors() == []
         for i in range(4):
             np.testing.assert_array_equal(r.left(i), frames[i])
+
+
+DISK_SCRIPT = r"""
+import json, os, subprocess, sys
+d, cli = sys.argv[1], sys.argv[2:]
+def run(*args):
+    r = subprocess.run([sys.executable, "-c", CLI, *args], capture_output=True, text=True)
+    return {"rc": r.returncode, "err": r.stderr.strip().splitlines(), "out": r.stdout}
+def synth(out, frames, *extra):
+    return run("synth", "--frames", str(frames), "--set", "width=160", "--set", "height=80",
+               "--out", out, *extra)
+subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1500k", "tmpfs", d], check=True)
+out = os.path.join(d, "s.h5")
+res = {"first": synth(out, 2)}
+before = open(out, "rb").read()
+res["full"] = synth(out, 40, "--overwrite")
+res["intact"] = open(out, "rb").read() == before
+res["files"] = sorted(os.listdir(d))
+subprocess.run(["mount", "-o", "remount,size=16m", d], check=True)  # make room
+res["resumed"] = synth(out, 40, "--overwrite", "--resume")
+res["verify"] = run("verify", out)
+subprocess.run(["mount", "-o", "remount,ro", d], check=True)
+res["readonly"] = synth(os.path.join(d, "t.h5"), 3)
+print(json.dumps(res))
+""".replace("CLI", repr(CLI))
+
+
+def test_full_disk_and_read_only_file_system(tmp_path):
+    """A real full disk (a 1.5 MB tmpfs) and a real read-only file system, in a private mount
+    namespace (needs root or user namespaces; skipped with the reason otherwise)."""
+    import shutil as sh
+
+    if sh.which("unshare") is None or subprocess.run(
+            ["unshare", "-m", "mount", "-t", "tmpfs", "tmpfs", str(tmp_path)],
+            capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a tmpfs in a private mount namespace here")
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    r = subprocess.run(["unshare", "-m", sys.executable, "-c", DISK_SCRIPT, str(mnt)],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert res["first"]["rc"] == 0
+    full = res["full"]
+    assert full["rc"] == 2 and len(full["err"]) == 1, full
+    assert "no space left on the device" in full["err"][0] and "--resume" in full["err"][0]
+    assert res["intact"] and "s.h5.partial" in res["files"]
+    assert not [f for f in res["files"] if ".tmp-" in f]
+    assert res["resumed"]["rc"] == 0 and "resuming after frame" in res["resumed"]["out"]
+    assert res["verify"]["rc"] == 0
+    ro = res["readonly"]
+    assert ro["rc"] == 2 and len(ro["err"]) == 1 and "read-only file system" in ro["err"][0], ro
