@@ -8,7 +8,8 @@ Layout (N frames of H x W):
 - ``agents``     (M,) table of AGENT_DTYPE rows: which instance of which frame is which agent
 - ``timestamps`` (N,) float64 seconds
 - ``crc32/<stream>`` (N,) uint32 checksums of each frame's raw bytes, for ``verify``
-- ``pred/<name>/depth`` (N, H, W) float32 predictions added later (e.g. ``base``, ``ft-align``)
+- ``pred/<name>/depth`` (N, H, W) float32 predictions of older files; predictions are now files
+  beside the sequence, ``<SEQ>.h5.pred/<name>.h5`` (:mod:`staticdepth.dataset.predictions`)
 Root attributes: see REQUIRED_ATTRS; JSON-valued ones are stored as strings.
 """
 from __future__ import annotations
