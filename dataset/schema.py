@@ -9,12 +9,13 @@ Layout (N frames of H x W):
 - ``timestamps`` (N,) float64 seconds
 - ``aux/<name>``  (N, H, W) extra per-frame maps (e.g. CARLA's ground mask)
 - ``crc32/<dataset>`` (N,) uint32 checksums of each frame's raw bytes of every per-frame dataset
-  (streams, ``aux/<name>``, ``pred/<name>/depth``); ``timestamps`` and ``agents`` carry a
+  (streams, ``aux/<name>``, legacy ``pred/<name>/depth``); ``timestamps`` and ``agents`` carry a
   ``crc32`` attribute over all their bytes; ``verify`` checks them all
   (``staticdepth.dataset.integrity``)
 - ``fingerprint/inputs`` one digest per input frame, and the root attribute ``fingerprint``:
   what ``--resume`` must find unchanged (``staticdepth.dataset.resume``)
-- ``pred/<name>/depth`` (N, H, W) float32 predictions added later (e.g. ``base``, ``ft-align``)
+- ``pred/<name>/depth`` (N, H, W) float32 predictions of older files; predictions are now files
+  beside the sequence, ``<SEQ>.h5.pred/<name>.h5`` (:mod:`staticdepth.dataset.predictions`)
 Root attributes: see REQUIRED_ATTRS; JSON-valued ones are stored as strings.
 """
 from __future__ import annotations

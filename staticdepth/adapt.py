@@ -152,6 +152,10 @@ def recipe_settings(path: str | os.PathLike) -> dict[str, Any]:
         raise InputError("the recipe has no 'stages: {adapt: {...}}' section", path)
     sec = dict(stages["adapt"])
     if "args" in sec or "command" in sec:           # staticdepth run's stage format
+        if "name" in r:                             # a whole run recipe: its {vars} filled in
+            from staticdepth.run import load_recipe
+
+            sec["args"] = load_recipe(path)["stages"]["adapt"]["args"]
         sec = dict(sec.get("args") or {})
         if "_" in sec:
             pos = sec.pop("_")

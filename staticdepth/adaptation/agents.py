@@ -9,6 +9,8 @@ frames already written are not written again.
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from staticdepth.adaptation.common import LazyFrames, Workspace
@@ -28,8 +30,6 @@ def make(conf: AdaptConfig, ws: Workspace):
     from staticdepth.detectors import make_detector
 
     if d.name in ("yolox", "mask2former"):
-        import os
-
         if not d.model or not os.path.exists(d.model):
             raise InputError(f"the {d.name} detector's weights were not found (give --set "
                              f"detector.model=PATH)", d.model or None)

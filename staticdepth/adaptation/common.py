@@ -11,7 +11,6 @@ import numpy as np
 from staticdepth.dataset.h5 import SequenceReader
 from staticdepth.dataset.predictions import (FrameFile, FrameFileWriter, is_complete,
                                              prediction_path, prediction_writer)
-from staticdepth.errors import InputError
 
 WORK_SUFFIX = ".adapt"     # <SEQ>.h5.adapt/: the stages' own files (instance maps, labels, ...)
 
@@ -123,7 +122,3 @@ class Agents:
     def __exit__(self, *exc) -> None:
         self.close()
 
-
-def require(cond: bool, problem: str, path: str | None = None) -> None:
-    if not cond:
-        raise InputError(problem, path)

@@ -84,8 +84,10 @@ def run(conf: AdaptConfig, ws: Workspace, model, config_hash: str,
     """Fine-tune ``model`` in place; returns one record per epoch (loss, seconds, peak memory)."""
     fc = conf.finetune
     ckpt_path = ws.path("finetune.ckpt")
+    os.makedirs(ws.dir, exist_ok=True)
+    key = f"{config_hash}/{ws.identity}"         # these settings, on this sequence
     ck = _load(ckpt_path)
-    if ck is not None and (ck.get("format") != CHECKPOINT_FORMAT or ck.get("key") != config_hash):
+    if ck is not None and (ck.get("format") != CHECKPOINT_FORMAT or ck.get("key") != key):
         ck = None
     params = model.set_trainable(layers)
     optimizer = torch.optim.Adam(params, lr=fc.lr, weight_decay=fc.weight_decay)
@@ -119,7 +121,7 @@ def run(conf: AdaptConfig, ws: Workspace, model, config_hash: str,
                    "seconds": time.perf_counter() - t0, "peak_memory_mb": _peak_memory_mb(device)}
             history.append(rec)
             with atomic_path(ckpt_path) as tmp:
-                torch.save({"format": CHECKPOINT_FORMAT, "key": config_hash, "epoch": epoch + 1,
+                torch.save({"format": CHECKPOINT_FORMAT, "key": key, "epoch": epoch + 1,
                             "state": _trainable_state(model), "optimizer": optimizer.state_dict(),
                             "history": history}, tmp)
             ws.log(f"  epoch {rec['epoch']}: loss {rec['loss']:.5f} ({rec['seconds']:.1f} s, "
