@@ -208,7 +208,7 @@ CASES = [
      "inf.npy: the prediction has 1 infinite pixel(s)"),
     ("nonsense-metrics-complex", lambda d: ["metrics", "--pred", d["complex.npy"], "--gt",
                                             d["gt.npy"]],
-     "complex.npy: the prediction holds complex numbers"),
+     "complex.npy: the array holds complex numbers"),
     ("nonsense-align-inf", lambda d: _align(d, "inf.npy"),
      "inf.npy: the prediction has 1 infinite pixel(s)"),
     ("nonsense-align-complex", lambda d: _align(d, "complex.npy"),
