@@ -160,8 +160,10 @@ def load_maps(path: str | os.PathLike) -> list[np.ndarray]:
         a = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as e:
         raise InputError(f"not a readable .npy file ({e})", path) from None
-    if a.dtype.kind not in "fiub":  # complex or text: no silent cast to real numbers
-        check_prediction(a, path)
+    if a.dtype.kind == "c":  # no silent cast to real numbers
+        raise InputError(f"the array holds complex numbers ({a.dtype}): depth is real", path)
+    if a.dtype.kind not in "fiub":
+        raise InputError(f"the array is not numeric (dtype {a.dtype})", path)
     if a.ndim == 2:
         return [a.astype(np.float64)]
     if a.ndim == 3:

@@ -53,7 +53,8 @@ def d(tmp_path_factory):
     root = tmp_path_factory.mktemp("bad")
     p = {k: str(root / k) for k in ("seq.h5", "damaged.h5", "file", "folder", "one.png",
                                     "binary.yaml", "gt.npy", "nan.npy", "inf.npy", "complex.npy",
-                                    "state.yaml", "cam.json", "plane.json", "pairs")}
+                                    "state.yaml", "cam.json", "plane.json", "pairs", "left.png",
+                                    "right.png", "folder.npy")}
     p["root"] = str(root)
     render_to_file(p["seq.h5"], preset_name="c1", n_frames=4, adapt_frames=2, seed=1,
                    overrides={"width": 64, "height": 32})
@@ -65,6 +66,10 @@ def d(tmp_path_factory):
     open(p["file"], "w").write("a regular file\n")
     os.makedirs(p["folder"])
     cv2.imwrite(p["one.png"], np.full((1, 1, 3), 255, np.uint8))
+    texture = (np.random.default_rng(0).random((64, 96, 3)) * 255).astype(np.uint8)
+    cv2.imwrite(p["left.png"], texture)
+    cv2.imwrite(p["right.png"], np.roll(texture, -4, axis=1))  # a rectified pair, disparity 4
+    os.makedirs(p["folder.npy"])
     open(p["binary.yaml"], "wb").write(bytes(range(256)) * 8)
     gt = np.full((8, 8), 5.0)
     np.save(p["gt.npy"], gt)
@@ -98,6 +103,12 @@ def _align(d, pred):
     return ["align", "--pred", d[pred], "--intrinsics", d["cam.json"], "--plane",
             d["plane.json"], "--ground-polygon", "0,4 7,4 7,7 0,7", "--out",
             os.path.join(d["root"], "aligned.npy")]
+
+
+def _stereo(d, left, out):
+    right = "right.png" if left == "left.png" else left
+    return ["stereo", "--rectified", "--left", d[left], "--right", d[right], "--max-disparity",
+            "16", "--disparity-out", out]
 
 
 # (id, argv from the data paths, what the line must contain); ids start with the fault class
@@ -152,9 +163,13 @@ CASES = [
      "folder: is a folder, not a file"),
     ("readonly-align", lambda d: _align(d, "gt.npy")[:-1] + ["/sys/sd-bad.npy"],
      "/sys/sd-bad.npy: permission denied"),
-    ("1x1-stereo", lambda d: ["stereo", "--rectified", "--left", d["one.png"], "--right",
-                              d["one.png"], "--max-disparity", "16", "--disparity-out",
-                              os.path.join(d["root"], "disp.npy")],
+    ("readonly-stereo", lambda d: _stereo(d, "left.png", "/sys/sd-bad.npy"),
+     "/sys/sd-bad.npy: permission denied"),
+    ("is-folder-stereo", lambda d: _stereo(d, "left.png", d["folder.npy"]),
+     "folder.npy: is a folder, not a file"),
+    ("readonly-export", lambda d: ["export", d["seq.h5"], "--out", "/sys/sd-bad-export"],
+     "/sys/sd-bad-export"),
+    ("1x1-stereo", lambda d: _stereo(d, "one.png", os.path.join(d["root"], "disp.npy")),
      "one.png: image is 1x1: too small"),
     ("1x1-align-mask", lambda d: _align(d, "gt.npy")[:-4] + [
         "--ground-mask", d["one.png"], "--out", os.path.join(d["root"], "aligned.npy")],
@@ -193,7 +208,7 @@ CASES = [
      "inf.npy: the prediction has 1 infinite pixel(s)"),
     ("nonsense-metrics-complex", lambda d: ["metrics", "--pred", d["complex.npy"], "--gt",
                                             d["gt.npy"]],
-     "complex.npy: the prediction holds complex numbers"),
+     "complex.npy: the array holds complex numbers"),
     ("nonsense-align-inf", lambda d: _align(d, "inf.npy"),
      "inf.npy: the prediction has 1 infinite pixel(s)"),
     ("nonsense-align-complex", lambda d: _align(d, "complex.npy"),

@@ -89,3 +89,25 @@ def test_metric_errors():
         apply_protocol(np.ones(3), np.ones(3), "magic")
     with pytest.raises(InputError, match="no image"):
         average([])
+
+
+def test_check_prediction_refuses_what_metrics_would_drop():
+    from staticdepth.metrics import check_prediction
+
+    gt = np.full((4, 4), 5.0)
+    gt[0, :] = np.nan  # no ground truth on the first row
+    valid = np.isfinite(gt)
+    pred = np.full((4, 4), 5.0, np.float32)
+    pred[0, 1] = np.nan  # unknown where there is nothing to compare: allowed
+    out = check_prediction(pred, "p.npy", valid=valid)
+    assert out.dtype == np.float64 and np.isnan(out[0, 1])
+    pred[2, 2] = pred[3, 3] = np.nan  # NaN where the ground truth is valid
+    with pytest.raises(InputError, match=r"p.npy: the prediction is NaN at 2 pixel\(s\)"):
+        check_prediction(pred, "p.npy", valid=valid)
+    for bad in (np.inf, -np.inf):
+        with pytest.raises(InputError, match=r"1 infinite pixel"):
+            check_prediction(np.where(np.eye(4) * np.arange(4) == 3, bad, 5.0))
+    with pytest.raises(InputError, match="complex"):
+        check_prediction(np.ones((2, 2), np.complex64))
+    with pytest.raises(InputError, match="not numeric"):
+        check_prediction(np.array([["a"]]))

@@ -65,6 +65,12 @@ def test_pickle_payload_is_refused_without_trust(tmp_path, monkeypatch):
     with pytest.raises(InputError, match=r"would run code \(it imports .*pathlib.*--trust-model"):
         load_model(f"torch:{tmp_path / 'evil.pt'}")
     assert not marker.exists()
+    # the legacy (non-zip) torch format too
+    torch.save({"x": _TouchPayload(marker)}, tmp_path / "legacy.pt",
+               _use_new_zipfile_serialization=False)
+    with pytest.raises(InputError, match=r"legacy.pt: loading this torch file would run code"):
+        load_model(f"torch:{tmp_path / 'legacy.pt'}")
+    assert not marker.exists()
     # the project's own checkpoint loaders read with weights_only too
     from staticdepth.baseline.train import load_checkpoint
     from staticdepth.models.tiny import load_builtin

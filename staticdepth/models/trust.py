@@ -45,14 +45,15 @@ def torch_load(path: str | os.PathLike, *, what: str = "torch file") -> Any:
     """``torch.load`` on the CPU with ``weights_only=True``; a file whose unpickling would import
     other Python objects is refused (:class:`InputError` naming them) unless trusted."""
     import pickle
+    import re
 
     import torch
 
     path = os.fspath(path)
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError:
-        pass  # a corrupt file or one needing more than tensors: told apart below
+    except pickle.UnpicklingError as e:
+        refusal = str(e)  # a corrupt file or one needing more than tensors: told apart below
     except OSError:
         raise
     except Exception as e:  # torch raises many types for a corrupt file
@@ -60,9 +61,8 @@ def torch_load(path: str | os.PathLike, *, what: str = "torch file") -> Any:
                          path) from None
     try:  # scans the pickle's opcodes; nothing is executed
         unsafe = torch.serialization.get_unsafe_globals_in_checkpoint(path)
-    except Exception as e:
-        raise InputError(f"not a readable {what} ({type(e).__name__}: {_first_line(e)})",
-                         path) from None
+    except Exception:  # the legacy (non-zip) format: torch's refusal names the first global
+        unsafe = re.findall(r"Unsupported global: GLOBAL (\S+)", refusal)
     if not unsafe:
         raise InputError(f"not a readable {what} (corrupt pickle)", path)
     if not models_trusted():
