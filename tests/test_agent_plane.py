@@ -249,7 +249,7 @@ def test_degenerate_inputs_raise():
     n_nadir = true_normal(90.0)
     nadir = people_observations(np.random.default_rng(0), K, w, h, n_nadir, 6.0, n_tracks=12)
     with pytest.raises(InputError, match="nadir"):
-        fit_agent_plane(K, nadir, AgentPlaneConfig(bootstrap=0))
+        fit_agent_plane(K, nadir, AgentPlaneConfig(model="exact", bootstrap=0))
 
 
 def test_config_and_prior_errors():
