@@ -291,7 +291,8 @@ def test_only_the_modelled_classes_enter_the_fit():
     every = fit_agent_plane(K, both, AgentPlaneConfig(model="exact", bootstrap=0, classes=None))
     assert every.n_observations == len(both)
     with pytest.raises(InputError, match="no observation of the classes"):
-        fit_agent_plane(K, cars)
+        fit_agent_plane(K, cars, AgentPlaneConfig(model="exact"))
     unknown = people.copy()
     unknown["class_id"] = -1                      # a CSV without classes: taken as people
-    assert fit_agent_plane(K, unknown, AgentPlaneConfig(model="exact", bootstrap=0)).n_observations == len(people)
+    conf = AgentPlaneConfig(model="exact", bootstrap=0)
+    assert fit_agent_plane(K, unknown, conf).n_observations == len(people)
