@@ -173,8 +173,12 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
                                       camera_height_m=args.camera_height)
     except InputError as e:
         raise InputError(e.problem, args.observations) from None
-    gate = plane_gate(plane, args.max_normal_std)
     print(summary(plane))
+    if conf.bootstrap == 0:         # the user turned the uncertainty off: nothing to gate
+        write_json(args.out, plane.to_dict())
+        print("warning: --bootstrap 0: the plane's uncertainty is unknown and not checked")
+        return 0
+    gate = plane_gate(plane, args.max_normal_std)
     if not gate.ok and not args.accept_uncertain:
         raise InputError(f"{gate.message} (--accept-uncertain writes it anyway)",
                          args.observations)

@@ -249,7 +249,7 @@ def test_degenerate_inputs_raise():
     n_nadir = true_normal(90.0)
     nadir = people_observations(np.random.default_rng(0), K, w, h, n_nadir, 6.0, n_tracks=12)
     with pytest.raises(InputError, match="nadir"):
-        fit_agent_plane(K, nadir, AgentPlaneConfig(bootstrap=0))
+        fit_agent_plane(K, nadir, AgentPlaneConfig(model="exact", bootstrap=0))
 
 
 def test_config_and_prior_errors():
@@ -291,7 +291,8 @@ def test_only_the_modelled_classes_enter_the_fit():
     every = fit_agent_plane(K, both, AgentPlaneConfig(model="exact", bootstrap=0, classes=None))
     assert every.n_observations == len(both)
     with pytest.raises(InputError, match="no observation of the classes"):
-        fit_agent_plane(K, cars)
+        fit_agent_plane(K, cars, AgentPlaneConfig(model="exact"))
     unknown = people.copy()
     unknown["class_id"] = -1                      # a CSV without classes: taken as people
-    assert fit_agent_plane(K, unknown, AgentPlaneConfig(model="exact", bootstrap=0)).n_observations == len(people)
+    conf = AgentPlaneConfig(model="exact", bootstrap=0)
+    assert fit_agent_plane(K, unknown, conf).n_observations == len(people)
