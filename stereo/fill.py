@@ -69,12 +69,11 @@ def fill_from_background(disparity: np.ndarray, median_rows: int = 21) -> np.nda
     """
     d = np.asarray(disparity, dtype=np.float32)
     holes = ~(d > 0)
-    if holes.any():
-        d = np.where(holes, np.float32(np.nan), d)
     if not holes.any():
         return d.copy()
     if holes.all():
         return np.zeros_like(d)
+    d = np.where(holes, np.float32(np.nan), d)
     left = _forward_fill(d)
     right = _forward_fill(d[:, ::-1])[:, ::-1]
     filled = np.where(holes, np.fmin(left, right), d)

@@ -136,7 +136,7 @@ class StereoPipeline:
             d_min = np.float32(self.camera.fx * self.baseline_m / self.config.max_depth_m)
             disparity = np.maximum(disparity, d_min)
         depth = depth_from_disparity(disparity, self.camera.fx, self.baseline_m,
-                                     self.config.max_depth_m)
+                                     None if self.config.fill else self.config.max_depth_m)
         return StereoResult(disparity.astype(np.float32, copy=False), depth, out.valid,
                             left_rect, right_rect)
 
