@@ -43,8 +43,13 @@ def kitti_png_from_depth(depth: np.ndarray) -> tuple[np.ndarray, int]:
 
 
 def _write(path: str, img: np.ndarray) -> None:
-    if not cv2.imwrite(path, img):
-        raise InputError("cannot write image", path)
+    """Encode in memory, write with Python: a full disk is an ``OSError`` naming the problem
+    (``cv2.imwrite`` only returns False and prints libpng's message)."""
+    ok, data = cv2.imencode(os.path.splitext(path)[1] or ".png", img)
+    if not ok:
+        raise InputError("cannot encode image", path)
+    with open(path, "wb") as f:
+        f.write(data.tobytes())
 
 
 MARKER = ".staticdepth-export.json"  # written into every export: what --overwrite may replace

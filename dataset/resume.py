@@ -18,7 +18,8 @@ flushed after every frame, so a killed run's partial opens again (benchmarks/ben
 12 of 12 partials killed at random moments reopened and resumed to verified files; 0 of 12 with
 the old settings, ``libver="latest"`` without flushes; throughput ratio 0.95-1.07 at 800x400).
 The last frames are checked against their stored CRC-32 and dropped back to the last complete
-one. A partial that cannot be opened at all is renamed aside (``<partial>.damaged-<time>``) and the user told, never deleted.
+one. A partial that cannot be opened at all is renamed aside (``<partial>.damaged-<time>``) and
+the user told, never deleted.
 """
 from __future__ import annotations
 

@@ -498,9 +498,15 @@ def synth(out, frames, *extra):
 subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1500k", "tmpfs", d], check=True)
 out = os.path.join(d, "s.h5")
 res = {"first": synth(out, 2)}
-before = open(out, "rb").read()
+res["export"] = run("export", out, "--out", os.path.join(d, "k"))
+def tree(p):
+    return {os.path.join(a, n): open(os.path.join(a, n), "rb").read()
+            for a, _, ns in os.walk(p) for n in ns}
+before, export_before = open(out, "rb").read(), tree(os.path.join(d, "k"))
 res["full"] = synth(out, 40, "--overwrite")
 res["intact"] = open(out, "rb").read() == before
+res["export_full"] = run("export", out, "--out", os.path.join(d, "k"), "--overwrite")
+res["export_intact"] = tree(os.path.join(d, "k")) == export_before
 res["files"] = sorted(os.listdir(d))
 subprocess.run(["mount", "-o", "remount,size=16m", d], check=True)  # make room
 res["resumed"] = synth(out, 40, "--overwrite", "--resume")
@@ -531,6 +537,9 @@ def test_full_disk_and_read_only_file_system(tmp_path):
     assert full["rc"] == 2 and len(full["err"]) == 1, full
     assert "no space left on the device" in full["err"][0] and "--resume" in full["err"][0]
     assert res["intact"] and "s.h5.partial" in res["files"]
+    assert res["export"]["rc"] == 0
+    ex = res["export_full"]  # the disk is still full: the previous export stays as it was
+    assert ex["rc"] == 2 and len(ex["err"]) == 1 and res["export_intact"], ex
     assert not [f for f in res["files"] if ".tmp-" in f]
     assert res["resumed"]["rc"] == 0 and "resuming after frame" in res["resumed"]["out"]
     assert res["verify"]["rc"] == 0
