@@ -218,16 +218,6 @@ class MetricOnnx:
                              path)
         self.name, self.shape, self.path = inp.name, tuple(inp.shape), path
 
-    @staticmethod
-    def is_metric(path: str) -> bool:
-        import onnxruntime as ort
-
-        try:
-            inp = ort.InferenceSession(path, providers=["CPUExecutionProvider"]).get_inputs()[0]
-        except Exception:
-            return False
-        return len(inp.shape) == 3 and inp.type == "tensor(uint8)"
-
     def predict(self, image: np.ndarray) -> np.ndarray:
         """A frame of another size with the same aspect (the video before ``import-video
         --width``) is resized to the model's; the depth is at the model's size."""
@@ -266,11 +256,14 @@ def make_predictor(model: str, summary: str | None, sequence: str | None,
                    ground_mask_png: str | None = None, log=print, device: str = "auto"):
     """(callable image -> depth, 'metric' | 'relative', description)."""
     path = model[5:] if model.startswith("onnx:") else model
-    if path.endswith(".onnx") and MetricOnnx.is_metric(path):
-        providers = (["CUDAExecutionProvider", "CPUExecutionProvider"]
-                     if device.startswith("cuda") else None)
-        m = MetricOnnx(path, providers)
-        return m.predict, "metric", f"exported metric model {path}"
+    if path.endswith(".onnx"):
+        try:                       # an exported metric model, else a relative one (onnx:)
+            m = MetricOnnx(path, ["CUDAExecutionProvider", "CPUExecutionProvider"]
+                           if device.startswith("cuda") else None)
+            return m.predict, "metric", f"exported metric model {path}"
+        except InputError as e:
+            if "not an exported metric model" not in str(e):
+                raise
     from staticdepth.geometry.alignment import depth_from_inverse
     from staticdepth.models import TorchDepthModel, load_model
 
