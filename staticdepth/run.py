@@ -172,7 +172,7 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
         if dry_run:
             status[name] = "dry-run"
             continue
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         rc = cli_main(argv, recipe=recipe["path"])
         if rc != 0:
             raise InputError(f"stage {name!r} failed (exit {rc}): staticdepth {' '.join(argv)}",
@@ -183,7 +183,8 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
         state[name] = chain
         atomic_write_json(state_path, state)
         status[name] = "ran"
-        log(f"[{recipe['name']}] {name}: done in {time.perf_counter() - t0:.1f} s")
+        log(f"[{recipe['name']}] {name}: done in {time.perf_counter() - t0:.1f} s "
+            f"(CPU {time.process_time() - c0:.1f} s)")
     return status
 
 
