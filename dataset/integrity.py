@@ -54,8 +54,19 @@ def link_problems(f: h5py.File) -> list[str]:
                     if files:
                         problems.append(f"{name}: virtual dataset reading {files} (refused)")
 
-    f.visititems_links(visit)
+    _visit_links(f, "", visit)
     return problems
+
+
+def _visit_links(group: h5py.Group, prefix: str, visit, depth: int = 0) -> None:
+    """Every link under ``group`` (``Group.visititems_links`` needs h5py 3.11; we allow 3.8)."""
+    for name in group:
+        link = group.get(name, getlink=True)
+        visit(prefix + name, link)
+        if isinstance(link, h5py.HardLink) and depth < 32:
+            obj = group.get(name)
+            if isinstance(obj, h5py.Group):
+                _visit_links(obj, f"{prefix}{name}/", visit, depth + 1)
 
 
 def _datasets(f: h5py.File) -> list[str]:
