@@ -7,7 +7,8 @@ containers and numbers only). A file that needs more is refused with one line na
 import, unless the user passed ``--trust-model`` on the command line: the CLI (and only the CLI)
 enters :func:`trusted_models` for the command's duration. The trust is a process-scoped setting
 rather than a config field on purpose: a recipe, a ``--set`` override or a stored config can never
-turn it on. TorchScript archives (``torch.jit.load``) hold no pickled Python code and load without it.
+turn it on. TorchScript archives (``torch.jit.load``) hold no pickled Python code and load
+without it.
 """
 from __future__ import annotations
 
