@@ -252,3 +252,25 @@ def load_yaml(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(d, dict):
         raise InputError("expected a YAML mapping at the top level", path)
     return d
+
+
+# Settings of the adaptation whose dotted key replaced a flat one (summaries written before the
+# nested configuration have the flat key).
+_LEGACY_KEYS = {"detector.name": "detector", "detector.model": "detector_model",
+                "predict.eps": "eps", "align.erode_px": "erode_px",
+                "scale.camera_height_m": "camera_height_m", "scale.metric_scale": "metric_scale"}
+
+
+def setting_from(config: Mapping[str, Any] | None, key: str, default: Any = None) -> Any:
+    """A setting by its dotted ``key`` from a stored config tree (e.g. an adapt summary's
+    ``config``), falling back to the flat key older summaries used."""
+    node: Any = config or {}
+    for part in key.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            node = None
+            break
+        node = node[part]
+    if node is not None:
+        return node
+    flat = (config or {}).get(_LEGACY_KEYS.get(key, key))
+    return default if flat is None or isinstance(flat, Mapping) else flat

@@ -27,6 +27,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from staticdepth.errors import InputError
+from staticdepth.config import setting_from
 
 
 # -- the constants of a deployment -------------------------------------------------------------
@@ -60,7 +61,8 @@ def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str 
         else:
             G, how = _ground_from_feet(r, cfg, log)
     return {"K": K, "width": W, "height": H, "normal": n_g, "camera_height_m": h_c,
-            "scale": scale, "eps": float(cfg.get("eps", 1e-6)), "ground": G, "ground_from": how}
+            "scale": scale, "eps": float(setting_from(cfg, "predict.eps", 1e-6)), "ground": G,
+            "ground_from": how}
 
 
 def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:
@@ -73,13 +75,14 @@ def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:
     split = reader.split("adapt")
     if len(split) == 0:
         split = range(len(reader))
-    det = cfg.get("detector", "motion")
+    det = setting_from(cfg, "detector.name", "motion")
     if reader.has("instances") and det in ("gt", None):
         rows = [reader.agents(i) for i in split]
     else:
         from staticdepth.detectors import make_detector
 
-        opts = {"model": cfg.get("detector_model", "")} if det in ("yolox", "mask2former") else {}
+        opts = ({"model": setting_from(cfg, "detector.model", "")}
+                if det in ("yolox", "mask2former") else {})
         log(f"ground region: running the {det} detector on {len(split)} adaptation frames")
 
         class _Split(FrameSeq):
@@ -95,7 +98,7 @@ def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:
     feet = [np.stack([r["foot_u"], r["foot_v"]], 1) for r in rows if len(r)]
     feet = np.concatenate(feet) if feet else np.zeros((0, 2))
     feet = feet[feet[:, 1] >= 0]
-    erode = cfg.get("erode_px")
+    erode = setting_from(cfg, "align.erode_px")
     erode = W / 80.0 if erode is None else float(erode)
     return ground_mask_from_feet(feet, W, H, erode), f"feet hull of {len(feet)} detections"
 

@@ -361,9 +361,12 @@ def _run(args) -> int:
     detector, model = args.detector, args.detector_model
     if detector is None and not args.plane:
         path = args.summary or f"{os.path.splitext(args.sequence)[0]}.adapt.json"
+        from staticdepth.config import setting_from
+
         cfg = read_json(path).get("config") or {}
-        if cfg.get("detector") not in (None, "gt"):
-            detector, model = cfg["detector"], model or cfg.get("detector_model")
+        if setting_from(cfg, "detector.name") not in (None, "gt"):
+            detector = setting_from(cfg, "detector.name")
+            model = model or setting_from(cfg, "detector.model")
     conf = LocateConfig(person_radius_m=args.person_radius, close_m=args.close_m)
     pos = locate(args.sequence, n, h, conf, detector=detector, detector_model=model,
                  detector_mask=args.detector_mask,
