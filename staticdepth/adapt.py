@@ -51,10 +51,17 @@ class AdaptConfig:
     eps: float = 1e-6                     # depth = 1 / max(D, eps)
     agents_at_contact: bool = True        # aligned agents take the plane depth at their contact
     #                                       (False: the paper's Eq. 2 for every pixel)
+    align_mode: str = "ground"            # "ground": align what the plane explains, scale and
+    #                                       shift the rest (alignment.align_ground); "eq2": paper
+    align_snap_rel: float = 0.1           # "ground": pixels this close to the plane take its depth
     metric_scale: str = "plane"           # "plane": x H_c (aligned maps are in units of the
     #                                       camera height); "anchor": METHOD.md 5 anchor pixel
 
     def __post_init__(self):
+        from staticdepth.geometry.alignment import ALIGN_MODES
+
+        if self.align_mode not in ALIGN_MODES:
+            raise InputError(f"align_mode must be one of {ALIGN_MODES}, got {self.align_mode!r}")
         if self.metric_scale not in ("plane", "anchor"):
             raise InputError(f"metric_scale must be plane or anchor, got {self.metric_scale!r}")
 
@@ -205,7 +212,9 @@ def adapt(seq_path: str | os.PathLike, conf: AdaptConfig = AdaptConfig(), *, dev
     agent_masks = [m if np.count_nonzero(ground & ~m) >= 50 else None for m in instances > 0]
     for name, src in (("align", "base"), ("ft-align", "ft")):
         preds[name] = np.stack([align_depth(preds[src][i], K, plane.normal, 1.0, ground,
-                                            agent_mask=agent_masks[i]).depth for i in range(n)])
+                                            agent_mask=agent_masks[i], mode=conf.align_mode,
+                                            snap_rel=conf.align_snap_rel).depth
+                                for i in range(n)])
         if conf.agents_at_contact:
             preds[name] = np.stack([agents_at_contact(preds[name][i], K, plane.normal, 1.0,
                                                       instances[i], rows[i], pl_conf)[0]
