@@ -43,6 +43,9 @@ class AdaptConfig:
     flip: bool = True
     seed: int = 0
     contact: str = "lowest"               # pseudo-label contact: lowest | bottom_rows
+    label_source: str = "plane"           # agents' label: the agents' plane at the contact, in the
+    #                                       network's space ("plane") or its own value ("prediction")
+    label_ground: bool = False            # "plane": label the ground pixels with the plane too
     plane_model: str = "exact"            # exact | affine | paper
     agent_height_m: float = 1.7           # prior, when no camera height is known
     min_height_px: float = 20.0           # tracking: smaller agents do not enter the plane fit
@@ -62,6 +65,10 @@ class AdaptConfig:
 
         if self.align_mode not in ALIGN_MODES:
             raise InputError(f"align_mode must be one of {ALIGN_MODES}, got {self.align_mode!r}")
+        from staticdepth.pseudo_labels import LABEL_SOURCES
+
+        if self.label_source not in LABEL_SOURCES:
+            raise InputError(f"label_source must be one of {LABEL_SOURCES}, got {self.label_source!r}")
         if self.metric_scale not in ("plane", "anchor"):
             raise InputError(f"metric_scale must be plane or anchor, got {self.metric_scale!r}")
 
@@ -131,7 +138,8 @@ def adapt(seq_path: str | os.PathLike, conf: AdaptConfig = AdaptConfig(), *, dev
                                                  ground_mask_from_feet)
     from staticdepth.geometry.scale import scale_from_anchor, temporal_scale
     from staticdepth.models import TorchDepthModel, load_model
-    from staticdepth.pseudo_labels import PseudoLabelConfig, pseudo_label
+    from staticdepth.geometry.projection import ray_grid
+    from staticdepth.pseudo_labels import PseudoLabelConfig, plane_pseudo_label, pseudo_label
 
     seq_path = os.fspath(seq_path)
     timings: dict[str, float] = {}
@@ -160,11 +168,31 @@ def adapt(seq_path: str | os.PathLike, conf: AdaptConfig = AdaptConfig(), *, dev
         instances, rows = detect_agents(conf, r, images)
     lap("agents")
 
+    plane, feet = fit_ground(conf, K, instances, rows, adapt_split)
+    n_inlier_tracks = int(np.count_nonzero(plane.inliers))
+    if n_inlier_tracks < 5 or not np.isfinite(plane.normal_std_deg):
+        log(f"warning: the ground plane rests on {n_inlier_tracks} agent track(s) (uncertainty "
+            f"{plane.normal_std_deg:.2f} deg): use more adaptation frames or a better detector")
+    if conf.camera_height_m is not None:
+        plane = plane.with_camera_height(conf.camera_height_m, "given")
+    elif seq_height is not None:
+        plane = plane.with_camera_height(seq_height, "sequence")
+    else:
+        plane = plane.with_camera_height(camera_height_from_prior(plane, conf.agent_height_m),
+                                         f"agent height prior {conf.agent_height_m:g} m")
+    ground = ground_mask_from_feet(feet, W, H, W / 80.0 if conf.erode_px is None else conf.erode_px)
+    lap("ground_plane")
+
     pl_conf = PseudoLabelConfig(contact=conf.contact)
+    plane_inv = (ray_grid(K, W, H) @ np.asarray(plane.normal)).astype(np.float32)
     labels = np.empty((len(adapt_split),) + (H, W), np.float32)
     n_agent_px = 0
     for k, i in enumerate(adapt_split):
-        labels[k], m = pseudo_label(D_base[i], instances[i], rows[i], pl_conf)
+        if conf.label_source == "plane":
+            labels[k], m = plane_pseudo_label(D_base[i], instances[i], rows[i], plane_inv, ground,
+                                              pl_conf, label_ground=conf.label_ground)
+        else:
+            labels[k], m = pseudo_label(D_base[i], instances[i], rows[i], pl_conf)
         n_agent_px += int(m.sum())
     lap("pseudo_labels")
 
@@ -191,20 +219,6 @@ def adapt(seq_path: str | os.PathLike, conf: AdaptConfig = AdaptConfig(), *, dev
         D_ft = D_base
     lap("finetune")
 
-    plane, feet = fit_ground(conf, K, instances, rows, adapt_split)
-    n_inlier_tracks = int(np.count_nonzero(plane.inliers))
-    if n_inlier_tracks < 5 or not np.isfinite(plane.normal_std_deg):
-        log(f"warning: the ground plane rests on {n_inlier_tracks} agent track(s) (uncertainty "
-            f"{plane.normal_std_deg:.2f} deg): use more adaptation frames or a better detector")
-    if conf.camera_height_m is not None:
-        plane = plane.with_camera_height(conf.camera_height_m, "given")
-    elif seq_height is not None:
-        plane = plane.with_camera_height(seq_height, "sequence")
-    else:
-        plane = plane.with_camera_height(camera_height_from_prior(plane, conf.agent_height_m),
-                                         f"agent height prior {conf.agent_height_m:g} m")
-    ground = ground_mask_from_feet(feet, W, H, W / 80.0 if conf.erode_px is None else conf.erode_px)
-    lap("ground_plane")
 
     preds: dict[str, np.ndarray] = {"base": np.stack([depth_from_inverse(d, conf.eps) for d in D_base]),
                                     "ft": np.stack([depth_from_inverse(d, conf.eps) for d in D_ft])}

@@ -6,6 +6,12 @@ is the lowest mask pixel (largest v; ties: the median column of that row), or wi
 ``contact="bottom_rows"`` the median over the mask's bottom rows. Riders take their vehicle's
 value, bags and umbrellas the nearest person's (:mod:`staticdepth.detectors.grouping`). Every other
 pixel keeps the prediction.
+
+With ``label_source="plane"`` (:func:`plane_pseudo_label`) the contact value is read from the
+agents' ground plane instead, mapped into the network's inverse-depth space by the scale and shift
+that fit the network's ground to the plane in that frame: on the independent scenes of
+``tests/indep_scenes.py`` (i1, 452 person observations, built-in network) the label's error
+against the person's true depth falls from 0.200 (own contact) to 0.041 (plane contact).
 """
 from __future__ import annotations
 
@@ -18,6 +24,7 @@ from staticdepth.detectors.grouping import label_sources
 from staticdepth.errors import InputError
 
 CONTACTS = ("lowest", "bottom_rows")
+LABEL_SOURCES = ("prediction", "plane")
 
 
 @dataclass(frozen=True)
@@ -79,3 +86,37 @@ def pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.ndarra
         label[m] = values[src]
         agent_mask |= m
     return label, agent_mask
+
+
+def plane_pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.ndarray,
+                       plane_inv: np.ndarray, ground_mask: np.ndarray,
+                       conf: PseudoLabelConfig = PRESETS["paper"], *, label_ground: bool = False
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Label one frame from the agents' plane.
+
+    plane_inv: (H, W) the plane's inverse depth ``n . r / d`` (any d: the fit absorbs it; <= 0
+    above its horizon); ground_mask: (H, W) bool ground pixels (this frame's agents are removed).
+    The network's ``inv_depth`` on the ground is fitted as ``s plane_inv + t`` (robust); each
+    agent (grouped as in :func:`pseudo_label`) takes ``s plane_inv + t`` at its contact, and with
+    ``label_ground`` the ground pixels take it too. Returns label and the mask of relabelled
+    pixels (agents, and the ground with ``label_ground``).
+    """
+    from staticdepth.geometry.alignment import fit_inverse_affine
+
+    inv = np.asarray(inv_depth, dtype=np.float32)
+    q = np.asarray(plane_inv, dtype=np.float32)
+    G = np.asarray(ground_mask, bool) & (np.asarray(instances) == 0) & (q > 0) & np.isfinite(inv)
+    if np.count_nonzero(G) < 3:
+        raise InputError("the ground mask holds fewer than 3 pixels below the agents' horizon: "
+                         "no plane pseudo labels")
+    step = max(1, np.count_nonzero(G) // 20000)
+    s, t = fit_inverse_affine(inv[G][::step], q[G][::step])
+    mapped = (np.float32(s) * q + np.float32(t)).astype(np.float32)
+    plane_label, mask = pseudo_label(mapped, instances, agents, conf)
+    q_contact, _ = pseudo_label(q, instances, agents, conf)
+    mask &= q_contact > 0                   # contacts above the plane's horizon keep the prediction
+    label = np.where(mask, plane_label, inv)
+    if label_ground:
+        label = np.where(G, mapped, label)
+        mask = mask | G
+    return label.astype(np.float32), mask
