@@ -99,7 +99,8 @@ def plane_pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.
     The network's ``inv_depth`` on the ground is fitted as ``s plane_inv + t`` (robust); each
     agent (grouped as in :func:`pseudo_label`) takes ``s plane_inv + t`` at its contact, and with
     ``label_ground`` the ground pixels take it too. Returns label and the mask of relabelled
-    pixels (agents, and the ground with ``label_ground``).
+    pixels (agents, and the ground with ``label_ground``). A frame whose ground has no positive
+    slope against the plane (the network sees no receding ground) gets :func:`pseudo_label`.
     """
     from staticdepth.geometry.alignment import fit_inverse_affine
 
@@ -110,7 +111,10 @@ def plane_pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.
         raise InputError("the ground mask holds fewer than 3 pixels below the agents' horizon: "
                          "no plane pseudo labels")
     step = max(1, np.count_nonzero(G) // 20000)
-    s, t = fit_inverse_affine(inv[G][::step], q[G][::step])
+    try:
+        s, t = fit_inverse_affine(inv[G][::step], q[G][::step])
+    except InputError:      # the network's ground does not recede here: its own contact values
+        return pseudo_label(inv, instances, agents, conf)
     mapped = (np.float32(s) * q + np.float32(t)).astype(np.float32)
     plane_label, mask = pseudo_label(mapped, instances, agents, conf)
     q_contact, _ = pseudo_label(q, instances, agents, conf)

@@ -38,21 +38,6 @@ def test_a_correct_prediction_is_only_rescaled():
     np.testing.assert_allclose(e.depth * 6.0, Z, rtol=2e-4)
 
 
-def test_a_ground_error_the_walls_do_not_share_leaves_the_walls_alone():
-    """A network that gets the ground's slope wrong (a pixel-linear error of its inverse depth on
-    the ground only) but the wall right: Eq. 2 carries the ground's correction into the wall."""
-    K, n, Z, ground, wall = scene(pitch_deg=25.0, cam_height=6.0)
-    v = np.arange(Z.shape[0], dtype=np.float32)[:, None] / Z.shape[0]
-    inv = 1.0 / Z
-    inv_bad = np.where(ground, inv * (1.0 + 0.25 * (v - 0.5)), inv)
-    pred = (1.0 / inv_bad).astype(np.float32)
-    g = align_depth(pred, K, n, 6.0, ground, mode="ground", snap_rel=0.1).depth
-    e = align_depth(pred, K, n, 6.0, ground, mode="eq2").depth
-    wall_g, wall_e = _absrel(g, Z, wall), _absrel(e, Z, wall)
-    assert wall_g < 0.5 * wall_e and wall_g < 0.05
-    assert _absrel(g, Z, ground) < _absrel(pred * np.median(Z / pred), Z, ground)
-
-
 def test_outliers_on_the_ground_do_not_move_the_fit():
     rng = np.random.default_rng(0)
     q = rng.uniform(0.02, 0.3, 2000)
@@ -64,7 +49,10 @@ def test_outliers_on_the_ground_do_not_move_the_fit():
 
 def test_ground_mode_errors():
     K, n, Z, ground, _ = scene()
+    flipped = (Z.max() - Z + 1).astype(np.float32)       # nearer where the ground is far
     with pytest.raises(InputError, match="recede"):
-        align_depth(1.0 / Z[::-1].copy() * 0 + Z.max() - Z + 1, K, n, 1.0, ground, mode="ground")
+        fit_inverse_affine(1.0 / flipped[ground], 1.0 / Z[ground])
+    a = align_depth(flipped, K, n, 1.0, ground, mode="ground", snap_rel=0.0)
+    assert a.plane_normal[2] == 1.0 and np.all(np.isfinite(a.depth)) and np.all(a.depth > 0)
     with pytest.raises(InputError, match="mode"):
         align_depth(Z, K, n, 1.0, ground, mode="nope")

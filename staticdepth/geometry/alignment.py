@@ -248,7 +248,9 @@ def align_ground(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask:
     re-shifted like its ground. Pixels whose corrected inverse depth lies within ``snap_rel`` of
     the plane's (the ground the network saw as ground) take the plane's depth exactly. Pixels the
     correction pushes beyond the far limit (50x the median ground depth) are clamped there.
-    ``plane_normal``/``plane_d`` of the result hold (s, t, 0) and the far limit, for the summary.
+    When the network's ground has no positive slope against the plane (it does not recede), only
+    a scale is fitted (median ratio, t = 0). ``plane_normal``/``plane_d`` of the result hold
+    (s, t, 1 if scale only else 0) and the far limit, for the summary.
     """
     Z = np.asarray(depth, dtype=np.float32)
     h, w = Z.shape
@@ -266,14 +268,20 @@ def align_ground(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask:
     if len(vs) > max_points:
         step = -(-len(vs) // max_points)
         vs, us = vs[::step], us[::step]
-    s, t = fit_inverse_affine(inv[vs, us], q[vs, us])
+    try:
+        s, t = fit_inverse_affine(inv[vs, us], q[vs, us])
+        scale_only = False
+    except InputError:      # no usable slope (a network whose ground does not recede): scale only
+        s, t = float(np.median(inv[vs, us] / q[vs, us])), 0.0
+        scale_only = True
     new_inv = (inv - np.float32(t)) / np.float32(s)
     floor = np.float32(np.median(q[vs, us]) / 50.0)
     snap = valid & (q > 0) & (np.abs(new_inv - q) <= np.float32(snap_rel) * q)
     n_fb = int(np.count_nonzero(valid & ~snap & (new_inv < floor)))
     new_inv = np.where(snap, q, np.maximum(new_inv, floor))
     out = np.where(valid, 1.0 / new_inv, np.nan).astype(np.float32)
-    return Alignment(out, np.array([s, t, 0.0]), float(1.0 / floor), float("nan"), n_fb, False)
+    return Alignment(out, np.array([s, t, float(scale_only)]), float(1.0 / floor), float("nan"),
+                     n_fb, False)
 
 
 def agents_at_contact(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, instances: np.ndarray,
