@@ -124,7 +124,7 @@ def _ellipsoid_hit(o, d, centre, radii):
     with np.errstate(invalid="ignore"):
         t = (-b - np.sqrt(disc)) / (2 * a)
     t = np.where((disc > 0) & (t > 1e-4), t, np.inf)
-    p = o + t[:, None] * d
+    p = o + np.where(np.isfinite(t), t, 0.0)[:, None] * d
     nrm = (p - centre) / radii ** 2
     nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True) + 1e-12
     return t, nrm
