@@ -43,8 +43,8 @@ class AdaptConfig:
     flip: bool = True
     seed: int = 0
     contact: str = "lowest"               # pseudo-label contact: lowest | bottom_rows
-    label_source: str = "plane"           # agents' label: the agents' plane at the contact, in the
-    #                                       network's space ("plane") or its own value ("prediction")
+    label_source: str = "prediction"      # agents' label: the network's own contact value (paper)
+    #                                       or the agents' plane at the contact in its space ("plane")
     label_ground: bool = False            # "plane": label the ground pixels with the plane too
     plane_model: str = "exact"            # exact | affine | paper
     agent_height_m: float = 1.7           # prior, when no camera height is known
