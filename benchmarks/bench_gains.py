@@ -9,7 +9,7 @@ scene fit, and prints AbsRel per scene, prediction and region, then the issue's 
 Usage:
   python benchmarks/bench_gains.py --models builtin:out/builtin.pt,builtin:out/unet.pt \\
       [--scenes i1,i2,i3] [--frames 90] [--epochs 6] [--detector gt] [--stereo-epochs 0] \\
-      [--work out/bench] [--json out/bench/gains.json]
+      [--label-source plane|prediction] [--work out/bench] [--json out/bench/gains.json]
 """
 from __future__ import annotations
 
@@ -65,7 +65,8 @@ def run_scene(seq: str, model: str, args) -> dict:
     from staticdepth.evaluate import evaluate_sequence
 
     conf = AdaptConfig(model=model, detector=args.detector, epochs=args.epochs,
-                       align_mode="ground", seed=0, min_height_px=args.min_height_px)
+                       align_mode="ground", seed=0, min_height_px=args.min_height_px,
+                       label_source=args.label_source)
     summary = adapt(seq, conf, summary_path=seq + ".adapt.json", log=lambda s: None)
     add_eq2(seq, summary)
     if args.stereo_epochs > 0:
@@ -151,6 +152,7 @@ def main() -> None:
     ap.add_argument("--detector", default="gt")
     ap.add_argument("--min-height-px", type=float, default=12.0)
     ap.add_argument("--stereo-epochs", type=int, default=0)
+    ap.add_argument("--label-source", default="plane", choices=("plane", "prediction"))
     ap.add_argument("--work", default="out/bench")
     ap.add_argument("--json")
     args = ap.parse_args()
