@@ -1,7 +1,7 @@
 """Stage pipeline: on-site adaptation of a depth network to one static camera (``staticdepth adapt``).
 
 base prediction -> agents (a detector, or the sequence's own instances with ``detector.name=gt``)
--> pseudo labels on the adaptation split -> fine-tuning -> ground plane from the agents -> scene
+-> ground plane from the agents -> pseudo labels on the adaptation split -> fine-tuning -> scene
 alignment -> metric scale from the camera height; one module per stage in
 :mod:`staticdepth.adaptation`, each streamed frame by frame and resumable. Predictions (the
 sequence's prediction store, ``<SEQ>.h5.pred/<name>.h5``): ``base``, ``ft`` (relative depth
@@ -24,7 +24,7 @@ import numpy as np
 
 from staticdepth.errors import InputError
 
-STAGES = ("base", "agents", "pseudo_labels", "finetune", "ft", "ground_plane", "align", "scale")
+STAGES = ("base", "agents", "ground_plane", "pseudo_labels", "finetune", "ft", "align", "scale")
 
 
 def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
@@ -60,7 +60,9 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
     agents.run(conf, ws, detector, h["agents"])
     lap("agents")
     with Agents(ws, conf.detector.name) as ag:
-        n_agent_px = pseudo_labels.run(conf, ws, ag, h["pseudo_labels"])
+        plane, feet = ground_plane.run(conf, ws, ag, h["ground_plane"])
+        lap("ground_plane")
+        n_agent_px = pseudo_labels.run(conf, ws, ag, h["pseudo_labels"], plane, feet)
         lap("pseudo_labels")
         history: list[dict[str, float]] = []
         if conf.finetune.epochs > 0:
@@ -75,8 +77,6 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
         else:
             predict.copy_base(conf, ws, h["ft"])
         lap("finetune")
-        plane, feet = ground_plane.run(conf, ws, ag, h["ground_plane"])
-        lap("ground_plane")
         align.run(conf, ws, ag, plane, feet, h["align"])
         lap("align")
         plane = scale.with_camera_height(conf, ws, plane)

@@ -49,7 +49,8 @@ def region_masks(gt: np.ndarray, instances: np.ndarray | None, agents: np.ndarra
                  K: np.ndarray | None, plane: tuple[np.ndarray, float] | None,
                  max_depth: float) -> dict[str, np.ndarray]:
     """Boolean masks: ``all``, ``agents`` (agent and accessory instances), ``ground`` (pixels whose
-    ground-truth point lies within 10 cm of the true ground plane), and distance bands."""
+    ground-truth point lies within 10 cm of the true ground plane), ``structures`` (neither ground
+    nor agent), and distance bands."""
     out = {"all": np.ones(gt.shape, bool)}
     if instances is not None and agents is not None and len(agents):
         ids = agents["instance_id"][np.isin(agents["class_id"], list(schema.AGENT_CLASSES
@@ -65,6 +66,8 @@ def region_masks(gt: np.ndarray, instances: np.ndarray | None, agents: np.ndarra
         if instances is not None:
             on &= instances == 0
         out["ground"] = on
+        # everything above the ground that is not an agent: walls, poles, buildings
+        out["structures"] = ~on & ~out.get("agents", np.zeros(gt.shape, bool))
     for lo, hi in DISTANCE_BANDS_M:
         if lo < max_depth:
             with np.errstate(invalid="ignore"):

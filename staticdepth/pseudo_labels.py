@@ -6,6 +6,12 @@ is the lowest mask pixel (largest v; ties: the median column of that row), or wi
 ``contact="bottom_rows"`` the median over the mask's bottom rows. Riders take their vehicle's
 value, bags and umbrellas the nearest person's (:mod:`staticdepth.detectors.grouping`). Every other
 pixel keeps the prediction.
+
+With ``label_source="plane"`` (:func:`plane_pseudo_label`) the contact value is read from the
+agents' ground plane instead, mapped into the network's inverse-depth space by the scale and shift
+that fit the network's ground to the plane in that frame: on the independent scenes of
+``tests/indep_scenes.py`` (i1, 452 person observations, built-in network) the label's error
+against the person's true depth falls from 0.200 (own contact) to 0.041 (plane contact).
 """
 from __future__ import annotations
 
@@ -18,6 +24,7 @@ from staticdepth.detectors.grouping import label_sources
 from staticdepth.errors import InputError
 
 CONTACTS = ("lowest", "bottom_rows")
+LABEL_SOURCES = ("prediction", "plane")
 
 
 @dataclass(frozen=True)
@@ -26,10 +33,17 @@ class PseudoLabelConfig:
     bottom_rows: int = 4               # rows used by "bottom_rows" (METHOD.md: 3-5)
     accessory_reach: float = 0.5       # bag-to-person distance limit, x the person's pixel height
     classes: frozenset = field(default_factory=lambda: AGENT_CLASSES | ACCESSORY_CLASSES)
+    source: str = "prediction"         # agents' label: the network's own contact value (the
+    #                                    paper's) or "plane": the agents' plane at the contact,
+    #                                    mapped into the network's space (plane_pseudo_label)
+    label_ground: bool = False         # "plane": the ground pixels take the plane's value too
 
     def __post_init__(self):
         if self.contact not in CONTACTS:
             raise InputError(f"pseudo-label contact must be one of {CONTACTS}, got {self.contact!r}")
+        if self.source not in LABEL_SOURCES:
+            raise InputError(f"pseudo_labels.source must be one of {LABEL_SOURCES}, got "
+                             f"{self.source!r}")
         if not 1 <= self.bottom_rows <= 50:
             raise InputError(f"bottom_rows must be in 1..50, got {self.bottom_rows}")
 
@@ -79,3 +93,41 @@ def pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.ndarra
         label[m] = values[src]
         agent_mask |= m
     return label, agent_mask
+
+
+def plane_pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.ndarray,
+                       plane_inv: np.ndarray, ground_mask: np.ndarray,
+                       conf: PseudoLabelConfig = PRESETS["paper"], *, label_ground: bool = False
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Label one frame from the agents' plane.
+
+    plane_inv: (H, W) the plane's inverse depth ``n . r / d`` (any d: the fit absorbs it; <= 0
+    above its horizon); ground_mask: (H, W) bool ground pixels (this frame's agents are removed).
+    The network's ``inv_depth`` on the ground is fitted as ``s plane_inv + t`` (robust); each
+    agent (grouped as in :func:`pseudo_label`) takes ``s plane_inv + t`` at its contact, and with
+    ``label_ground`` the ground pixels take it too. Returns label and the mask of relabelled
+    pixels (agents, and the ground with ``label_ground``). A frame whose ground has no positive
+    slope against the plane (the network sees no receding ground) gets :func:`pseudo_label`.
+    """
+    from staticdepth.geometry.alignment import fit_inverse_affine
+
+    inv = np.asarray(inv_depth, dtype=np.float32)
+    q = np.asarray(plane_inv, dtype=np.float32)
+    G = np.asarray(ground_mask, bool) & (np.asarray(instances) == 0) & (q > 0) & np.isfinite(inv)
+    if np.count_nonzero(G) < 3:
+        raise InputError("the ground mask holds fewer than 3 pixels below the agents' horizon: "
+                         "no plane pseudo labels")
+    step = max(1, np.count_nonzero(G) // 20000)
+    try:
+        s, t = fit_inverse_affine(inv[G][::step], q[G][::step])
+    except InputError:      # the network's ground does not recede here: its own contact values
+        return pseudo_label(inv, instances, agents, conf)
+    mapped = (np.float32(s) * q + np.float32(t)).astype(np.float32)
+    plane_label, mask = pseudo_label(mapped, instances, agents, conf)
+    q_contact, _ = pseudo_label(q, instances, agents, conf)
+    mask &= q_contact > 0                   # contacts above the plane's horizon keep the prediction
+    label = np.where(mask, plane_label, inv)
+    if label_ground:
+        label = np.where(G, mapped, label)
+        mask = mask | G
+    return label.astype(np.float32), mask

@@ -33,6 +33,7 @@ class TrainBuiltinConfig:
     batch_size: int = 8
     seed: int = 0
     preset: str = "street"
+    arch: str = "tiny"            # "tiny" (TinyDepthNet) or "unet" (models/unet.py)
     # street-level poses vary a little (cars, tripods, hand-held): one pitch and height per layout
     pitch_range_deg: tuple[float, float] = (-3.0, 12.0)
     height_range_m: tuple[float, float] = (1.2, 2.2)
@@ -92,7 +93,13 @@ def train_builtin(conf: TrainBuiltinConfig, *, out: str | os.PathLike, device=No
     log(f"rendered {len(images)} {conf.preset} frames {conf.width}x{conf.height} "
         f"in {time.perf_counter() - t0:.1f} s")
     torch.manual_seed(conf.seed)
-    model = builtin_model(input_height=conf.height, input_width=conf.width)
+    if conf.arch not in ("tiny", "unet"):
+        raise InputError(f"arch must be tiny or unet, got {conf.arch!r}")
+    net = None
+    if conf.arch == "unet":
+        from staticdepth.models.unet import TinyUNet
+        net = TinyUNet()
+    model = builtin_model(net, input_height=conf.height, input_width=conf.width)
     if device is not None:
         model.to(device)
     ft = FinetuneConfig(epochs=conf.epochs, lr=conf.lr, batch_size=conf.batch_size,
@@ -122,6 +129,8 @@ def register(sub) -> None:
     p.add_argument("--batch-size", type=int, default=TrainBuiltinConfig.batch_size,
                    help="frames per optimisation step")
     p.add_argument("--seed", type=int, default=0, help="seed of the scenes and the training")
+    p.add_argument("--arch", choices=("tiny", "unet"), default="tiny",
+                   help="network: tiny (the default encoder-decoder) or unet (a second one)")
     from staticdepth.cli import add_device_argument
     add_device_argument(p)
     p.set_defaults(func=run)
@@ -132,7 +141,8 @@ def run(args: argparse.Namespace) -> int:
 
     w, h = parse_size(args.size)
     conf = TrainBuiltinConfig(frames=args.frames, epochs=args.epochs, width=w, height=h,
-                              lr=args.lr, batch_size=args.batch_size, seed=args.seed)
+                              lr=args.lr, batch_size=args.batch_size, seed=args.seed,
+                              arch=args.arch)
     device = resolve_device(args.device)
     _, hist = train_builtin(conf, out=args.out, device=device, checkpoint=args.out + ".ckpt")
     print(f"wrote {args.out} (final loss {hist[-1]['loss']:.4f})" if hist else f"wrote {args.out}")

@@ -72,7 +72,12 @@ def test_predictions_are_metric_and_beat_a_constant(trained, capsys):
 def test_finished_checkpoint_is_kept(trained, capsys):
     seq, ckpt = trained
     before = load_checkpoint(ckpt)["step"]
-    info = train(seq, ckpt, preset("tiny"), "cpu", log=print)
+    from staticdepth.baseline.scene_fit import fit_to_scene
+    from staticdepth.dataset.h5 import SequenceReader
+
+    with SequenceReader(seq) as r:               # the CLI fits the preset to the scene
+        conf = fit_to_scene(r, preset("tiny"))
+    info = train(seq, ckpt, conf, "cpu", log=print)
     assert "already trained" in capsys.readouterr().out
     assert info["steps"] == before == load_checkpoint(ckpt)["step"]
 

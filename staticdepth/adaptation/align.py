@@ -47,10 +47,15 @@ def align_prediction(ws: Workspace, jobs: Mapping[str, tuple[str, AlignFrame]], 
             ws.count(stage)
 
 
+def ground_region(conf: AdaptConfig, ws: Workspace, feet: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the feet's hull eroded by ``align.erode_px`` (default W/80)."""
+    erode = ws.width / 80.0 if conf.align.erode_px is None else conf.align.erode_px
+    return ground_mask_from_feet(feet, ws.width, ws.height, erode)
+
+
 def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, feet: np.ndarray,
         config_hash: str) -> None:
-    erode = ws.width / 80.0 if conf.align.erode_px is None else conf.align.erode_px
-    ground = ground_mask_from_feet(feet, ws.width, ws.height, erode)
+    ground = ground_region(conf, ws, feet)
     K, normal = ws.K, plane.normal
 
     def aligned(i: int, Z: np.ndarray) -> np.ndarray:
@@ -58,7 +63,8 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, fee
         m = inst > 0
         # the frame's agents leave the ground mask, unless they would leave too little of it
         agent_mask = m if np.count_nonzero(ground & ~m) >= 50 else None
-        A = align_depth(Z, K, normal, 1.0, ground, agent_mask=agent_mask).depth
+        A = align_depth(Z, K, normal, 1.0, ground, agent_mask=agent_mask, mode=conf.align.mode,
+                        snap_rel=conf.align.snap_rel).depth
         if conf.align.agents_at_contact:
             A = agents_at_contact(A, K, normal, 1.0, inst, agents.rows(i), conf.pseudo_labels)[0]
         return A

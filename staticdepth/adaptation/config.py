@@ -50,8 +50,18 @@ class AlignConfig:
     erode_px: float | None = None    # ground mask: the feet's hull eroded by this (None: W/80)
     agents_at_contact: bool = True   # agents take the plane depth at their contact pixel
     #                                  (False: the paper's Eq. 2 for every pixel)
+    mode: str = "ground"             # ground: align what the plane explains (the ground, pixels
+    #                                  near it, agents), scale and shift the rest in inverse
+    #                                  depth (alignment.align_ground); eq2: the paper's Eq. 2
+    snap_rel: float = 0.1            # ground: pixels this close to the plane (relative) take it
 
     def __post_init__(self):
+        from staticdepth.geometry.alignment import ALIGN_MODES
+
+        if self.mode not in ALIGN_MODES:
+            raise InputError(f"align.mode must be one of {ALIGN_MODES}, got {self.mode!r}")
+        if not (math.isfinite(self.snap_rel) and self.snap_rel >= 0):
+            raise InputError(f"align.snap_rel must be >= 0, got {self.snap_rel}")
         if self.erode_px is not None and not (math.isfinite(self.erode_px) and self.erode_px >= 0):
             raise InputError(f"align.erode_px must be >= 0, got {self.erode_px}")
 
@@ -120,8 +130,12 @@ def stage_hashes(conf: AdaptConfig, model_id: Mapping[str, Any] | None = None) -
     h: dict[str, str] = {}
     h["base"] = config_hash({"model": mid, "eps": conf.predict.eps})
     h["agents"] = config_hash({"detector": conf.detector})
-    h["pseudo_labels"] = config_hash({"conf": conf.pseudo_labels, "base": h["base"],
-                                      "agents": h["agents"]})
+    h["ground_plane"] = config_hash({"tracking": conf.tracking, "plane": conf.plane,
+                                     "agents": h["agents"]})
+    labels: dict[str, Any] = {"conf": conf.pseudo_labels, "base": h["base"], "agents": h["agents"]}
+    if conf.pseudo_labels.source == "plane":  # labels read from the plane over the feet's region
+        labels.update(plane=h["ground_plane"], erode_px=conf.align.erode_px)
+    h["pseudo_labels"] = config_hash(labels)
     if conf.finetune.epochs > 0:
         h["finetune"] = config_hash({"conf": conf.finetune, "labels": h["pseudo_labels"],
                                      "model": mid})
@@ -129,8 +143,6 @@ def stage_hashes(conf: AdaptConfig, model_id: Mapping[str, Any] | None = None) -
     else:
         h["finetune"] = config_hash({"epochs": 0})
         h["ft"] = config_hash({"copy_of": h["base"]})
-    h["ground_plane"] = config_hash({"tracking": conf.tracking, "plane": conf.plane,
-                                     "agents": h["agents"]})
     h["align"] = config_hash({"conf": conf.align, "pl": conf.pseudo_labels, "base": h["base"],
                               "ft": h["ft"], "plane": h["ground_plane"], "agents": h["agents"]})
     h["scale"] = config_hash({"conf": conf.scale, "align": h["align"],

@@ -9,14 +9,34 @@ import numpy as np
 
 from staticdepth.adaptation.common import Agents, Workspace
 from staticdepth.adaptation.config import AdaptConfig
+from staticdepth.geometry.agent_plane import AgentPlane
 from staticdepth.progress import progress
-from staticdepth.pseudo_labels import pseudo_label
+from staticdepth.pseudo_labels import plane_pseudo_label, pseudo_label
 
 ROWS = np.dtype([("frame", np.int32), ("agent_pixels", np.int64)])
 
 
-def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str) -> int:
-    """Write the labels; returns the number of agent pixels relabelled."""
+def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
+        plane: AgentPlane | None = None, feet: np.ndarray | None = None) -> int:
+    """Write the labels; returns the number of agent pixels relabelled.
+
+    ``pseudo_labels.source = "plane"`` reads each agent's label from the agents' ``plane`` (mapped
+    into the network's space by a fit over the ground region of ``feet``)."""
+    pl = conf.pseudo_labels
+    if pl.source == "plane":
+        from staticdepth.adaptation.align import ground_region
+        from staticdepth.geometry.projection import ray_grid
+
+        plane_inv = (ray_grid(ws.K, ws.width, ws.height) @ np.asarray(plane.normal)
+                     ).astype(np.float32)
+        ground = ground_region(conf, ws, feet)
+
+        def label_frame(i, inv):
+            return plane_pseudo_label(inv, agents.instances(i), agents.rows(i), plane_inv, ground,
+                                      pl, label_ground=pl.label_ground)
+    else:
+        def label_frame(i, inv):
+            return pseudo_label(inv, agents.instances(i), agents.rows(i), pl)
     split = ws.adapt_split
     w = ws.frame_writer("labels.h5", n=len(split), shape=(ws.height, ws.width),
                         dtype=np.float32, config_hash=config_hash, rows_dtype=ROWS, chunk=16,
@@ -27,8 +47,7 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str) -> i
         with w, ws.frame_file("inverse-base.h5") as inv:
             for k in progress(range(w.start, len(split)), desc="pseudo labels"):
                 i = split[k]
-                label, m = pseudo_label(inv[i], agents.instances(i), agents.rows(i),
-                                        conf.pseudo_labels)
+                label, m = label_frame(i, inv[i])
                 w.write(k, label, np.array([(k, int(m.sum()))], ROWS))
                 ws.count("pseudo_labels")
     with ws.frame_file("labels.h5") as f:

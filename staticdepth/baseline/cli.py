@@ -20,6 +20,9 @@ def register(sub) -> None:
                                     "Resumes an unfinished checkpoint with the same settings.")
     t.add_argument("sequence", help="sequence file (.h5) with left and right images")
     t.add_argument("--preset", default="default", choices=sorted(PRESETS))
+    t.add_argument("--scene-fit", choices=("range", "all", "none"), default="all",
+                   help="fit the depth range (range) and the network size (all) to the rig's "
+                        "baseline and the scene's depths (default all; none: the preset as is)")
     t.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="override a setting, e.g. --set epochs=5 (repeatable)")
     t.add_argument("--weights", help="ImageNet ResNet18 weights: a local torchvision .pth")
@@ -49,6 +52,14 @@ def _train(args: argparse.Namespace) -> int:
     if args.weights:
         overrides["imagenet_weights"] = args.weights
     conf = preset(args.preset, overrides)
+    if args.scene_fit != "none":
+        from staticdepth.baseline.scene_fit import fit_to_scene
+        from staticdepth.dataset.h5 import SequenceReader
+
+        with SequenceReader(args.sequence) as r:
+            conf = fit_to_scene(r, conf, explicit=overrides, fit_size=args.scene_fit == "all")
+        print(f"scene fit: {conf.width}x{conf.height}, depth {conf.min_depth:.2f}-"
+              f"{conf.max_depth:.0f} m")
     device = resolve_device(args.device)
     ckpt = args.checkpoint or default_checkpoint_path(args.sequence)
     info = train(args.sequence, ckpt, conf, device, overwrite=args.overwrite,

@@ -80,6 +80,11 @@ def predict_sequence(sequence_path: str | os.PathLike, checkpoint_path: str | os
                          f"width {conf.width}, this sequence has {focal:.2f} px: its metric "
                          "depth would be wrong (train on this sequence)", seq)
     model.to(torch.device(device))
+    with SequenceReader(seq) as r:          # refuse a collapsed model before storing anything
+        from staticdepth.baseline.scene_fit import check_not_collapsed
+        probe = [r.left(i) for i in np.linspace(0, n - 1, min(4, n)).astype(int)]
+    check_not_collapsed(predict_depth(model, np.stack(probe), conf), conf,
+                        f" ({os.fspath(checkpoint_path)})")
     attrs = {"method": "stereo self-supervised baseline (MonoDepth2 S)", "metric": 1,
              "checkpoint": os.path.abspath(os.fspath(checkpoint_path)),
              "baseline_m": float(state["baseline_m"]), "trained_on": str(state["sequence"]),

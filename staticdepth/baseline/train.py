@@ -157,12 +157,28 @@ def train(sequence_path: str | os.PathLike, checkpoint_path: str | os.PathLike,
         epoch, batch0 = epoch + 1, 0
     bar.close()
     seconds = time.perf_counter() - t0
+    collapse = _self_check(model, left, conf, device, ckpt)
     epochs = sorted({h["epoch"] for h in history})
     epoch_loss = [sum(h["loss"] for h in history if h["epoch"] == e)
                   / sum(1 for h in history if h["epoch"] == e) for e in epochs]
     return {"checkpoint": ckpt, "epochs": conf.epochs, "steps": step, "epoch_loss": epoch_loss,
             "seconds": seconds, "images_per_s": n_images / seconds if n_images else 0.0,
-            "frames": len(left), "baseline_m": geo.baseline_m, "focal_px": geo.focal_px}
+            "frames": len(left), "baseline_m": geo.baseline_m, "focal_px": geo.focal_px,
+            "self_check": collapse}
+
+
+@torch.no_grad()
+def _self_check(model: DepthNet, left: torch.Tensor, conf: BaselineConfig, device,
+                ckpt: str) -> dict[str, float]:
+    """Refuse a collapsed model (depth stuck at a limit or constant) on up to 8 training frames."""
+    from staticdepth.baseline.data import to_float
+    from staticdepth.baseline.layers import disp_to_depth
+    from staticdepth.baseline.scene_fit import check_not_collapsed
+
+    model.eval()
+    idx = torch.linspace(0, len(left) - 1, min(8, len(left))).long()
+    inv = disp_to_depth(model(to_float(left[idx]).to(device))[0], conf.min_depth, conf.max_depth)[0]
+    return check_not_collapsed((1.0 / inv).cpu().numpy(), conf, f" ({ckpt})")
 
 
 def _check_compatible(state: Mapping[str, Any], conf: BaselineConfig, geo: StereoGeometry,

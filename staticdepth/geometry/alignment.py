@@ -133,9 +133,13 @@ class Alignment:
     skipped: bool
 
 
+ALIGN_MODES = ("ground", "eq2")
+
+
 def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: np.ndarray, *,
                 agent_mask: np.ndarray | None = None, near_plane_rel: float | None = None,
-                eps: float = 1e-3, nadir_tol: float = 1e-6) -> Alignment:
+                eps: float = 1e-3, nadir_tol: float = 1e-6, mode: str = "eq2",
+                snap_rel: float = 0.1) -> Alignment:
     """Align a relative depth map (H, W) to the agents' ground plane ``n_g . P = d_g``.
 
     ground_mask: (H, W) bool where the ground is expected; ``agent_mask`` pixels are removed from
@@ -170,6 +174,10 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
         G = G & ~A
         if not G.any():
             raise InputError("the ground mask is empty once the agents' pixels are removed")
+    if mode not in ALIGN_MODES:
+        raise InputError(f"alignment mode must be one of {ALIGN_MODES}, got {mode!r}")
+    if mode == "ground":
+        return align_ground(Z, K, n_g, d_g, G, snap_rel=snap_rel)
     n_p, d_p = fit_predicted_plane(Z, K, G)
     a, b, c = n_p
     s2 = a * a + b * b
@@ -205,6 +213,75 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
     out = np.where(ok, out, Z * np.float32(r))
     out[~valid] = np.nan
     return Alignment(out.astype(np.float32, copy=False), n_p, d_p, r, int(fb.sum()), False)
+
+
+def fit_inverse_affine(inv: np.ndarray, target: np.ndarray, iters: int = 3,
+                       k_mad: float = 3.0) -> tuple[float, float]:
+    """Robust least squares ``inv ~ s target + t`` (1-D arrays): refits after dropping residuals
+    beyond ``k_mad`` MADs. Raises when the targets do not vary or the slope is not positive."""
+    x = np.asarray(target, dtype=np.float64)
+    y = np.asarray(inv, dtype=np.float64)
+    keep = np.isfinite(x) & np.isfinite(y)
+    s = t = float("nan")
+    for _ in range(iters):
+        if keep.sum() < 3 or np.ptp(x[keep]) <= 0:
+            raise InputError("the ground mask spans no range of plane depths: no scale and shift")
+        A = np.stack([x[keep], np.ones(int(keep.sum()))], 1)
+        s, t = np.linalg.lstsq(A, y[keep], rcond=None)[0]
+        res = np.abs(y - (s * x + t))
+        mad = np.median(res[keep]) + 1e-12
+        keep = keep & (res <= k_mad * 1.4826 * mad)
+    if not s > 0:
+        raise InputError(f"the prediction's ground does not recede like the agents' plane "
+                         f"(inverse-depth slope {s:.3g}): cannot align")
+    return float(s), float(t)
+
+
+def align_ground(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: np.ndarray, *,
+                 snap_rel: float = 0.1, max_points: int = 20000) -> Alignment:
+    """Align only what the plane explains; carry the rest with the ground's scale and shift.
+
+    The network's inverse depth ``1/Z`` is, on the ground mask, fitted robustly as ``s q + t``
+    with ``q = n_g . r / d_g`` the agents' plane's inverse depth: the unknown scale and shift of a
+    MiDaS-like output (METHOD.md section 3: the shift is what tilts the predicted ground). Every
+    pixel then gets ``(1/Z - t) / s``: structures keep the network's shape, only re-scaled and
+    re-shifted like its ground. Pixels whose corrected inverse depth lies within ``snap_rel`` of
+    the plane's (the ground the network saw as ground) take the plane's depth exactly. Pixels the
+    correction pushes beyond the far limit (50x the median ground depth) are clamped there.
+    When the network's ground has no positive slope against the plane (it does not recede), only
+    a scale is fitted (median ratio, t = 0). ``plane_normal``/``plane_d`` of the result hold
+    (s, t, 1 if scale only else 0) and the far limit, for the summary.
+    """
+    Z = np.asarray(depth, dtype=np.float32)
+    h, w = Z.shape
+    n_g = np.asarray(n_g, dtype=np.float64)
+    q = (ray_grid(np.asarray(K, dtype=np.float64), w, h) @ (n_g / (np.linalg.norm(n_g) * d_g))
+         ).astype(np.float32)
+    valid = np.isfinite(Z) & (Z > 0)
+    with np.errstate(divide="ignore"):
+        inv = np.where(valid, 1.0 / np.where(valid, Z, 1), np.nan).astype(np.float32)
+    sel = ground_mask & valid & (q > 0)
+    vs, us = np.nonzero(sel)
+    if len(vs) < 3:
+        raise InputError("no ground pixel can be aligned (the ground mask lies above the agents' "
+                         "horizon or holds no valid depth)")
+    if len(vs) > max_points:
+        step = -(-len(vs) // max_points)
+        vs, us = vs[::step], us[::step]
+    try:
+        s, t = fit_inverse_affine(inv[vs, us], q[vs, us])
+        scale_only = False
+    except InputError:      # no usable slope (a network whose ground does not recede): scale only
+        s, t = float(np.median(inv[vs, us] / q[vs, us])), 0.0
+        scale_only = True
+    new_inv = (inv - np.float32(t)) / np.float32(s)
+    floor = np.float32(np.median(q[vs, us]) / 50.0)
+    snap = valid & (q > 0) & (np.abs(new_inv - q) <= np.float32(snap_rel) * q)
+    n_fb = int(np.count_nonzero(valid & ~snap & (new_inv < floor)))
+    new_inv = np.where(snap, q, np.maximum(new_inv, floor))
+    out = np.where(valid, 1.0 / new_inv, np.nan).astype(np.float32)
+    return Alignment(out, np.array([s, t, float(scale_only)]), float(1.0 / floor), float("nan"),
+                     n_fb, False)
 
 
 def agents_at_contact(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, instances: np.ndarray,

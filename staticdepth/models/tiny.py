@@ -82,10 +82,13 @@ def builtin_model(net: TinyDepthNet | None = None, *, input_height: int = 192,
                   input_width: int = 384, name: str = "builtin") -> TorchDepthModel:
     """Wrap a :class:`TinyDepthNet` as a :class:`TorchDepthModel` (aspect-keeping resize, x32)."""
     net = TinyDepthNet() if net is None else net
+    groups = LAYER_GROUPS
+    if getattr(net, "config", {}).get("arch") == "unet":
+        from staticdepth.models.unet import UNET_LAYER_GROUPS as groups
     return TorchDepthModel(net, name=name,
                            resize=Resize(input_height, input_width, keep_aspect_ratio=True,
                                          multiple=32),
-                           mean=IMAGENET_MEAN, std=IMAGENET_STD, layer_groups=LAYER_GROUPS)
+                           mean=IMAGENET_MEAN, std=IMAGENET_STD, layer_groups=groups)
 
 
 def save_builtin(path: str | os.PathLike, model: TorchDepthModel, info: dict | None = None) -> str:
@@ -112,7 +115,12 @@ def load_builtin(path: str | os.PathLike) -> TorchDepthModel:
         raise InputError(f"not a built-in model checkpoint (format {CHECKPOINT_FORMAT!r} "
                          "expected); use torch:FILE for other torch models", path)
     cfg = ckpt["config"]
-    net = TinyDepthNet(cfg["enc_channels"], cfg["dec_channels"])
+    if cfg.get("arch") == "unet":
+        from staticdepth.models.unet import TinyUNet
+
+        net = TinyUNet(cfg["widths"])
+    else:
+        net = TinyDepthNet(cfg["enc_channels"], cfg["dec_channels"])
     try:
         net.load_state_dict(ckpt["state_dict"])
     except RuntimeError as e:

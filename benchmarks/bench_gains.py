@@ -1,0 +1,188 @@
+"""Do the method's gains hold on scenes it was not built on? (issue 19)
+
+Renders the independent scenes of ``tests/indep_scenes.py`` (own textures, ellipsoid people, box
+vehicles, static structures; C1/C2/C3-like mounts), runs ``adapt`` on each with each network
+(ground-truth instances or a real detector, the known camera height), adds the paper's Eq. 2
+alignment beside the default ``ground`` mode, optionally trains the stereo baseline with its
+scene fit, and prints AbsRel per scene, prediction and region, then the issue's checks.
+
+Usage:
+  python benchmarks/bench_gains.py --models builtin:out/builtin.pt,builtin:out/unet.pt \\
+      [--scenes i1,i2,i3] [--frames 90] [--epochs 6] [--detector gt] [--stereo-epochs 0] \\
+      [--label-source plane|prediction] [--work out/bench] [--json out/bench/gains.json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from tests.indep_scenes import SCENES, write_scene  # noqa: E402
+
+REGIONS = ("all", "ground", "agents", "structures", "0-10m", "10-20m", "20-40m", "40-80m")
+NAMES = ("base", "ft", "align-eq2", "align", "ft-align-eq2", "ft-align", "ft-align-metric",
+         "stereo-baseline")
+
+
+def add_eq2(seq: str, summary: dict) -> None:
+    """The paper's Eq. 2 alignment of the stored base and ft predictions, as adapt would do it
+    with ``align_mode=eq2`` (same plane, ground mask and agents at their contact)."""
+    from staticdepth.dataset.h5 import SequenceReader, add_prediction
+    from staticdepth.geometry.alignment import agents_at_contact, align_depth, ground_mask_from_feet
+    from staticdepth.config import setting_from
+    from staticdepth.pseudo_labels import PseudoLabelConfig
+
+    conf = summary["config"]
+    n_g = np.asarray(summary["plane"]["normal"])
+    with SequenceReader(seq) as r:
+        K, W, H, n = r.camera.K, r.width, r.height, len(r)
+        rows = [r.agents(i) for i in range(n)]
+        inst = np.stack([r.instances(i) for i in range(n)])
+        ad = r.split("adapt")
+        feet = np.concatenate([np.stack([x["foot_u"], x["foot_v"]], 1) for x in
+                               (rows[i][rows[i]["foot_v"] >= 0] for i in ad) if len(x)])
+        erode = setting_from(conf, "align.erode_px")
+        ground = ground_mask_from_feet(feet, W, H, W / 80.0 if erode is None else erode)
+        maps = {src: np.stack([r.prediction(src, i) for i in range(n)]) for src in ("base", "ft")}
+    pl = PseudoLabelConfig(contact=setting_from(conf, "pseudo_labels.contact", "lowest"))
+    for name, src in (("align-eq2", "base"), ("ft-align-eq2", "ft")):
+        out = []
+        for i in range(n):
+            m = inst[i] > 0
+            a = align_depth(maps[src][i], K, n_g, 1.0, ground,
+                            agent_mask=m if np.count_nonzero(ground & ~m) >= 50 else None,
+                            mode="eq2").depth
+            out.append(agents_at_contact(a, K, n_g, 1.0, inst[i], rows[i], pl)[0])
+        add_prediction(seq, name, out, {"stage": "bench_gains", "align_mode": "eq2"})
+
+
+def run_scene(seq: str, model: str, args) -> dict:
+    from staticdepth.adapt import adapt
+    from staticdepth.adaptation.config import build_config
+    from staticdepth.evaluate import evaluate_sequence
+
+    conf = build_config({"model": model, "detector.name": args.detector,
+                         "finetune.epochs": args.epochs, "align.mode": "ground",
+                         "finetune.seed": 0, "plane.seed": 0,
+                         "tracking.min_height_px": args.min_height_px,
+                         "pseudo_labels.source": args.label_source})
+    summary = adapt(seq, conf, summary_path=seq + ".adapt.json", log=lambda s: None)
+    add_eq2(seq, summary)
+    if args.stereo_epochs > 0:
+        train_stereo(seq, args.stereo_epochs)
+    res = evaluate_sequence(seq, protocols=None)["results"]
+    table = {}
+    for name in NAMES:
+        if name in res:
+            prot = next(iter(res[name]))
+            table[name] = {reg: res[name][prot][reg]["abs_rel"] for reg in REGIONS
+                           if reg in res[name][prot]}
+            if name == "stereo-baseline":
+                table[name]["a1"] = res[name][prot]["all"]["a1"]
+    return {"table": table, "plane": summary["plane"], "finetune": summary["finetune"]}
+
+
+def train_stereo(seq: str, epochs: int) -> None:
+    from staticdepth.baseline.config import preset
+    from staticdepth.baseline.predict import predict_sequence
+    from staticdepth.baseline.scene_fit import fit_to_scene
+    from staticdepth.baseline.train import train
+    from staticdepth.dataset.h5 import SequenceReader
+
+    with SequenceReader(seq) as r:
+        conf = fit_to_scene(r, preset("default", {"epochs": epochs, "batch_size": 6}))
+    ckpt = seq + ".baseline.pt"
+    train(seq, ckpt, conf, "cpu", overwrite=True)
+    predict_sequence(seq, ckpt, "cpu")
+
+
+def checks(results: dict) -> list[str]:
+    """The issue's 'must show' inequalities, one line each (PASS/FAIL with the figures)."""
+    lines = []
+    for model, per in results.items():
+        t = {s: v["table"] for s, v in per.items()}
+        ratios = [t[s]["ft-align"]["all"] / t[s]["base"]["all"] for s in t]
+        ok_each = all(t[s]["ft-align"]["all"] <= t[s]["base"]["all"] for s in t)
+        lines.append(f"{model}: ft-align <= base on every scene: {'PASS' if ok_each else 'FAIL'} "
+                     f"(ratios {', '.join(f'{r:.2f}' for r in ratios)})")
+        mean = float(np.mean(ratios))
+        lines.append(f"{model}: ft-align <= 0.7 x base on average: "
+                     f"{'PASS' if mean <= 0.7 else 'FAIL'} ({mean:.2f})")
+        fails = [s for s in t if t[s]["base"]["all"] > 0.3]
+        if fails:
+            ok = all(t[s]["align"]["all"] <= 0.12 for s in fails)
+            lines.append(f"{model}: where base > 0.3 ({', '.join(fails)}) align <= 0.12: "
+                         f"{'PASS' if ok else 'FAIL'} "
+                         f"({', '.join('%.3f' % t[s]['align']['all'] for s in fails)})")
+        ag = [(t[s]["ft"]["agents"], t[s]["base"]["agents"]) for s in t]
+        lines.append(f"{model}: ft better than base on agents: "
+                     f"{'PASS' if all(a < b for a, b in ag) else 'FAIL'} "
+                     f"({', '.join(f'{a:.3f}/{b:.3f}' for a, b in ag)})")
+        mr = [t[s]["ft-align-metric"]["all"] / t[s]["ft-align"]["all"] for s in t]
+        lines.append(f"{model}: metric within 1.2x of median scaling: "
+                     f"{'PASS' if max(mr) <= 1.2 else 'FAIL'} ({', '.join(f'{r:.2f}' for r in mr)})")
+        st = [t[s]["stereo-baseline"]["a1"] for s in t if "stereo-baseline" in t[s]]
+        if st:
+            lines.append(f"{model}: stereo baseline a1 >= 0.8: {'PASS' if min(st) >= 0.8 else 'FAIL'}"
+                         f" ({', '.join(f'{a:.3f}' for a in st)})")
+    return lines
+
+
+def markdown(results: dict) -> str:
+    out = []
+    for model, per in results.items():
+        out.append(f"\n{model}\n")
+        out.append("| scene | prediction | " + " | ".join(REGIONS) + " |")
+        out.append("|---|---|" + "---|" * len(REGIONS))
+        for scene, v in per.items():
+            for name, regs in v["table"].items():
+                out.append(f"| {scene} | {name} | " + " | ".join(
+                    f"{regs[r]:.3f}" if r in regs else "-" for r in REGIONS) + " |")
+    return "\n".join(out)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--models", required=True, help="comma-separated model specs")
+    ap.add_argument("--scenes", default="i1,i2,i3")
+    ap.add_argument("--frames", type=int, default=90)
+    ap.add_argument("--size", default="320x160")
+    ap.add_argument("--epochs", type=int, default=6)
+    ap.add_argument("--detector", default="gt")
+    ap.add_argument("--min-height-px", type=float, default=12.0)
+    ap.add_argument("--stereo-epochs", type=int, default=0)
+    ap.add_argument("--label-source", default="plane", choices=("plane", "prediction"))
+    ap.add_argument("--work", default="out/bench")
+    ap.add_argument("--json")
+    args = ap.parse_args()
+    w, h = (int(x) for x in args.size.split("x"))
+    os.makedirs(os.path.join(args.work, "scenes"), exist_ok=True)
+    specs = {s.name: s for s in SCENES}
+    results: dict = {}
+    for scene in args.scenes.split(","):
+        src = os.path.join(args.work, "scenes", f"{scene}-{args.frames}-{args.size}.h5")
+        if not os.path.exists(src):
+            write_scene(src, specs[scene], args.frames, width=w, height=h)
+        for k, model in enumerate(args.models.split(",")):
+            seq = os.path.join(args.work, f"{scene}-m{k}.h5")
+            shutil.copyfile(src, seq)
+            results.setdefault(model, {})[scene] = run_scene(seq, model, args)
+            print(f"{scene} {model}: " + ", ".join(
+                f"{n} {v['all']:.3f}" for n, v in results[model][scene]["table"].items()),
+                flush=True)
+    print(markdown(results))
+    print()
+    print("\n".join(checks(results)))
+    if args.json:
+        from staticdepth.fileio import atomic_write_json
+
+        atomic_write_json(args.json, json.loads(json.dumps(results, default=str)))
+
+
+if __name__ == "__main__":
+    main()
