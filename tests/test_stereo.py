@@ -185,6 +185,9 @@ def test_cli_rectified_pair(shared_data, tmp_path, capsys):
     cv2.imwrite(str(shifted), np.roll(cv2.imread(str(d / "view5.png")), 15, axis=0))
     rc = main(["stereo", "--rectified", "--left", str(d / "view1.png"), "--right", str(shifted),
                "--max-disparity", "75", "--disparity-out", str(out)])
+    assert rc == 2 and "exists already; pass --overwrite" in capsys.readouterr().err
+    rc = main(["stereo", "--rectified", "--left", str(d / "view1.png"), "--right", str(shifted),
+               "--max-disparity", "75", "--disparity-out", str(out), "--overwrite"])
     assert rc == 2 and "not rectified" in capsys.readouterr().err
     rc = main(["stereo", "--rectified", "--left", str(d / "view1.png"), "--right",
                str(d / "view5.png"), "--disparity-out", str(out)])

@@ -65,6 +65,7 @@ def test_cli_warns_and_ply_needs_a_rig(shared_data, tmp_path, capsys):
     shifted = tmp_path / "shifted.png"
     cv2.imwrite(str(shifted), np.roll(cv2.imread(str(d / "view5.png")), 9, axis=0))
     args[5] = str(shifted)
+    args.append("--overwrite")
     assert main(args + ["--max-disparity", "96"]) == 2
     assert "not rectified" in capsys.readouterr().err
     assert main(args + ["--max-disparity", "96", "--skip-rectification-check"]) == 0
