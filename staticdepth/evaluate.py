@@ -256,8 +256,8 @@ def _check_json_output(args: argparse.Namespace) -> None:
 def _metrics_cmd(args: argparse.Namespace) -> int:
     from staticdepth.cli import refuse_existing
 
-    refuse_existing(args.json, overwrite=args.overwrite)
     _check_json_output(args)
+    refuse_existing(args.json, overwrite=args.overwrite)
     out = metrics_on_maps(load_maps(args.pred), load_maps(args.gt), args.protocol,
                           args.max_depth, args.pred, args.gt)
     print(header())
@@ -270,8 +270,8 @@ def _metrics_cmd(args: argparse.Namespace) -> int:
 def _evaluate_cmd(args: argparse.Namespace) -> int:
     from staticdepth.cli import refuse_existing
 
-    refuse_existing(args.json, overwrite=args.overwrite)
     _check_json_output(args)
+    refuse_existing(args.json, overwrite=args.overwrite)
     res = evaluate_sequence(args.sequence, args.pred, split=args.split,
                             protocols=args.protocol, max_depth=args.max_depth)
     print(f"{res['sequence']}: split {res['split']} ({res['frames']} frames)")

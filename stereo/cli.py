@@ -195,17 +195,22 @@ def _stereo_pair(args) -> int:
     if args.ply and not args.rig:
         raise InputError("--ply with --rectified needs --rig (the focal length and baseline that "
                          "make disparities metric)")
+    from staticdepth.fileio import check_writable
+
+    for out in (args.disparity_out, args.ply):
+        if out:  # a folder, a read-only place: refused before any work
+            check_writable(out)
     _refuse_existing(args.disparity_out, args.ply, overwrite=args.overwrite)
     left, right = read_rgb(args.left), read_rgb(args.right)
     if left.shape != right.shape:
         raise InputError(f"left is {left.shape[1]}x{left.shape[0]} but right is "
                          f"{right.shape[1]}x{right.shape[0]}", args.right)
-    check = _rectification(args, left, right, args.left)
     h, w = left.shape[:2]
     if w <= _num_disparities(args.max_disparity) or h < 16:  # before OpenCV asserts on it
         raise InputError(f"image is {w}x{h}: too small to match (at least 16 rows, and wider "
                          f"than the disparity range {_num_disparities(args.max_disparity)} px)",
                          args.left)
+    check = _rectification(args, left, right, args.left)
     unit = Camera.from_intrinsics(1.0, 1.0, (w - 1) / 2, (h - 1) / 2, w, h)
     rig = StereoRig.load(args.rig) if args.rig else StereoRig.rectified(unit, 1.0)
     pipe = StereoPipeline(rig, _config(args, num_disparities=_num_disparities(args.max_disparity)))

@@ -37,8 +37,11 @@ pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
 
 def _damage(src: str, dst: str) -> None:
-    """Copy ``src`` and overwrite the middle of every ``left`` and ``depth`` chunk."""
+    """Copy ``src`` (and its predictions) and overwrite the middle of every ``left`` and
+    ``depth`` chunk."""
     shutil.copy(src, dst)
+    if os.path.isdir(src + ".pred"):
+        shutil.copytree(src + ".pred", dst + ".pred")
     with h5py.File(dst, "r") as f:
         chunks = [f[k].id.get_chunk_info(j) for k in ("left", "depth")
                   for j in range(f[k].id.get_num_chunks())]
