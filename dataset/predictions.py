@@ -61,8 +61,11 @@ def sequence_id(f: h5py.File) -> str:
                          int(f.attrs["height"])]).encode())
     if "crc32" in f:
         for name in sorted(f["crc32"]):
+            ds = f["crc32"][name]
+            if not isinstance(ds, h5py.Dataset):  # crc32/aux/..., crc32/pred/...: not streams
+                continue
             h.update(name.encode())
-            h.update(np.asarray(f["crc32"][name][:], dtype="<u4").tobytes())
+            h.update(np.asarray(ds[:], dtype="<u4").tobytes())
     return h.hexdigest()[:32]
 
 

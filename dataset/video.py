@@ -215,7 +215,8 @@ def register(sub) -> None:
     p.add_argument("--fps", type=float, default=None,
                    help="frame rate of an image folder (default 10), or override a video's")
     p.add_argument("--name", default=None, help="sequence name (default: the input's name)")
-    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace outputs that exist already (refused otherwise)")
     p.set_defaults(func=_run)
 
 

@@ -92,7 +92,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
                 "make a release folder: sequences, export, card, manifest",
                 "staticdepth publish K1.h5 --out release/ --licence CC-BY-4.0 --citation '...'"),
     "import-video": ("staticdepth.dataset.video",
-                     "a sequence file from a video, image folder or camera URL (no ground truth)",
+                     "import a video, an image folder or a camera URL (no ground truth)",
                      "staticdepth import-video vtest.avi --fov-deg 60 --adapt-frames 200 --out site.h5"),
     "observations": ("staticdepth.observations",
                      "agents' foot points and heights (obs.csv) for ground-plane",
@@ -113,11 +113,12 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "locate": ("staticdepth.locate", "agents' positions in metres, speeds, distances between people",
                "staticdepth locate site.h5 --summary site.adapt.json --out positions.csv"),
     "export-model": ("staticdepth.deploy",
-                     "the adapted network + alignment + metric scale as one ONNX file",
+                     "the adapted network + alignment + metric scale as one ONNX file (image -> "
+                     "metric depth)",
                      "staticdepth export-model --model builtin:site.ft.pt --summary site.adapt.json "
                      "--sequence site.h5 --out site_metric.onnx"),
     "predict": ("staticdepth.deploy", "stream a video, folder or sequence through a model to "
-                "metric depth", "staticdepth predict --model site_metric.onnx --input vtest.avi "
+                "(metric) depth", "staticdepth predict --model site_metric.onnx --input vtest.avi "
                 "--out depth/ --format png16"),
     "baseline": ("staticdepth.baseline.cli", "stereo self-supervised baseline (MonoDepth2 S)",
                  "staticdepth baseline train c1.h5 --preset tiny && "

@@ -358,8 +358,9 @@ def register(sub) -> None:
     p.add_argument("--sequence", required=True, help="the adapted sequence (camera, agents)")
     p.add_argument("--ground-mask", help="ground region PNG (default: adapt's feet hull)")
     p.add_argument("--out", required=True, help="output .onnx")
-    p.add_argument("--check-frames", type=int, default=5)
-    p.add_argument("--opset", type=int, default=17)
+    p.add_argument("--check-frames", type=int, default=5,
+                   help="frames on which the export is checked against the torch/numpy pipeline")
+    p.add_argument("--opset", type=int, default=17, help="ONNX opset of the exported file")
     p.set_defaults(func=_run_export)
 
     p = sub.add_parser("predict", help="stream a video, folder or sequence through a model to "
@@ -374,8 +375,8 @@ def register(sub) -> None:
                    help="png16: uint16 depth x256 (0 = unknown); npy: float32; mp4: colour map")
     p.add_argument("--summary", help="adapt summary (metric output for a model SPEC)")
     p.add_argument("--sequence", help="the adapted sequence (with --summary)")
-    p.add_argument("--every", type=int, default=1)
-    p.add_argument("--max-frames", type=int, default=None)
+    p.add_argument("--every", type=int, default=1, help="keep every K-th frame")
+    p.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
     from staticdepth.cli import add_device_argument
 
     add_device_argument(p)

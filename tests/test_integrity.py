@@ -305,8 +305,11 @@ def test_verify_detects_tampering_of_every_dataset(tmp_path, capsys, dataset):
                      aux={"ground": rng.random((16, 32)) > 0.5}, agents=ag, timestamp=0.1 * i)
     add_prediction(p, "base", [np.full((16, 32), i + 1.0, np.float32) for i in range(3)])
     assert main(["verify", str(p)]) == 0
-    with h5py.File(p, "a") as f:
-        ds = f[dataset]
+    # predictions live in their own file beside the sequence (dataset/predictions.py)
+    target, key = ((f"{p}.pred/base.h5", "depth") if dataset == "pred/base/depth"
+                   else (p, dataset))
+    with h5py.File(target, "a") as f:
+        ds = f[key]
         a = ds[()]
         if dataset == "agents":
             a["instance_id"][1] += 1
@@ -320,7 +323,8 @@ def test_verify_detects_tampering_of_every_dataset(tmp_path, capsys, dataset):
     capsys.readouterr()
     assert main(["verify", str(p)]) == 2
     out = capsys.readouterr().out
-    assert f"{dataset}" in out and "checksum mismatch" in out
+    named = "pred/base" if dataset == "pred/base/depth" else dataset
+    assert named in out and "checksum mismatch" in out
 
 
 def test_legacy_dataset_without_checksum_is_not_covered(tmp_path, capsys):
@@ -434,7 +438,8 @@ def test_disparity_out_keeps_the_previous_file_when_the_write_fails(tmp_path):
     out = tmp_path / "d.npy"
     out.write_bytes(b"the previous disparity")
     args = ["stereo", "--rectified", "--left", str(tmp_path / "left.png"), "--right",
-            str(tmp_path / "right.png"), "--max-disparity", "32", "--disparity-out", str(out)]
+            str(tmp_path / "right.png"), "--max-disparity", "32", "--disparity-out", str(out),
+            "--overwrite"]
     r = subprocess.run([sys.executable, "-c", CLI, *args], preexec_fn=_limited(50_000),
                        capture_output=True, text=True)  # the new map (200 kB) does not fit
     assert r.returncode == 2, r.stderr
