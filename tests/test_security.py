@@ -9,7 +9,7 @@ import torch
 
 from staticdepth.cli import main
 from staticdepth.dataset import schema
-from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter, add_prediction
+from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
 from staticdepth.errors import InputError
 from staticdepth.geometry import Camera, Mounting, plane_depth_map
 from staticdepth.models import load_model

@@ -85,19 +85,29 @@ class AgentPlaneConfig:
     height_prior_weight: float = 1.0  # joint: pixels per sd of a track's height from its class
 
     def __post_init__(self):
-        if isinstance(self.classes, str):
-            if self.classes != "auto":
-                raise InputError(f"classes must be a tuple of class ids, None or 'auto', got "
-                                 f"{self.classes!r}")
-            object.__setattr__(self, "classes", None if self.model == "joint" else PERSON_CLASSES)
-        if self.column_weight is None:
-            object.__setattr__(self, "column_weight", 1.0 if self.model == "joint" else 0.0)
+        if isinstance(self.classes, str) and self.classes != "auto":
+            raise InputError(f"classes must be a tuple of class ids, None or 'auto', got "
+                             f"{self.classes!r}")
         if self.model not in MODELS:
             raise InputError(f"unknown ground-plane model {self.model!r} (use {', '.join(MODELS)})")
         if self.radius_m < 0 or self.head_radius_m < 0 or self.agent_height_m <= 0:
             raise InputError("agent radius and head radius must be >= 0 and agent height > 0")
-        if not self.column_weight >= 0:
+        if not self.fit_column_weight >= 0:
             raise InputError(f"column weight must be >= 0, got {self.column_weight}")
+
+    # "auto" settings are resolved when used, not stored resolved: a config built from another
+    # (``--set plane.model=exact`` over the joint defaults) then gets the new model's defaults.
+    @property
+    def fit_classes(self) -> tuple[int, ...] | None:
+        if isinstance(self.classes, str):  # "auto"
+            return None if self.model == "joint" else PERSON_CLASSES
+        return self.classes
+
+    @property
+    def fit_column_weight(self) -> float:
+        if self.column_weight is None:
+            return 1.0 if self.model == "joint" else 0.0
+        return self.column_weight
 
 
 PRESETS: dict[str, AgentPlaneConfig] = {
@@ -275,7 +285,7 @@ def _fit_exact(K, obs: AgentObservations, conf: AgentPlaneConfig,
     the per-track s_j, solved jointly with a sparse Jacobian."""
     ratio = _ratio(conf)
     J, N = len(obs.ids), len(obs.top_v)
-    col = np.flatnonzero(obs.has_u) if conf.column_weight > 0 else np.zeros(0, int)
+    col = np.flatnonzero(obs.has_u) if conf.fit_column_weight > 0 else np.zeros(0, int)
     res_obs = np.r_[np.arange(N), col]                        # observation of each residual
     R = len(res_obs)
     rows = np.repeat(np.arange(R), 3)
@@ -291,7 +301,7 @@ def _fit_exact(K, obs: AgentObservations, conf: AgentPlaneConfig,
         r0 = float(np.clip(math.radians(r0), -mr + 1e-3, mr - 1e-3))
         s0 = np.clip(solve_track_scales(K, obs, _normal(p0, r0), ratio), 2e-4, 99.0)
         res = least_squares(
-            lambda x: _residuals(K, obs, x[0], x[1], x[2:], ratio, conf.column_weight),
+            lambda x: _residuals(K, obs, x[0], x[1], x[2:], ratio, conf.fit_column_weight),
             np.r_[p0, r0, s0], bounds=(lower, upper), loss=loss, f_scale=conf.f_scale_px,
             jac_sparsity=sparsity, x_scale="jac", max_nfev=max_nfev)
         if best is None or res.cost < best[3]:
@@ -302,7 +312,7 @@ def _fit_exact(K, obs: AgentObservations, conf: AgentPlaneConfig,
 def _observation_error(K, obs: AgentObservations, n, s, conf: AgentPlaneConfig) -> np.ndarray:
     """(N,) the larger of |row| and |column| residual per observation (columns when used)."""
     r_v, r_u = head_residuals(K, obs, n, s, _ratio(conf))
-    if conf.column_weight <= 0:
+    if conf.fit_column_weight <= 0:
         r_u = np.full_like(r_u, np.nan)
     return observation_residual(r_v, r_u)
 
@@ -356,7 +366,7 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     camera.
     """
     K = np.asarray(K, dtype=np.float64)
-    obs = _prepare(K, np.asarray(observations), conf.model, conf.classes)
+    obs = _prepare(K, np.asarray(observations), conf.model, conf.fit_classes)
     rng = np.random.default_rng(conf.seed)
     if conf.model in LINEAR_MODELS:
         n, d_over_h = fit_linear(K, obs.u, obs.v, obs.h, conf.model)

@@ -188,7 +188,7 @@ class _Problem:
         t_lo, t_hi = np.where(fixed, th0 - 1e-9, t_lo), np.where(fixed, th0 + 1e-9, t_hi)
         lower = np.r_[lo_p, -mr, t_lo, -10.0, np.full(self.J, 1e-4)]
         upper = np.r_[hi_p, mr, t_hi, 10.0, np.full(self.J, 100.0)]
-        cw = conf.column_weight
+        cw = conf.fit_column_weight
         sparsity, best = self.sparsity(cw), None
         for p0, r0 in starts:
             p0 = float(np.clip(math.radians(p0), lo_p + 1e-3, hi_p - 1e-3))
@@ -271,7 +271,7 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     if fine.present == sub.present:
         p, r, theta, _, _ = fine.fit(conf, [(math.degrees(p), math.degrees(r))],
                                      _expand(fine, prob, theta_all),
-                                     loss=conf.loss if conf.column_weight > 0 else "linear",
+                                     loss=conf.loss if conf.fit_column_weight > 0 else "linear",
                                      max_nfev=60)
         theta_all = _expand(prob, fine, theta)
     n = _normal(p, r)
@@ -283,7 +283,7 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     extents = {GROUPS[g].name: [float(v) for v in theta_all[sl.start - 2:sl.stop - 2]]
                for g, sl in prob.slices.items()}
     boot = _bootstrap(K, prob, conf, n, theta_all, inl, rng) if conf.bootstrap > 0 else {}
-    boot["column_weight"] = conf.column_weight
+    boot["column_weight"] = conf.fit_column_weight
     boot["inlier_px"] = thr
     return n, s, inl, res, extents, boot
 
@@ -292,7 +292,7 @@ def _column_weight(conf, prob: _Problem, n, theta, s, keep):
     """``conf`` with the column weight scaled by the rows' over the columns' residual scale
     (MAD on the kept observations), never above the configured one: a real mask's lowest row is
     often one foot of a walker, its column pixels off the axis."""
-    if conf.column_weight <= 0:
+    if conf.fit_column_weight <= 0:
         return conf
     u, v = prob.top(n, theta, s)
     ru, rv = (u - prob.obs.top_u)[keep], (v - prob.obs.top_v)[keep]
@@ -301,7 +301,7 @@ def _column_weight(conf, prob: _Problem, n, theta, s, keep):
         return conf
     mad = lambda x: 1.4826 * float(np.median(np.abs(x - np.median(x))))  # noqa: E731
     ratio = mad(rv[np.isfinite(rv)]) / max(mad(ru), 1e-9)
-    return replace(conf, column_weight=conf.column_weight * min(1.0, ratio))
+    return replace(conf, column_weight=conf.fit_column_weight * min(1.0, ratio))
 
 
 def _expand(full: _Problem, sub: _Problem, theta: np.ndarray) -> np.ndarray:
