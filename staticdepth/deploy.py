@@ -168,6 +168,12 @@ def export_model(model_spec: str, summary_path: str, seq_path: str, out: str, *,
         raise InputError(f"export needs a torch model (builtin:, torch:, hf:), got {model_spec!r}")
     model.to("cpu").net.eval()
     c = deployment_constants(summary_path, seq_path, ground_mask_png, log)
+    from staticdepth.geometry.camera import read_json
+
+    mode = setting_from(read_json(summary_path).get("config") or {}, "align.mode", "eq2")
+    if mode != "eq2":  # the graph implements METHOD.md 4 (Eq. 2), not adapt's 'ground' mode yet
+        log(f"warning: the exported graph aligns with the paper's Eq. 2; adapt aligned with "
+            f"align.mode={mode}, so the exported depth differs from adapt's ft-align-metric")
     graph = metric_graph(model, c)
     dummy = torch.zeros((c["height"], c["width"], 3), dtype=torch.uint8)
     with atomic_path(out, "onnx") as tmp, warnings.catch_warnings():
