@@ -44,8 +44,13 @@ def register(sub) -> None:
     p.add_argument("--timestamps", choices=("host", "driver"), default="host",
                    help="uvc/sbs: host clock at grab, or the driver's buffer time")
     p.add_argument("--input", help="replay: recording folder, folder with left/ right/, left "
-                                   "image folder/pattern, or video (side-by-side when alone)")
+                                   "image folder/pattern, or video (a lone video needs "
+                                   "--side-by-side)")
     p.add_argument("--right", help="replay: right image folder/pattern or right video")
+    p.add_argument("--side-by-side", action="store_true",
+                   help="replay: the lone --input video holds the left and right views side by "
+                        "side (without it a lone video is refused: use import-video for a "
+                        "monocular one)")
     p.add_argument("--rig", help="rig JSON to store with the recording (replaces a DepthAI "
                                  "device's or a replayed recording's own calibration)")
     p.add_argument("--record-preset", default="fast", help="fast, zlib1, compact, fast-4")
@@ -112,7 +117,7 @@ def build_source(args: argparse.Namespace, depthai_overrides: dict[str, str]):
         from staticdepth.capture.sources.replay import open_replay
         if not args.input:
             raise InputError("--source replay needs --input")
-        return open_replay(args.input, args.right, args.fps)
+        return open_replay(args.input, args.right, args.fps, side_by_side=args.side_by_side)
     from staticdepth.capture.sources.synthetic import SyntheticSource
     return SyntheticSource(w or 1280, h or 800, args.fps or 30.0, args.frames, color=args.color,
                            realtime=True)

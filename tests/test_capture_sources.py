@@ -156,7 +156,9 @@ def test_replay_real_stereo_image_folder(shared_data, tmp_path):
 
 def test_replay_real_video_as_side_by_side(shared_data, tmp_path):
     video = shared_data / "video" / "vtest.avi"
-    src = open_replay(video)
+    with pytest.raises(SourceError, match="import-video"):  # a lone video is not split unasked
+        open_replay(video)
+    src = open_replay(video, side_by_side=True)
     assert isinstance(src, VideoSource)
     root, s = record(src, tmp_path / "rec", max_frames=4)
     assert s["frames_written"] == 4 and src.nominal_fps == pytest.approx(10.0)

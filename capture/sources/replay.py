@@ -174,9 +174,12 @@ class VideoSource(StereoSource):
 
 
 def open_replay(path: str | os.PathLike, right: str | os.PathLike | None = None,
-                fps: float | None = None, rig: StereoRig | None = None) -> StereoSource:
+                fps: float | None = None, rig: StereoRig | None = None, *,
+                side_by_side: bool = False) -> StereoSource:
     """The replay source for ``path``: a recording folder (has ``manifest.json``), a folder with
-    ``left/`` and ``right/``, two image folders/patterns, or one (side-by-side) or two videos."""
+    ``left/`` and ``right/``, two image folders/patterns, two videos, or one video that holds
+    both views side by side (only when ``side_by_side`` says so: a lone video is more often a
+    monocular one, which is not a stereo pair)."""
     p = os.fspath(path)
     if right is None and os.path.isdir(p):
         if os.path.isfile(os.path.join(p, layout.MANIFEST)):
@@ -190,4 +193,8 @@ def open_replay(path: str | os.PathLike, right: str | os.PathLike | None = None,
         return FolderSource(p, right, fps or 30.0, rig)
     if not os.path.exists(p):
         raise SourceError("replay input not found", p)
+    if right is None and not side_by_side:
+        raise SourceError("one video without --right: if it holds both views side by side, add "
+                          "--side-by-side; a monocular video is imported with `staticdepth "
+                          "import-video`", p)
     return VideoSource(p, right, fps, rig)

@@ -19,7 +19,8 @@ def register(sub) -> None:
                         description="Train on the adaptation split's rectified stereo pairs. "
                                     "Resumes an unfinished checkpoint with the same settings.")
     t.add_argument("sequence", help="sequence file (.h5) with left and right images")
-    t.add_argument("--preset", default="default", choices=sorted(PRESETS))
+    t.add_argument("--preset", default="default", choices=sorted(PRESETS),
+                   help="network size and training schedule (tiny: a quick smoke run)")
     t.add_argument("--scene-fit", choices=("range", "all", "none"), default="all",
                    help="fit the depth range (range) and the network size (all) to the rig's "
                         "baseline and the scene's depths (default all; none: the preset as is)")
@@ -27,7 +28,8 @@ def register(sub) -> None:
                    help="override a setting, e.g. --set epochs=5 (repeatable)")
     t.add_argument("--weights", help="ImageNet ResNet18 weights: a local torchvision .pth")
     t.add_argument("--checkpoint", help="checkpoint file (default: SEQ.baseline.pt)")
-    t.add_argument("--checkpoint-every", type=int, default=200, metavar="STEPS")
+    t.add_argument("--checkpoint-every", type=int, default=200, metavar="STEPS",
+                   help="write the resumable checkpoint every STEPS optimisation steps")
     t.add_argument("--overwrite", action="store_true", help="start again, replacing the checkpoint")
     add_device_argument(t)
     t.set_defaults(func=_train)
@@ -35,10 +37,10 @@ def register(sub) -> None:
     q = bsub.add_parser("predict", help="predict metric depth for every frame",
                         description="Predict every frame's depth and store it in the sequence as "
                                     "pred/NAME/depth.")
-    q.add_argument("sequence")
+    q.add_argument("sequence", help="sequence file (.h5) whose frames are predicted")
     q.add_argument("--checkpoint", help="trained checkpoint (default: SEQ.baseline.pt)")
     q.add_argument("--name", default="stereo-baseline", help="prediction name")
-    q.add_argument("--batch-size", type=int, default=4)
+    q.add_argument("--batch-size", type=int, default=4, help="frames per forward pass")
     add_device_argument(q)
     q.set_defaults(func=_predict)
 
