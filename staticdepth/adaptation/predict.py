@@ -17,25 +17,6 @@ from staticdepth.geometry.alignment import depth_from_inverse
 from staticdepth.progress import progress
 
 
-def predict_batch(model, images: list[np.ndarray]) -> list[np.ndarray]:
-    """(H, W) float32 relative inverse depth of each image; one forward pass for torch models."""
-    from staticdepth.models import TorchDepthModel
-
-    if not isinstance(model, TorchDepthModel):
-        return [model.predict(im) for im in images]
-    import torch
-
-    x = torch.from_numpy(np.stack(images)).permute(0, 3, 1, 2).float() / 255.0
-    was_training = model.net.training
-    model.net.eval()
-    try:
-        with torch.no_grad():
-            out = model.forward(x.to(model.device))
-    finally:
-        model.net.train(was_training)
-    return list(out.float().cpu().numpy().astype(np.float32))
-
-
 def run(conf: AdaptConfig, ws: Workspace, model, config_hash: str, *, name: str = "base",
         keep_inverse: bool = True, attrs: dict | None = None) -> None:
     """Predict every frame into the prediction ``name`` (and ``inverse-<name>.h5``)."""
@@ -55,7 +36,7 @@ def run(conf: AdaptConfig, ws: Workspace, model, config_hash: str, *, name: str 
         steps = range(start, ws.n, B)
         for b0 in progress(steps, total=len(steps), desc=name, unit="batch"):
             idx = range(b0, min(b0 + B, ws.n))
-            inv = predict_batch(model, [r.left(i) for i in idx])
+            inv = model.predict_many([r.left(i) for i in idx])  # one pass for torch models
             ws.count(name, len(idx))
             for i, D in zip(idx, inv):
                 depth = depth_from_inverse(D, conf.predict.eps)

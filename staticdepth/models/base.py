@@ -185,10 +185,14 @@ class TorchDepthModel(DepthModel):
         return out
 
     def predict(self, image: np.ndarray) -> np.ndarray:
+        return self.predict_many([image])[0]
+
+    def predict_many(self, images: Iterable[np.ndarray]) -> list[np.ndarray]:
+        """One forward pass over the images (same size): (H, W) float32 inverse depth each."""
         import torch
 
-        img = check_image(image)
-        x = torch.from_numpy(np.ascontiguousarray(img)).permute(2, 0, 1)[None].float() / 255.0
+        batch = np.stack([check_image(im) for im in images])
+        x = torch.from_numpy(batch).permute(0, 3, 1, 2).float() / 255.0
         was_training = self.net.training
         self.net.eval()
         try:
@@ -196,4 +200,4 @@ class TorchDepthModel(DepthModel):
                 out = self.forward(x.to(self.device))
         finally:
             self.net.train(was_training)
-        return out[0].float().cpu().numpy().astype(np.float32)
+        return list(out.float().cpu().numpy().astype(np.float32))
