@@ -23,6 +23,30 @@ def shared_data() -> Path:
     return d
 
 
+def vtest_frames(shared_data: Path, step: int, n_frames: int | None = None):
+    """Every ``step``-th RGB frame of the real video vtest.avi (of its first ``n_frames``, each of
+    which must be readable; else of all) and the YOLOX-nano ONNX path; skips when either is
+    absent."""
+    import cv2
+
+    video = shared_data / "video" / "vtest.avi"
+    model = shared_data / "models" / "yolox_nano" / "yolox_nano.onnx"
+    for p in (video, model):
+        if not p.exists():
+            pytest.skip(f"{p} not found")
+    cap = cv2.VideoCapture(str(video))
+    frames, i = [], 0
+    while n_frames is None or i < n_frames:
+        ok, f = cap.read()
+        if not ok:
+            assert n_frames is None, f"cannot read frame {i} of {video}"
+            break
+        if i % step == 0:
+            frames.append(np.ascontiguousarray(f[..., ::-1]))
+        i += 1
+    return frames, model
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(0)

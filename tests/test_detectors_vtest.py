@@ -7,9 +7,9 @@ the pixel heights of the other (held-out) tracks' detections within 10 %.
 """
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
+from conftest import vtest_frames
 
 from staticdepth.dataset.schema import COCO
 from staticdepth.detectors import make_detector
@@ -44,18 +44,7 @@ def _greedy_tracks(rows: np.ndarray, max_step_px: float = 30.0, max_gap: int = 2
 
 @pytest.fixture(scope="module")
 def vtest_people(shared_data):
-    video = shared_data / "video" / "vtest.avi"
-    model = shared_data / "models" / "yolox_nano" / "yolox_nano.onnx"
-    for p in (video, model):
-        if not p.exists():
-            pytest.skip(f"{p} not found")
-    cap = cv2.VideoCapture(str(video))
-    frames = []
-    for i in range(300):                       # every 3rd of the first 300 frames
-        ok, f = cap.read()
-        assert ok, f"cannot read frame {i} of {video}"
-        if i % 3 == 0:
-            frames.append(np.ascontiguousarray(f[..., ::-1]))
+    frames, model = vtest_frames(shared_data, 3, 300)  # every 3rd of the first 300 frames
     det = make_detector("yolox", model=str(model))
     out = list(det.detect_sequence(frames))
     rows = np.concatenate([r for _, r in out])

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 import pytest
+from conftest import vtest_frames
 
 from staticdepth import tracking
 from staticdepth.detectors import make_detector
@@ -28,21 +28,8 @@ F_PX = 700.0
 
 @pytest.fixture(scope="module")
 def halves(shared_data):
-    video = shared_data / "video" / "vtest.avi"
-    model = shared_data / "models" / "yolox_nano" / "yolox_nano.onnx"
-    for p in (video, model):
-        if not p.exists():
-            pytest.skip(f"{p} not found")
-    cap = cv2.VideoCapture(str(video))
-    frames, i = [], 0
-    while True:
-        ok, f = cap.read()
-        if not ok:
-            break
-        if i % STEP == 0:
-            frames.append(np.ascontiguousarray(f[..., ::-1]))
-        i += 1
-    assert len(frames) >= 90, f"read {len(frames)} frames of {video}"
+    frames, model = vtest_frames(shared_data, STEP)
+    assert len(frames) >= 90, f"read {len(frames)} frames of vtest.avi"
     H, W = frames[0].shape[:2]
     K = np.array([[F_PX, 0, (W - 1) / 2], [0, F_PX, (H - 1) / 2], [0, 0, 1.0]])
     det = make_detector("yolox", model=str(model))
