@@ -5,17 +5,22 @@ For a fixed camera the agents' plane, the ground region and the metric scale are
 whole chain of ``adapt`` after fine-tuning fits in one graph:
 
     uint8 RGB (H, W, 3) -> /255, resize, normalise -> network -> relative inverse depth D
-    -> Z = 1 / max(D, eps) -> scene alignment (METHOD.md 4; geometry/alignment_torch.py)
-    -> x scale (METHOD.md 5: the camera height) -> metric depth (H, W) float32
+    -> Z = 1 / max(D, eps) -> scene alignment (METHOD.md 4; geometry/alignment_torch.py, in the
+    adapt summary's ``align.mode``: ``eq2`` or ``ground``) -> x scale (METHOD.md 5: the camera
+    height) -> metric depth (H, W) float32
 
 The reference it is checked against, :func:`metric_depth_reference`, is the same chain with the
-model's own ``predict`` and the numpy :func:`~staticdepth.geometry.alignment.align_depth` (no agent
-mask: a deployed camera has no detector in the loop; ``adapt`` additionally gives each detected
-agent its contact depth). Keys read from the adapt summary: ``plane.normal`` (or
-``planes.agents.normal``), ``camera_height_m``, ``scale.ft-align`` (else the camera height),
-``config.eps``, ``config.erode_px``, ``config.detector``, ``config.detector_model``, and
-``ground_polygon`` when present (the ground region's vertices in pixels; otherwise the feet hull
-is rebuilt from the sequence's agents or by running the summary's detector again).
+model's own ``predict`` and the numpy :func:`~staticdepth.geometry.alignment.align_depth` in the
+same mode. Not in the graph: ``align.agents_at_contact`` (each detected agent takes the plane depth
+at its contact pixel) needs the frame's agent instances, which an image-only model has not; the
+reference leaves it out too, and the ONNX file's metadata says so (``agents_at_contact``). Nor is
+the per-frame removal of the agents' pixels from the ground mask (no detector in the loop).
+Keys read from the adapt summary: ``plane.normal`` (or ``planes.agents.normal``),
+``camera_height_m``, ``scale.ft-align`` (else the camera height), ``config.eps``,
+``config.erode_px``, ``config.detector``, ``config.detector_model``, ``config.align.mode`` (an
+older summary without it: ``eq2``), ``config.align.snap_rel``, and ``ground_polygon`` when present
+(the ground region's vertices in pixels; otherwise the feet hull is rebuilt from the sequence's
+agents or by running the summary's detector again).
 """
 from __future__ import annotations
 
@@ -60,9 +65,14 @@ def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str 
             how = "the summary's ground_polygon"
         else:
             G, how = _ground_from_feet(r, cfg, log)
+    mode = setting_from(cfg, "align.mode", "eq2")
+    if mode not in ("eq2", "ground"):
+        raise InputError(f"align.mode {mode!r} has no exported form (eq2, ground)", summary_path)
     return {"K": K, "width": W, "height": H, "normal": n_g, "camera_height_m": h_c,
             "scale": scale, "eps": float(setting_from(cfg, "predict.eps", 1e-6)), "ground": G,
-            "ground_from": how}
+            "ground_from": how, "mode": mode,
+            "snap_rel": float(setting_from(cfg, "align.snap_rel", 0.1)),
+            "agents_at_contact": bool(setting_from(cfg, "align.agents_at_contact", False))}
 
 
 def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:
@@ -104,11 +114,13 @@ def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:
 
 
 def metric_depth_reference(model, image: np.ndarray, c: dict[str, Any]) -> np.ndarray:
-    """The pipeline the export must reproduce: predict, 1/max(D, eps), align (numpy), x scale."""
+    """The pipeline the export must reproduce: predict, 1/max(D, eps), align (numpy, the summary's
+    mode; no agents_at_contact), x scale."""
     from staticdepth.geometry.alignment import align_depth, depth_from_inverse
 
     Z = depth_from_inverse(model.predict(image), c["eps"])
-    return align_depth(Z, c["K"], c["normal"], 1.0, c["ground"]).depth * np.float32(c["scale"])
+    return align_depth(Z, c["K"], c["normal"], 1.0, c["ground"], mode=c["mode"],
+                       snap_rel=c["snap_rel"]).depth * np.float32(c["scale"])
 
 
 # -- the exported graph --------------------------------------------------------------------------
@@ -119,7 +131,7 @@ def metric_graph(model, c: dict[str, Any]):
 
     import torch.nn.functional as F
 
-    from staticdepth.geometry.alignment_torch import PlaneAlignment
+    from staticdepth.geometry.alignment_torch import alignment_module
 
     H, W = c["height"], c["width"]
     h, w = model.input_size(H, W)
@@ -128,8 +140,8 @@ def metric_graph(model, c: dict[str, Any]):
         def __init__(self):
             super().__init__()
             self.net = model.net
-            self.align = PlaneAlignment(c["K"], c["width"], c["height"], c["normal"], 1.0,
-                                        c["ground"])
+            self.align = alignment_module(c["mode"], c["K"], c["width"], c["height"],
+                                          c["normal"], 1.0, c["ground"], snap_rel=c["snap_rel"])
             self.eps, self.scale = float(c["eps"]), float(c["scale"])
 
         def forward(self, image: torch.Tensor) -> torch.Tensor:
@@ -168,12 +180,9 @@ def export_model(model_spec: str, summary_path: str, seq_path: str, out: str, *,
         raise InputError(f"export needs a torch model (builtin:, torch:, hf:), got {model_spec!r}")
     model.to("cpu").net.eval()
     c = deployment_constants(summary_path, seq_path, ground_mask_png, log)
-    from staticdepth.geometry.camera import read_json
-
-    mode = setting_from(read_json(summary_path).get("config") or {}, "align.mode", "eq2")
-    if mode != "eq2":  # the graph implements METHOD.md 4 (Eq. 2), not adapt's 'ground' mode yet
-        log(f"warning: the exported graph aligns with the paper's Eq. 2; adapt aligned with "
-            f"align.mode={mode}, so the exported depth differs from adapt's ft-align-metric")
+    if c["agents_at_contact"]:
+        log("note: adapt gave each detected agent its contact depth (align.agents_at_contact); "
+            "an image-only model cannot: agents keep the aligned network depth")
     graph = metric_graph(model, c)
     dummy = torch.zeros((c["height"], c["width"], 3), dtype=torch.uint8)
     with atomic_path(out, "onnx") as tmp, warnings.catch_warnings():
@@ -182,11 +191,47 @@ def export_model(model_spec: str, summary_path: str, seq_path: str, out: str, *,
             kw = {"dynamo": False} if "dynamo" in torch.onnx.export.__code__.co_varnames else {}
             torch.onnx.export(graph, (dummy,), tmp, input_names=["image"],
                               output_names=["depth_m"], opset_version=opset, **kw)
-    info = {k: c[k] for k in ("width", "height", "camera_height_m", "scale", "ground_from")}
+        meta = export_metadata(c, model_spec, summary_path)
+        with open(tmp, "ab") as f:
+            f.write(_onnx_metadata_bytes(meta))
+    info = {k: c[k] for k in ("width", "height", "camera_height_m", "scale", "ground_from",
+                              "mode")}
     info["normal"] = np.asarray(c["normal"]).tolist()
     info["path"] = out
     info.update(check_export(out, model, c, seq_path, check_frames))
     return info
+
+
+def export_metadata(c: dict[str, Any], model_spec: str, summary_path: str) -> dict[str, str]:
+    """What the exported file computes, as the ONNX model's metadata (string key -> value)."""
+    return {"staticdepth.output": "metric depth (m), float32 (H, W); input uint8 RGB (H, W, 3)",
+            "staticdepth.align_mode": c["mode"], "staticdepth.snap_rel": f"{c['snap_rel']:g}",
+            "staticdepth.scale": f"{c['scale']:.6g}",
+            "staticdepth.camera_height_m": f"{c['camera_height_m']:.6g}",
+            "staticdepth.ground_from": str(c["ground_from"]),
+            "staticdepth.agents_at_contact": ("not applied: it needs the frame's agent instances "
+                                              "(adapt " + ("applied it" if c["agents_at_contact"]
+                                                           else "did not apply it either") + ")"),
+            "staticdepth.model": model_spec, "staticdepth.summary": os.path.basename(summary_path)}
+
+
+def _onnx_metadata_bytes(meta: dict[str, str]) -> bytes:
+    """``ModelProto.metadata_props`` entries (field 14, StringStringEntryProto key=1, value=2)
+    serialised; appended to a serialised ModelProto they add to its repeated field (protobuf
+    merges concatenated messages), so no ``onnx`` package is needed."""
+    def varint(n: int) -> bytes:
+        out = bytearray()
+        while True:
+            b, n = n & 0x7F, n >> 7
+            out.append(b | (0x80 if n else 0))
+            if not n:
+                return bytes(out)
+
+    def field(num: int, payload: bytes) -> bytes:
+        return varint(num << 3 | 2) + varint(len(payload)) + payload
+
+    return b"".join(field(14, field(1, k.encode()) + field(2, v.encode()))
+                    for k, v in meta.items())
 
 
 def check_export(onnx_path: str, model, c: dict[str, Any], seq_path: str, frames: int = 5
@@ -226,6 +271,7 @@ class MetricOnnx:
             raise InputError("not an exported metric model (expects one (H, W, 3) uint8 input)",
                              path)
         self.name, self.shape, self.path = inp.name, tuple(inp.shape), path
+        self.metadata = dict(self.session.get_modelmeta().custom_metadata_map)
 
     def predict(self, image: np.ndarray) -> np.ndarray:
         """A frame of another size with the same aspect (the video before ``import-video
@@ -394,7 +440,7 @@ def _run_export(args) -> int:
                         ground_mask_png=args.ground_mask, check_frames=args.check_frames,
                         opset=args.opset)
     print(f"exported {info['width']}x{info['height']} -> metric depth: {info['path']} (scale "
-          f"{info['scale']:.3f}, ground region: {info['ground_from']})")
+          f"{info['scale']:.3f}, align.mode {info['mode']}, ground region: {info['ground_from']})")
     print(f"check on {info['check_frames']} frames vs the torch/numpy pipeline: median relative "
           f"difference {100 * info['median_rel_diff']:.4f}%, p99 {100 * info['p99_rel_diff']:.3f}%")
     return 0

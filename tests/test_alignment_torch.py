@@ -49,3 +49,66 @@ def test_tls_plane_matches_svd():
     n_ref, d_ref = fit_plane(P)
     n_t, d_t = tls_plane(torch.tensor(P, dtype=torch.float32))
     assert np.allclose(n_t.numpy(), n_ref, atol=1e-5) and abs(float(d_t) - d_ref) < 1e-4
+
+
+def _ground_ref(Z, K, n_g, G, snap_rel):
+    a = align_depth(Z, K, n_g, 1.0, G, mode="ground", snap_rel=snap_rel)
+    return a.depth, a.plane_normal
+
+
+@pytest.mark.parametrize("seed,snap_rel", [(0, 0.1), (1, 0.0), (2, 0.05)])
+def test_torch_ground_mode_matches_numpy(seed, snap_rel):
+    """Each frame has its own scale and shift (the fit runs in the graph), with outliers on the
+    ground that the trimmed passes must drop the same way."""
+    from staticdepth.geometry.alignment_torch import GroundAlignment
+
+    Z, K, n_g, G = _scene(seed)
+    mod = GroundAlignment(K, Z.shape[1], Z.shape[0], n_g, 1.0, G, snap_rel=snap_rel)
+    rng = np.random.default_rng(seed + 10)
+    fits = []
+    for s_f, t_f in [(1.0, 0.0), (2.5, 0.03), (0.4, -0.01)]:
+        inv = s_f / Z + t_f
+        inv[G & (rng.random(Z.shape) < 0.1)] *= 1.6                 # 10% outliers on the ground
+        Zf = (1.0 / inv).astype(np.float32)
+        ref, (s, t, scale_only) = _ground_ref(Zf, K, n_g, G, snap_rel)
+        assert scale_only == 0.0
+        fits.append((s, t))
+        out = mod(torch.from_numpy(Zf)).numpy()
+        rel = np.abs(out - ref) / ref
+        assert np.median(rel) < 1e-5 and np.mean(rel > 1e-3) < 1e-3, (np.median(rel), rel.max())
+    assert len({round(s, 3) for s, _ in fits}) == 3           # the fit did change per frame
+
+
+def test_torch_ground_mode_scale_only_fallback():
+    """A prediction whose ground does not recede: the numpy version falls back to a median
+    scale; the graph selects the same branch."""
+    from staticdepth.geometry.alignment_torch import GroundAlignment
+
+    Z, K, n_g, G = _scene(4)
+    flipped = (Z.max() - Z + 1).astype(np.float32)
+    ref, (_, _, scale_only) = _ground_ref(flipped, K, n_g, G, 0.1)
+    assert scale_only == 1.0
+    out = GroundAlignment(K, Z.shape[1], Z.shape[0], n_g, 1.0, G)(torch.from_numpy(flipped))
+    rel = np.abs(out.numpy() - ref) / ref
+    assert np.median(rel) < 1e-5 and rel.max() < 1e-3
+
+
+def test_ground_mode_exports_to_onnx(tmp_path):
+    import onnxruntime as ort
+
+    from staticdepth.geometry.alignment_torch import alignment_module
+
+    Z, K, n_g, G = _scene(5)
+    mod = alignment_module("ground", K, Z.shape[1], Z.shape[0], n_g, 1.0, G, snap_rel=0.1)
+    path = str(tmp_path / "g.onnx")
+    torch.onnx.export(mod, (torch.from_numpy(Z),), path, input_names=["z"], opset_version=17,
+                      dynamo=False)
+    sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
+    for s_f, t_f in [(1.0, 0.0), (3.0, 0.05)]:
+        Zf = (1.0 / (s_f / Z + t_f)).astype(np.float32)
+        ref = _ground_ref(Zf, K, n_g, G, 0.1)[0]
+        got = sess.run(None, {"z": Zf})[0]
+        rel = np.abs(got - ref) / ref
+        assert np.median(rel) < 1e-5 and np.mean(rel > 1e-3) < 1e-3
+    with pytest.raises(ValueError, match="mode"):
+        alignment_module("nope", K, Z.shape[1], Z.shape[0], n_g, 1.0, G)

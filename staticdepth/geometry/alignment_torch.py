@@ -1,9 +1,15 @@
 """Scene alignment (METHOD.md section 4) in torch operations that export to ONNX.
 
 The function contract is that of :func:`staticdepth.geometry.alignment.align_depth` with no agent
-mask and ``near_plane_rel=None``, for a fixed camera whose ground region is known in advance:
+mask and ``near_plane_rel=None``, for a fixed camera whose ground region is known in advance, in
+both modes (:func:`alignment_module` picks the class):
 
-    aligned = align_depth(Z, K, n_g, d_g, G).depth
+    aligned = align_depth(Z, K, n_g, d_g, G, mode=mode, snap_rel=snap_rel).depth
+
+Both assume every input depth is valid (finite, > 0), as ``1 / max(D, eps)`` of a finite network
+output is: the ground pixels used by the fits are then constants of the camera.
+
+``mode="eq2"`` (:class:`PlaneAlignment`, the paper's Eq. 2):
 
 1. Total-least-squares plane of the back-projected points ``P = Z r`` at the ground pixels ``G``
    (the same pixels as the numpy fit: ``G`` in row-major order, an even stride to at most
@@ -16,6 +22,14 @@ mask and ``near_plane_rel=None``, for a fixed camera whose ground region is know
    ratio ``Z_new / Z`` over the ground pixels.
 The nadir case of the numpy version (a predicted plane facing the camera) is not handled: the
 exported graph is for cameras that see the horizon's side of the ground.
+
+``mode="ground"`` (:class:`GroundAlignment`, :func:`~staticdepth.geometry.alignment.align_ground`):
+the per-frame robust fit ``1/Z ~ s q + t`` on the ground pixels is the numpy one's three least
+squares passes in closed form (centred sums, the 3-MAD trimming between passes as a mask, masked
+medians by sorting), with its scale-only fallback (median of ``(1/Z) / q``, ``t = 0``) selected
+in the graph when a pass has < 3 points or no range of ``q`` or the slope is not positive; then
+``(1/Z - t) / s``, the snap to the plane within ``snap_rel`` and the far clamp at 50x the median
+ground depth (a constant: ``q`` and the ground pixels are).
 """
 from __future__ import annotations
 
@@ -54,6 +68,15 @@ def tls_plane(points: torch.Tensor, squarings: int = 8) -> tuple[torch.Tensor, t
     d = (n * c).sum()
     sign = torch.where(d < 0, -1.0, 1.0).to(n.dtype)
     return n * sign, d * sign
+
+
+def masked_median(x: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
+    """``np.median(x[keep])`` of a 1-D tensor (the mean of the two middle values for an even
+    count); +inf when nothing is kept."""
+    srt, _ = torch.sort(torch.where(keep, x, torch.full_like(x, float("inf"))))
+    k = keep.to(torch.int64).sum()
+    lo = torch.clamp((k - 1) // 2, min=0)
+    return 0.5 * (torch.gather(srt, 0, lo.reshape(1)) + torch.gather(srt, 0, (k // 2).reshape(1)))[0]
 
 
 class PlaneAlignment(nn.Module):
@@ -98,9 +121,76 @@ class PlaneAlignment(nn.Module):
         out = self.d_g * Z / safe
         ratio = torch.index_select((out / Z).reshape(-1), 0, self.idx)
         ok_g = torch.index_select(ok.reshape(-1), 0, self.idx)
-        inf = torch.full_like(ratio, float("inf"))
-        srt, _ = torch.sort(torch.where(ok_g, ratio, inf))
-        k = ok_g.to(torch.int64).sum()
-        lo = torch.clamp((k - 1) // 2, min=0)
-        med = 0.5 * (torch.gather(srt, 0, lo.reshape(1)) + torch.gather(srt, 0, (k // 2).reshape(1)))
-        return torch.where(ok, out, Z * med[0])
+        return torch.where(ok, out, Z * masked_median(ratio, ok_g))
+
+
+def fit_inverse_affine(inv: torch.Tensor, target: torch.Tensor, iters: int = 3,
+                       k_mad: float = 3.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`staticdepth.geometry.alignment.fit_inverse_affine` on 1-D tensors without raising:
+    (s, t, ok) with ``ok`` false where the numpy version raises (then ``s, t`` are meaningless)."""
+    x, y = target, inv
+    keep = torch.isfinite(x) & torch.isfinite(y)
+    x0, y0 = torch.where(keep, x, torch.zeros_like(x)), torch.where(keep, y, torch.zeros_like(y))
+    ok = torch.ones((), dtype=torch.bool)
+    s = t = torch.zeros(())
+    inf = torch.full_like(x, float("inf"))
+    for _ in range(iters):
+        w = keep.to(x.dtype)
+        n = w.sum()
+        ptp = torch.where(keep, x0, -inf).max() - torch.where(keep, x0, inf).min()
+        ok = ok & (n >= 3) & (ptp > 0)
+        n1 = torch.clamp(n, min=1.0)
+        mx, my = (w * x0).sum() / n1, (w * y0).sum() / n1
+        dx = x0 - mx
+        s = (w * dx * (y0 - my)).sum() / (w * dx * dx).sum()
+        t = my - s * mx
+        res = torch.abs(y - (s * x + t))
+        mad = masked_median(res, keep) + 1e-12
+        keep = keep & (res <= k_mad * 1.4826 * mad)
+    return s, t, ok & (s > 0)
+
+
+class GroundAlignment(nn.Module):
+    """(H, W) relative depth -> depth in units of ``d_g`` by the ground mode (module doc)."""
+
+    def __init__(self, K: np.ndarray, width: int, height: int, n_g, d_g: float,
+                 ground_mask: np.ndarray, snap_rel: float = 0.1, max_points: int = 20000):
+        super().__init__()
+        from staticdepth.geometry.projection import ray_grid
+
+        n_g = np.asarray(n_g, dtype=np.float64)
+        q = (ray_grid(np.asarray(K, dtype=np.float64), width, height)
+             @ (n_g / (np.linalg.norm(n_g) * d_g))).astype(np.float32)
+        idx = ground_indices(np.asarray(ground_mask, bool) & (q > 0), max_points)
+        if len(idx) < 3:
+            raise ValueError("the ground region needs at least 3 pixels below the horizon")
+        qg = q.ravel()[idx]
+        self.register_buffer("q", torch.from_numpy(q))
+        self.register_buffer("idx", torch.tensor(idx, dtype=torch.int64))
+        self.register_buffer("qg", torch.from_numpy(qg))
+        self.floor = float(np.float32(np.median(qg) / 50.0))
+        self.snap_rel = float(np.float32(snap_rel))
+
+    def forward(self, Z: torch.Tensor) -> torch.Tensor:
+        inv = 1.0 / Z
+        ig = torch.index_select(inv.reshape(-1), 0, self.idx)
+        s, t, ok = fit_inverse_affine(ig, self.qg)
+        s_fb = masked_median(ig / self.qg, torch.ones_like(ig, dtype=torch.bool))
+        s = torch.where(ok, s, s_fb)
+        t = torch.where(ok, t, torch.zeros_like(t))
+        new_inv = (inv - t) / s
+        q = self.q
+        snap = (q > 0) & (torch.abs(new_inv - q) <= self.snap_rel * q)
+        new_inv = torch.where(snap, q, torch.clamp(new_inv, min=self.floor))
+        return 1.0 / new_inv
+
+
+def alignment_module(mode: str, K: np.ndarray, width: int, height: int, n_g, d_g: float,
+                     ground_mask: np.ndarray, *, eps: float = 1e-3, snap_rel: float = 0.1
+                     ) -> nn.Module:
+    """The exportable twin of ``align_depth(..., mode=mode, snap_rel=snap_rel)``."""
+    if mode == "eq2":
+        return PlaneAlignment(K, width, height, n_g, d_g, ground_mask, eps=eps)
+    if mode == "ground":
+        return GroundAlignment(K, width, height, n_g, d_g, ground_mask, snap_rel=snap_rel)
+    raise ValueError(f"no exportable alignment for mode {mode!r} (eq2, ground)")
