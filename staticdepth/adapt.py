@@ -72,8 +72,9 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
                 from staticdepth.models.tiny import save_builtin
 
                 model.to("cpu")
-                save_builtin(save_model, model, info={"adapted_on": seq_path,
-                                                      "config": dataclasses.asdict(conf)})
+                # plain values only: load_builtin refuses pickled objects (sets)
+                save_builtin(save_model, model, info={
+                    "adapted_on": seq_path, "config": _jsonable(dataclasses.asdict(conf))})
         else:
             predict.copy_base(conf, ws, h["ft"])
         lap("finetune")
