@@ -10,6 +10,13 @@ stated horizontal field-of-view guess (square pixels, principal point at the ima
 of the two was used is recorded in the file's provenance (``intrinsics``) and returned, so that the
 command prints it. Timestamps: the video's own position (``CAP_PROP_POS_MSEC``), else frame index /
 fps; for a URL the wall clock since the first frame.
+
+``--resume`` continues an interrupted import through the sequence writer's own resume path
+(:mod:`staticdepth.dataset.resume`): the settings fingerprint holds the source file's size and
+modification time and every setting that changes the frames; for an image folder each image is an
+input identity (its path, size and time). The frames already written are passed over without
+decoding (a video's are grabbed, not retrieved). A camera/stream URL cannot be resumed: its frames
+are live, not the ones the partial holds.
 """
 from __future__ import annotations
 
@@ -59,10 +66,11 @@ def image_files(folder: str) -> list[str]:
 
 
 def iter_frames(source: str, *, every: int = 1, max_frames: int | None = None,
-                fps: float | None = None) -> Iterator[VideoFrame]:
+                fps: float | None = None, skip: int = 0) -> Iterator[VideoFrame]:
     """Yield every ``every``-th frame of a video file, a camera/stream URL or an image folder, at
     most ``max_frames`` of them, one at a time. ``fps`` sets the frame rate of a folder (default
-    10) or overrides a video's."""
+    10) or overrides a video's. The first ``skip`` of those frames are passed over undecoded
+    (they count towards ``max_frames``)."""
     if every < 1:
         raise InputError(f"--every must be >= 1, got {every}")
     if max_frames is not None and max_frames < 1:
@@ -74,6 +82,9 @@ def iter_frames(source: str, *, every: int = 1, max_frames: int | None = None,
         rate = fps or 10.0
         for i, path in enumerate(image_files(source)):
             if i % every:
+                continue
+            if n_out < skip:
+                n_out += 1
                 continue
             data = np.fromfile(path, dtype=np.uint8)
             img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
@@ -102,6 +113,9 @@ def iter_frames(source: str, *, every: int = 1, max_frames: int | None = None,
                 return
             i += 1
             if i % every:
+                continue
+            if n_out < skip:
+                n_out += 1
                 continue
             ok, img = cap.retrieve()
             if not ok:
@@ -148,10 +162,11 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
                  fov_deg: float | None = None, every: int = 1, max_frames: int | None = None,
                  adapt_frames: int | None = None, width: int | None = None,
                  fps: float | None = None, name: str | None = None,
-                 overwrite: bool = False) -> dict:
+                 overwrite: bool = False, resume: bool = False, restart: bool = False) -> dict:
     """Stream ``source`` into the sequence file ``out``; returns a report dict (frames, size,
-    intrinsics, adapt_frames, path). ``width`` resizes frames (aspect kept; intrinsics follow);
-    ``adapt_frames`` None = every frame is in the adaptation split (clipped to the frames read)."""
+    intrinsics, adapt_frames, path, resumed_from). ``width`` resizes frames (aspect kept;
+    intrinsics follow); ``adapt_frames`` None = every frame is in the adaptation split (clipped
+    to the frames read). ``resume``/``restart``: continue or discard ``out.partial``."""
     from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
     from staticdepth.fileio import exclusive_lock
     from staticdepth.progress import progress
@@ -160,6 +175,11 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
         raise InputError(f"--adapt-frames must be >= 0, got {adapt_frames}")
     if width is not None and width < 16:
         raise InputError(f"--width must be >= 16, got {width}")
+    if resume and restart:
+        raise InputError("give --resume or --restart, not both")
+    if resume and is_url(source):
+        raise InputError("a camera/stream URL cannot be resumed (its frames are live, not the "
+                         "ones already written): --restart starts over", source)
     frames = iter_frames(source, every=every, max_frames=max_frames, fps=fps)
     first = next(frames)
     h0, w0 = first.rgb.shape[:2]
@@ -169,10 +189,20 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
     meta = SequenceMeta(name=label, camera=cam, gt_kind="none", source="video", adapt_frames=0,
                         provenance={"input": source, "intrinsics": how, "every": every,
                                     "max_frames": max_frames, "resized_from": [w0, h0]})
+    settings, inputs, labels = _identity(source, every, max_frames, width, fps)
     with exclusive_lock(out):
-        w = SequenceWriter(out, meta, streams=("left",), overwrite=overwrite)
+        w = SequenceWriter(out, meta, streams=("left",), overwrite=overwrite, resume=resume,
+                           restart=restart, settings=settings, inputs=inputs, labels=labels)
         try:
-            for fr in progress(_chain(first, frames), total=max_frames, desc="import", unit="frame"):
+            done = len(w)
+            if done:                   # resumed: read on after the frames the partial holds
+                frames.close()
+                frames = iter_frames(source, every=every, max_frames=max_frames, fps=fps,
+                                     skip=done)
+            else:
+                frames = _chain(first, frames)
+            total = None if max_frames is None else max_frames - done
+            for fr in progress(frames, total=total, desc="import", unit="frame"):
                 img = fr.rgb
                 if img.shape[:2] != (h0, w0):
                     raise InputError(f"frame {fr.index} is {img.shape[1]}x{img.shape[0]}, the "
@@ -188,7 +218,24 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
             w.abort()
             raise
     return {"path": path, "frames": n, "size": size, "intrinsics": how, "adapt_frames": k,
-            "adapt_clipped": adapt_frames is not None and adapt_frames > n, "fx": cam.fx}
+            "adapt_clipped": adapt_frames is not None and adapt_frames > n, "fx": cam.fx,
+            "resumed_from": done}
+
+
+def _identity(source: str, every: int, max_frames: int | None, width: int | None,
+              fps: float | None) -> tuple[dict, list[str] | None, list[str] | None]:
+    """The writer's resume fingerprint: (settings, per-frame input identities, their labels)."""
+    from staticdepth.dataset.resume import file_identity, task_identity
+
+    settings = {"every": every, "max_frames": max_frames, "width": width, "fps": fps}
+    if os.path.isdir(source):
+        files = image_files(source)[::every]
+        if max_frames is not None:
+            files = files[:max_frames]
+        return settings, [task_identity(f) for f in files], [os.path.basename(f) for f in files]
+    if not is_url(source):
+        settings["source_file"] = file_identity(source)
+    return settings, None, None
 
 
 def _chain(first: VideoFrame, rest: Iterator[VideoFrame]) -> Iterator[VideoFrame]:
@@ -217,6 +264,11 @@ def register(sub) -> None:
     p.add_argument("--name", default=None, help="sequence name (default: the input's name)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace outputs that exist already (refused otherwise)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted import (<out>.partial) of the same source and "
+                        "settings (not for a URL)")
+    p.add_argument("--restart", action="store_true",
+                   help="discard an interrupted import's <out>.partial and start over")
     p.set_defaults(func=_run)
 
 
@@ -224,8 +276,11 @@ def _run(args) -> int:
     rep = import_video(args.source, args.out, camera_json=args.camera, fov_deg=args.fov_deg,
                        every=args.every, max_frames=args.max_frames,
                        adapt_frames=args.adapt_frames, width=args.width, fps=args.fps,
-                       name=args.name, overwrite=args.overwrite)
+                       name=args.name, overwrite=args.overwrite, resume=args.resume,
+                       restart=args.restart)
     print(f"intrinsics: {rep['intrinsics']}")
+    if rep["resumed_from"]:
+        print(f"resumed after the {rep['resumed_from']} frames of the interrupted import")
     note = " (clipped to the frames read)" if rep["adapt_clipped"] else ""
     print(f"wrote {rep['frames']} frames of {rep['size'][0]}x{rep['size'][1]} to {rep['path']}; "
           f"adaptation split: the first {rep['adapt_frames']}{note}")

@@ -83,3 +83,76 @@ def test_vtest_streamed(shared_data, tmp_path):
     with SequenceReader(tmp_path / "vt.h5") as r:
         assert np.allclose(np.diff(r.timestamps()), 0.1)           # 10 frames per second
         assert r.left(0).std() > 10                                  # a real picture
+
+
+def test_folder_import_resumes_after_a_broken_image(tmp_path, capsys):
+    """A corrupt image stops the import and keeps the partial; once repaired, --resume reads on
+    after the written frames (the same file as an import in one go); a written image that changed
+    since is refused."""
+    d = tmp_path / "imgs"
+    d.mkdir()
+    for i in range(8):
+        cv2.imwrite(str(d / f"{i:03d}.png"), np.full((48, 64, 3), 25 * i, np.uint8))
+    good = (d / "005.png").read_bytes()
+    (d / "005.png").write_bytes(b"not a png")
+    out = tmp_path / "f.h5"
+    assert main(["import-video", str(d), "--out", str(out), "--fps", "2"]) == 2
+    assert not out.exists() and (tmp_path / "f.h5.partial").exists()
+    assert main(["import-video", str(d), "--out", str(out), "--fps", "2"]) == 2   # neither flag
+    assert "--resume" in capsys.readouterr().err
+    (d / "005.png").write_bytes(good)
+    assert main(["import-video", str(d), "--out", str(out), "--fps", "3", "--resume"]) == 2
+    assert "fps" in capsys.readouterr().err                  # another setting: refused
+    assert main(["import-video", str(d), "--out", str(out), "--fps", "2", "--resume"]) == 0
+    assert "resumed after the 5 frames" in capsys.readouterr().out
+    ref = import_video(str(d), str(tmp_path / "ref.h5"), fps=2.0)
+    with SequenceReader(out) as r, SequenceReader(tmp_path / "ref.h5") as q:
+        assert len(r) == len(q) == ref["frames"] == 8
+        assert all(np.array_equal(r.left(i), q.left(i)) for i in range(8))
+        assert np.allclose(r.timestamps(), q.timestamps())
+    # an image already written changed before the resume: refused, the partial kept
+    (d / "007.png").write_bytes(b"broken")
+    assert main(["import-video", str(d), "--out", str(tmp_path / "g.h5")]) == 2
+    cv2.imwrite(str(d / "001.png"), np.full((48, 64, 3), 99, np.uint8))
+    cv2.imwrite(str(d / "007.png"), np.full((48, 64, 3), 7, np.uint8))
+    assert main(["import-video", str(d), "--out", str(tmp_path / "g.h5"), "--resume"]) == 2
+    assert "001.png changed" in capsys.readouterr().err
+    assert (tmp_path / "g.h5.partial").exists()
+
+
+def test_video_import_resumes_after_an_interruption(tmp_path, monkeypatch, capsys):
+    import staticdepth.dataset.video as video
+
+    src = tmp_path / "v.avi"
+    _video(src, n=12)
+    real, calls = video._to_rgb, []
+
+    def interrupted(img, where):
+        calls.append(where)
+        if len(calls) == 5:
+            raise KeyboardInterrupt
+        return real(img, where)
+
+    monkeypatch.setattr(video, "_to_rgb", interrupted)
+    out = tmp_path / "v.h5"
+    with pytest.raises(KeyboardInterrupt):
+        import_video(str(src), str(out), every=2)
+    monkeypatch.setattr(video, "_to_rgb", real)
+    rep = import_video(str(src), str(out), every=2, resume=True)
+    assert rep["resumed_from"] == 4 and rep["frames"] == 6
+    import_video(str(src), str(tmp_path / "ref.h5"), every=2)
+    with SequenceReader(out) as r, SequenceReader(tmp_path / "ref.h5") as q:
+        assert all(np.array_equal(r.left(i), q.left(i)) for i in range(6))
+        assert np.allclose(r.timestamps(), q.timestamps())
+    # the video file changed (size/time): refused
+    monkeypatch.setattr(video, "_to_rgb", interrupted)
+    calls.clear()
+    with pytest.raises(KeyboardInterrupt):
+        import_video(str(src), str(tmp_path / "w.h5"))
+    monkeypatch.setattr(video, "_to_rgb", real)
+    _video(src, n=13)
+    with pytest.raises(InputError, match="source_file"):
+        import_video(str(src), str(tmp_path / "w.h5"), resume=True)
+    assert main(["import-video", "rtsp://127.0.0.1:9/x", "--out", str(tmp_path / "u.h5"),
+                 "--resume"]) == 2
+    assert "URL cannot be resumed" in capsys.readouterr().err
