@@ -23,8 +23,6 @@ or ``planes.agents.{normal, d}``), or ``--plane plane.json`` (``staticdepth grou
 """
 from __future__ import annotations
 
-import csv
-import io
 import os
 from collections.abc import Sequence as _SequenceABC
 from dataclasses import dataclass
@@ -276,34 +274,6 @@ def pairs(pos: np.ndarray, close_m: float = 2.0, classes=(PERSON,)) -> list[dict
     return out
 
 
-POS_COLUMNS = ("frame", "time_s", "track", "class", "score", "u", "v", "X", "Y", "Z", "ground_x",
-               "ground_y", "distance_m", "source", "occluded", "rider", "speed_mps")
-
-
-def positions_csv(pos: np.ndarray) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(POS_COLUMNS)
-    for p in pos:
-        cls = CLASS_NAMES.get(int(p["class_id"]), "unknown")
-        w.writerow([int(p["frame"]), f"{p['time_s']:.3f}", int(p["track"]), cls,
-                    f"{p['score']:.3f}", f"{p['u']:.1f}", f"{p['v']:.1f}"]
-                   + [f"{p[k]:.3f}" for k in ("X", "Y", "Z", "ground_x", "ground_y", "distance_m")]
-                   + [p["source"], int(p["occluded"]), int(p["rider"]),
-                      "" if not np.isfinite(p["speed_mps"]) else f"{p['speed_mps']:.3f}"])
-    return buf.getvalue()
-
-
-def pairs_csv(rows: list[dict[str, Any]]) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(("frame", "time_s", "track_a", "track_b", "distance_m", "close"))
-    for p in rows:
-        w.writerow([p["frame"], f"{p['time_s']:.3f}", p["track_a"], p["track_b"],
-                    f"{p['distance_m']:.3f}", p["close"]])
-    return buf.getvalue()
-
-
 def speed_summary(pos: np.ndarray, min_track_s: float = 2.0) -> dict[str, float]:
     """Distribution of the people's median speed per track (tracks seen >= ``min_track_s``)."""
     med = []
@@ -330,7 +300,8 @@ def register(sub) -> None:
                                    "speed along the track; pairwise distances; bird's-eye plot and "
                                    "annotated frames.")
     p.add_argument("sequence", help="sequence file (.h5)")
-    p.add_argument("--out", required=True, help="positions CSV")
+    p.add_argument("--out", required=True,
+                   help="positions table: .csv, or .parquet (needs pyarrow: staticdepth[parquet])")
     p.add_argument("--summary", help="adapt summary (default: SEQ.adapt.json)")
     p.add_argument("--plane", help="plane JSON (`staticdepth ground-plane`) instead of a summary")
     p.add_argument("--camera-height", type=float, help="camera height (m); overrides the summary's")
@@ -342,7 +313,7 @@ def register(sub) -> None:
     p.add_argument("--depth", default="auto",
                    help="metric prediction for hidden contacts (auto: ft-align-metric or "
                         "align-metric when stored; none: plane only)")
-    p.add_argument("--pairs", help="pairwise distances CSV")
+    p.add_argument("--pairs", help="pairwise distances table (.csv or .parquet)")
     p.add_argument("--close-m", type=float, default=2.0, help="close-pair threshold (m)")
     p.add_argument("--bev", help="bird's-eye-view PNG")
     p.add_argument("--annotate", help="annotated frames: .gif or .mp4 (and a PNG sheet beside)")
@@ -352,9 +323,11 @@ def register(sub) -> None:
 
 
 def _run(args) -> int:
-    from staticdepth.fileio import atomic_write_text
     from staticdepth.geometry.camera import read_json
+    from staticdepth.locate_tables import check_table_path, write_pairs, write_positions
 
+    for path in (args.out, args.pairs):
+        check_table_path(path)          # before the work: a .parquet path without pyarrow
     if not args.close_m > 0:
         raise InputError(f"--close-m must be positive, got {args.close_m}")
     n, h, src = load_plane(args.summary, args.plane, args.camera_height, args.sequence)
@@ -371,10 +344,10 @@ def _run(args) -> int:
     pos = locate(args.sequence, n, h, conf, detector=detector, detector_model=model,
                  detector_mask=args.detector_mask,
                  depth_pred=None if args.depth == "none" else args.depth)
-    atomic_write_text(args.out, positions_csv(pos))
+    write_positions(args.out, pos)
     pr = pairs(pos, args.close_m)
     if args.pairs:
-        atomic_write_text(args.pairs, pairs_csv(pr))
+        write_pairs(args.pairs, pr)
     from staticdepth import locate_draw
 
     if args.bev:

@@ -100,8 +100,9 @@ def adapted_camera(tmp_path_factory, trained_weights):
 @pytest.mark.parametrize("mode", ["ground", "eq2"])
 def test_export_of_an_adapted_camera(adapted_camera, mode, capsys):
     """The exported graph bakes the summary's align.mode and reproduces the numpy pipeline on
-    frames whose fit (s, t or the predicted plane) differs; adapt's own output differs from it only
-    by the agents' pixels adapt removes from the ground mask (a detector's output, not an image's)."""
+    frames whose fit (s, t or the predicted plane) differs; adapt's own output differs from it
+    only by the agents' pixels adapt removes from the ground mask (a detector's output, not an
+    image's)."""
     from staticdepth.deploy import MetricOnnx, deployment_constants, metric_depth_reference
     from staticdepth.geometry.alignment import align_depth, depth_from_inverse
     from staticdepth.metrics import evaluate

@@ -225,3 +225,41 @@ def test_locate_with_the_motion_detector(tmp_path):
     assert np.median(rel) <= 0.02, np.median(rel)
     # tracks: a person keeps one id over most of its frames
     assert len(np.unique(pos["track"])) <= 2 * scene.n_people
+
+
+def test_locate_parquet_tables(tmp_path, monkeypatch, capsys):
+    """--out/--pairs .parquet: the CSV's columns at full precision; without pyarrow a one-line
+    error before any work, and nothing written."""
+    import sys
+
+    pq = pytest.importorskip("pyarrow.parquet", reason="pyarrow is the optional extra "
+                             "staticdepth[parquet] (installed by setup.sh)")
+    scene = UprightScene(n_people=5, seed=6)
+    seq = tmp_path / "up.h5"
+    scene.write(str(seq), frames=6)
+    plane = tmp_path / "plane.json"
+    plane.write_text(json.dumps({"normal": scene.normal.tolist()}))
+    base = ["locate", str(seq), "--plane", str(plane), "--camera-height", str(scene.height_m)]
+    assert main(base + ["--out", str(tmp_path / "p.csv"), "--pairs", str(tmp_path / "q.csv")]) == 0
+    assert main(base + ["--out", str(tmp_path / "p.parquet"),
+                        "--pairs", str(tmp_path / "q.parquet")]) == 0
+    rows = list(csv.DictReader((tmp_path / "p.csv").open()))
+    t = pq.read_table(tmp_path / "p.parquet").to_pydict()
+    assert list(t) == list(rows[0]) and len(t["frame"]) == len(rows) > 0
+    assert t["class"] == [r["class"] for r in rows] and t["source"] == [r["source"] for r in rows]
+    for col in ("X", "Y", "Z", "ground_x", "ground_y", "distance_m"):
+        assert np.allclose(t[col], [float(r[col]) for r in rows], atol=6e-4)
+    sp = [np.nan if v is None else v for v in t["speed_mps"]]
+    assert np.allclose(sp, [float(r["speed_mps"] or "nan") for r in rows], atol=6e-4,
+                       equal_nan=True)
+    prs = list(csv.DictReader((tmp_path / "q.csv").open()))
+    tq = pq.read_table(tmp_path / "q.parquet").to_pydict()
+    assert len(tq["distance_m"]) == len(prs) > 0
+    assert np.allclose(tq["distance_m"], [float(r["distance_m"]) for r in prs], atol=6e-4)
+    monkeypatch.setitem(sys.modules, "pyarrow", None)           # as if it were not installed
+    assert main(base + ["--out", str(tmp_path / "n.parquet")]) == 2
+    err = capsys.readouterr().err
+    assert "needs pyarrow" in err and len(err.strip().splitlines()) == 1
+    assert main(base + ["--out", str(tmp_path / "n.csv"),
+                        "--pairs", str(tmp_path / "n.parquet")]) == 2
+    assert not (tmp_path / "n.parquet").exists() and not (tmp_path / "n.csv").exists()

@@ -76,7 +76,8 @@ def masked_median(x: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
     srt, _ = torch.sort(torch.where(keep, x, torch.full_like(x, float("inf"))))
     k = keep.to(torch.int64).sum()
     lo = torch.clamp((k - 1) // 2, min=0)
-    return 0.5 * (torch.gather(srt, 0, lo.reshape(1)) + torch.gather(srt, 0, (k // 2).reshape(1)))[0]
+    hi = (k // 2).reshape(1)
+    return 0.5 * (torch.gather(srt, 0, lo.reshape(1)) + torch.gather(srt, 0, hi))[0]
 
 
 class PlaneAlignment(nn.Module):
