@@ -132,7 +132,7 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
     from staticdepth.dataset.h5 import SequenceReader
     from staticdepth.geometry import ground_frame as gf
     from staticdepth.progress import progress
-    from staticdepth.tracking import DET_DTYPE, TrackingConfig, detections_from_instances, link_tracks
+    from staticdepth.tracking import DET_DTYPE, TrackingConfig, link_tracks
 
     gframe = gf.GroundFrame.from_plane(normal, camera_height_m)
     n, d = gframe.normal, gframe.camera_height_m
@@ -150,7 +150,7 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
             pred = depth_pred
         frames = _instances_and_rows(r, detector, detector_model, detector_mask)
         for i, inst, rows in progress(frames, total=len(r), desc="locate", unit="frame"):
-            det = detections_from_instances(inst, rows, i, 1, conf.contact_px)
+            det = _detections(inst, rows, i, conf.contact_px)
             det = det[(det["score"] >= conf.min_score)
                       & (np.isin(det["class_id"], list(AGENT_CLASSES)) | (det["class_id"] < 0))]
             if not len(det):
@@ -173,7 +173,9 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
                 ride = [b for b in below[k] if cls_of.get(b) in RIDEABLE_CLASSES]
                 if ride:
                     j = row_of[ride[0]]
-                    out["u"][k], out["v"][k], P[k] = out["u"][j], out["v"][j], P[j]
+                    out["u"][k], out["v"][k] = out["u"][j], out["v"][j]
+                    P[k] = _rider_point(inst, det["instance_id"][k], det["instance_id"][j], K,
+                                        gframe, conf.person_radius_m)
                     occl[k] = occl[j]
                     out["rider"][k] = True
             Z = r.prediction(pred, i) if pred is not None else None
@@ -212,6 +214,56 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
         xy = np.stack([pos["ground_x"][sel], pos["ground_y"][sel]], 1)
         pos["speed_mps"][sel] = gf.track_speeds(pos["time_s"][sel], xy, conf.speed_window_s)
     return np.sort(pos, order=["frame", "track"])
+
+
+def _detections(inst: np.ndarray, rows, frame: int, contact_px: int) -> np.ndarray:
+    """The frame's detections, riders apart from their two-wheelers.
+
+    ``detections_from_instances`` merges a rider into the two-wheeler under it when its rows hold
+    both (``tracking.merge_riders``: one rigid agent for the ground plane); here the rider stays a
+    person (it is located at its vehicle's contact below), so the two groups are detected apart."""
+    from staticdepth.tracking import detections_from_instances
+
+    if rows is None or not len(rows):
+        return detections_from_instances(inst, rows, frame, 1, contact_px)
+    rows = np.asarray(rows)
+    cls = rows["class_id"] if rows.dtype.names else rows.reshape(-1, 3)[:, 1].astype(np.int64)
+    wheels = np.isin(cls, list(RIDEABLE_CLASSES))
+    return np.concatenate([detections_from_instances(inst, rows[sel], frame, 1, contact_px)
+                           for sel in (~wheels, wheels) if sel.any()])
+
+
+def _rider_point(inst: np.ndarray, rider_id: int, vehicle_id: int, K, gframe, radius_m: float
+                 ) -> np.ndarray:
+    """A rider's axis on the ground (camera frame): in the direction of its own silhouette, as
+    far as the middle of its vehicle's near edge plus ``radius_m``.
+
+    The vehicle's contact (its silhouette's lowest pixel) is the footprint's nearest point, up to
+    half the vehicle's length from where the rider sits, sideways and in depth. Direction: every
+    point of a vertical axis has the same azimuth about the camera's foot point, and a body is
+    symmetric about its axis, so the median azimuth of the rider's pixels is the axis's. Distance:
+    the vehicle's lowest pixel in each of its columns meets the ground along the footprint's near
+    edges (columns where another instance lies just below are left out: hidden there); their
+    median ground distance is the middle of that edge (the vehicle's middle, but for one seen
+    end-on), plus the step from a near surface to the axis used for people."""
+    vs, us = np.nonzero(inst == rider_id)
+    step = -(-len(vs) // 4000)
+    vs, us = vs[::step], us[::step]
+    rays = np.linalg.solve(np.asarray(K, dtype=np.float64),
+                           np.stack([us + 0.0, vs + 0.0, np.ones(len(vs))]))
+    az = float(np.median(np.arctan2(gframe.x_axis @ rays, gframe.y_axis @ rays)))
+    vehicle = inst == vehicle_id
+    cols = np.flatnonzero(vehicle.any(axis=0))
+    low = vehicle.shape[0] - 1 - np.argmax(vehicle[::-1, cols], axis=0)
+    below = np.minimum(low + 1, vehicle.shape[0] - 1)
+    free = (low + 1 < vehicle.shape[0]) & (inst[below, cols] == 0)
+    if free.any():
+        cols, low = cols[free], low[free]
+    from staticdepth.geometry.ground_frame import ground_points
+
+    G = ground_points(K, gframe.normal, gframe.camera_height_m, cols + 0.0, low + 0.5)
+    rng = float(np.nanmedian(np.linalg.norm(gframe.to_ground(G), axis=1))) + radius_m
+    return gframe.to_camera(np.array([rng * np.sin(az), rng * np.cos(az)]))
 
 
 def _static_occluder(Z: np.ndarray, K, n, d: float, u, v_low, rows: int,

@@ -263,3 +263,31 @@ def test_locate_parquet_tables(tmp_path, monkeypatch, capsys):
     assert main(base + ["--out", str(tmp_path / "n.csv"),
                         "--pairs", str(tmp_path / "n.parquet")]) == 2
     assert not (tmp_path / "n.parquet").exists() and not (tmp_path / "n.csv").exists()
+
+
+def test_riders_on_a_synthetic_scene(tmp_path):
+    """Riders stay people (the tracking's rider merge is for the ground plane) and sit on their
+    vehicle: the direction of their own silhouette, the distance of the vehicle's contact. The
+    nearest footprint point alone, as before, was 3.7% off at the median (0.3 m sideways)."""
+    from staticdepth.dataset.h5 import SequenceReader
+    from staticdepth.dataset.synth_io import render_to_file
+
+    seq = str(tmp_path / "bikes.h5")
+    render_to_file(seq, preset_name="demo", n_frames=12, seed=2,
+                   overrides={"agent_mix": (0.3, 0.1, 0.6), "n_agents": 20})
+    with SequenceReader(seq) as r:
+        m, agents = r.meta.mounting, r.agents()
+    key = {(int(a["frame"]), int(a["track_id"])): a for a in agents}
+    pos = locate(seq, m.normal, m.height_m, LocateConfig())
+    riders = pos[pos["rider"]]
+    assert np.all(riders["class_id"] == 0) and len(np.unique(riders["track"])) >= 3
+    rel, lateral = [], []
+    for row in riders:
+        a = key[(int(row["frame"]), int(row["track"]))]
+        T = np.array([a["foot_x"], a["foot_y"], a["foot_z"]], float)
+        P = np.array([row["X"], row["Y"], row["Z"]])
+        rel.append(np.linalg.norm(P - T) / np.linalg.norm(T))
+        side = np.cross(T / np.linalg.norm(T), m.normal)              # horizontal, across the view
+        lateral.append(abs((P - T) @ side / np.linalg.norm(side)))
+    assert np.median(rel) <= 0.02 and np.median(lateral) <= 0.05, (np.median(rel),
+                                                                    np.median(lateral))
