@@ -174,8 +174,8 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
                 if ride:
                     j = row_of[ride[0]]
                     out["u"][k], out["v"][k] = out["u"][j], out["v"][j]
-                    P[k] = _rider_point(inst, det["instance_id"][k], det["instance_id"][j], K,
-                                        gframe, conf.person_radius_m)
+                    P[k] = gf.rider_point(inst, det["instance_id"][k], det["instance_id"][j], K,
+                                          gframe, conf.person_radius_m)
                     occl[k] = occl[j]
                     out["rider"][k] = True
             Z = r.prediction(pred, i) if pred is not None else None
@@ -231,39 +231,6 @@ def _detections(inst: np.ndarray, rows, frame: int, contact_px: int) -> np.ndarr
     wheels = np.isin(cls, list(RIDEABLE_CLASSES))
     return np.concatenate([detections_from_instances(inst, rows[sel], frame, 1, contact_px)
                            for sel in (~wheels, wheels) if sel.any()])
-
-
-def _rider_point(inst: np.ndarray, rider_id: int, vehicle_id: int, K, gframe, radius_m: float
-                 ) -> np.ndarray:
-    """A rider's axis on the ground (camera frame): in the direction of its own silhouette, as
-    far as the middle of its vehicle's near edge plus ``radius_m``.
-
-    The vehicle's contact (its silhouette's lowest pixel) is the footprint's nearest point, up to
-    half the vehicle's length from where the rider sits, sideways and in depth. Direction: every
-    point of a vertical axis has the same azimuth about the camera's foot point, and a body is
-    symmetric about its axis, so the median azimuth of the rider's pixels is the axis's. Distance:
-    the vehicle's lowest pixel in each of its columns meets the ground along the footprint's near
-    edges (columns where another instance lies just below are left out: hidden there); their
-    median ground distance is the middle of that edge (the vehicle's middle, but for one seen
-    end-on), plus the step from a near surface to the axis used for people."""
-    vs, us = np.nonzero(inst == rider_id)
-    step = -(-len(vs) // 4000)
-    vs, us = vs[::step], us[::step]
-    rays = np.linalg.solve(np.asarray(K, dtype=np.float64),
-                           np.stack([us + 0.0, vs + 0.0, np.ones(len(vs))]))
-    az = float(np.median(np.arctan2(gframe.x_axis @ rays, gframe.y_axis @ rays)))
-    vehicle = inst == vehicle_id
-    cols = np.flatnonzero(vehicle.any(axis=0))
-    low = vehicle.shape[0] - 1 - np.argmax(vehicle[::-1, cols], axis=0)
-    below = np.minimum(low + 1, vehicle.shape[0] - 1)
-    free = (low + 1 < vehicle.shape[0]) & (inst[below, cols] == 0)
-    if free.any():
-        cols, low = cols[free], low[free]
-    from staticdepth.geometry.ground_frame import ground_points
-
-    G = ground_points(K, gframe.normal, gframe.camera_height_m, cols + 0.0, low + 0.5)
-    rng = float(np.nanmedian(np.linalg.norm(gframe.to_ground(G), axis=1))) + radius_m
-    return gframe.to_camera(np.array([rng * np.sin(az), rng * np.cos(az)]))
 
 
 def _static_occluder(Z: np.ndarray, K, n, d: float, u, v_low, rows: int,
