@@ -170,9 +170,12 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
             cls_of = dict(zip(det["instance_id"].tolist(), det["class_id"].tolist()))
             row_of = {iid: k for k, iid in enumerate(det["instance_id"].tolist())}
             for k in np.flatnonzero(occl & (det["class_id"] == PERSON)):
-                ride = [b for b in below[k] if cls_of.get(b) in RIDEABLE_CLASSES]
+                # its own: the one under the middle of its silhouette (another may touch it)
+                mid = 0.5 * (det["left"][k] + det["right"][k])
+                ride = [row_of[b] for b in below[k] if cls_of.get(b) in RIDEABLE_CLASSES
+                        and det["left"][row_of[b]] <= mid <= det["right"][row_of[b]]]
                 if ride:
-                    j = row_of[ride[0]]
+                    j = min(ride, key=lambda c: abs(0.5 * (det["left"][c] + det["right"][c]) - mid))
                     out["u"][k], out["v"][k] = out["u"][j], out["v"][j]
                     P[k] = gf.rider_point(inst, det["instance_id"][k], det["instance_id"][j], K,
                                           gframe, conf.person_radius_m)
