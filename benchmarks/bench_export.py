@@ -33,7 +33,6 @@ def main() -> None:
     ap.add_argument("--train-frames", type=int, default=48)
     ap.add_argument("--train-epochs", type=int, default=4)
     args = ap.parse_args()
-    import onnxruntime as ort
     import torch
 
     from staticdepth.dataset.h5 import SequenceReader
@@ -78,10 +77,7 @@ def main() -> None:
         out = os.path.join(tmp, f"{mode}.onnx")
         info = export_model(spec, summary, seq, out, check_frames=3, log=lambda s: None)
         c = deployment_constants(summary, seq, log=lambda s: None)
-        so = ort.SessionOptions()
-        so.intra_op_num_threads = args.threads
-        onnx = MetricOnnx(out)
-        onnx.session = ort.InferenceSession(out, so, providers=["CPUExecutionProvider"])
+        onnx = MetricOnnx(out, threads=args.threads)
 
         def run(fn):
             fn(frames[0])                                   # warm-up

@@ -1,5 +1,6 @@
 """Deploy an adapted network on its camera: ``export-model`` (one ONNX file, image -> metric depth)
-and ``predict`` (stream a video, folder or sequence through a model to metric depth).
+and ``predict`` (stream a video, folder or sequence through a model to metric depth; in
+:mod:`staticdepth.deploy_predict`).
 
 For a fixed camera the agents' plane, the ground region and the metric scale are constants, so the
 whole chain of ``adapt`` after fine-tuning fits in one graph:
@@ -25,9 +26,8 @@ agents or by running the summary's detector again).
 from __future__ import annotations
 
 import os
-import time
 import warnings
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -256,16 +256,11 @@ def check_export(onnx_path: str, model, c: dict[str, Any], seq_path: str, frames
 class MetricOnnx:
     """An exported metric model: (H, W, 3) uint8 RGB -> (H, W) metric depth."""
 
-    def __init__(self, path: str, providers=None):
-        import onnxruntime as ort
+    def __init__(self, path: str, providers=None, threads: int | None = None):
+        from staticdepth.onnx_session import onnx_session
 
-        if not os.path.isfile(path):
-            raise InputError("ONNX model file not found", path)
-        try:
-            self.session = ort.InferenceSession(path, providers=list(providers or
-                                                                     ["CPUExecutionProvider"]))
-        except Exception as e:
-            raise InputError(f"onnxruntime cannot load it ({type(e).__name__})", path) from None
+        self.session = onnx_session(path, providers or ("CPUExecutionProvider",),
+                                    threads=threads, what="exported model")
         inp = self.session.get_inputs()[0]
         if len(inp.shape) != 3 or inp.type != "tensor(uint8)":
             raise InputError("not an exported metric model (expects one (H, W, 3) uint8 input)",
@@ -287,113 +282,6 @@ class MetricOnnx:
 
             img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
         return self.session.run(None, {self.name: img})[0]
-
-
-# -- predict -------------------------------------------------------------------------------------
-def _frames(source: str, every: int = 1, max_frames: int | None = None) -> Iterator[np.ndarray]:
-    if source.endswith(".h5") and os.path.isfile(source):
-        from staticdepth.dataset.h5 import SequenceReader
-
-        with SequenceReader(source) as r:
-            idx = range(0, len(r), every)
-            for k, i in enumerate(idx):
-                if max_frames is not None and k >= max_frames:
-                    return
-                yield r.left(i)
-        return
-    from staticdepth.dataset.video import iter_frames
-
-    for fr in iter_frames(source, every=every, max_frames=max_frames):
-        yield fr.rgb
-
-
-def make_predictor(model: str, summary: str | None, sequence: str | None,
-                   ground_mask_png: str | None = None, log=print, device: str = "auto"):
-    """(callable image -> depth, 'metric' | 'relative', description)."""
-    path = model[5:] if model.startswith("onnx:") else model
-    if path.endswith(".onnx"):
-        try:                       # an exported metric model, else a relative one (onnx:)
-            m = MetricOnnx(path, ["CUDAExecutionProvider", "CPUExecutionProvider"]
-                           if device.startswith("cuda") else None)
-            return m.predict, "metric", f"exported metric model {path}"
-        except InputError as e:
-            if "not an exported metric model" not in str(e):
-                raise
-    from staticdepth.geometry.alignment import depth_from_inverse
-    from staticdepth.models import TorchDepthModel, load_model
-
-    net = load_model(model if ":" in model or model == "builtin" else f"onnx:{model}")
-    if isinstance(net, TorchDepthModel):
-        from staticdepth.cli import resolve_device
-
-        net.to(resolve_device(device))
-    if summary:
-        if not sequence:
-            raise InputError("--summary needs --sequence (the camera and its ground region)")
-        c = deployment_constants(summary, sequence, ground_mask_png, log)
-        return (lambda im: metric_depth_reference(net, im, c)), "metric", \
-            f"{model} + alignment + scale x{c['scale']:.3f} (numpy pipeline)"
-    return (lambda im: depth_from_inverse(net.predict(im))), "relative", \
-        f"{model} (relative depth 1/D: give --summary and --sequence for metres)"
-
-
-def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
-            summary: str | None = None, sequence: str | None = None, every: int = 1,
-            max_frames: int | None = None, device: str = "auto", log=print) -> dict[str, Any]:
-    """Stream frames through a model into ``out_dir``; returns frames, fps and the kind."""
-    import cv2
-
-    from staticdepth.fileio import atomic_path, atomic_write_bytes
-    from staticdepth.progress import progress
-
-    if fmt not in ("png16", "npy", "mp4"):
-        raise InputError(f"--format must be png16, npy or mp4, got {fmt!r}")
-    fn, kind, desc = make_predictor(model, summary, sequence, log=log, device=device)
-    log(f"model: {desc}")
-    os.makedirs(out_dir, exist_ok=True)
-    writer, tmp_ctx, rng = None, None, None
-    n, t_model, t0 = 0, 0.0, time.perf_counter()
-    try:
-        for img in progress(_frames(source, every, max_frames), desc="predict", unit="frame"):
-            t = time.perf_counter()
-            depth = np.asarray(fn(img), dtype=np.float32)
-            t_model += time.perf_counter() - t
-            if fmt == "npy":
-                import io
-
-                buf = io.BytesIO()
-                np.save(buf, depth)
-                atomic_write_bytes(os.path.join(out_dir, f"{n:06d}.npy"), buf.getvalue())
-            elif fmt == "png16":
-                q = np.where(np.isfinite(depth), np.clip(np.round(depth * 256), 0, 65535), 0)
-                ok, enc = cv2.imencode(".png", q.astype(np.uint16))
-                atomic_write_bytes(os.path.join(out_dir, f"{n:06d}.png"), enc.tobytes())
-            else:
-                if writer is None:
-                    tmp_ctx = atomic_path(os.path.join(out_dir, "depth.mp4"), "mp4")
-                    tmp = tmp_ctx.__enter__()
-                    writer = cv2.VideoWriter(tmp + ".mp4", cv2.VideoWriter_fourcc(*"mp4v"), 10.0,
-                                             (depth.shape[1], depth.shape[0]))
-                    fin = np.log(depth[np.isfinite(depth) & (depth > 0)])
-                    rng = np.percentile(fin, [2, 98]) if len(fin) else (0.0, 1.0)
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    x = (np.log(depth) - rng[0]) / max(rng[1] - rng[0], 1e-6)
-                g = (255 * (1 - np.clip(np.nan_to_num(x, nan=1.0), 0, 1))).astype(np.uint8)
-                writer.write(cv2.applyColorMap(g, cv2.COLORMAP_TURBO))
-            n += 1
-        if writer is not None:
-            writer.release()
-            os.replace(tmp + ".mp4", tmp)
-            tmp_ctx.__exit__(None, None, None)
-    except BaseException as e:
-        if tmp_ctx is not None:
-            tmp_ctx.__exit__(type(e), e, e.__traceback__)
-        raise
-    if n == 0:
-        raise InputError("no frame was read", source)
-    wall = time.perf_counter() - t0
-    return {"frames": n, "fps_model": n / t_model, "fps_total": n / wall, "kind": kind,
-            "out": out_dir}
 
 
 # -- command line --------------------------------------------------------------------------------
@@ -447,6 +335,8 @@ def _run_export(args) -> int:
 
 
 def _run_predict(args) -> int:
+    from staticdepth.deploy_predict import predict
+
     rep = predict(args.model, args.input, args.out, args.format, summary=args.summary,
                   sequence=args.sequence, every=args.every, max_frames=args.max_frames,
                   device=args.device)

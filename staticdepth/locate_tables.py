@@ -28,7 +28,7 @@ def check_table_path(path: str | None) -> None:
     """Refuse a ``.parquet`` output up front when pyarrow is not installed (one line)."""
     if is_parquet(path):
         try:
-            import pyarrow  # noqa: F401
+            import pyarrow  # noqa: F401  (only whether it imports)
         except ImportError:
             raise InputError("Parquet output needs pyarrow (pip install 'staticdepth[parquet]'); "
                              "or give a .csv path", path) from None
