@@ -1,4 +1,5 @@
-"""The exportable torch alignment against the numpy one (geometry/alignment.py) as it is."""
+"""The exportable torch alignment against the numpy one (geometry/alignment.py) as it is, in both
+modes (eq2, ground)."""
 from __future__ import annotations
 
 import numpy as np
@@ -9,6 +10,8 @@ from staticdepth.geometry.alignment import align_depth, ground_mask_from_polygon
 from staticdepth.geometry.alignment_torch import PlaneAlignment, tls_plane
 from staticdepth.geometry.camera import normal_from_pitch_roll
 from staticdepth.geometry.plane import fit_plane, plane_depth_map
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")   # the ONNX exporter's
 
 
 def _scene(seed: int, w: int = 160, h: int = 80):
