@@ -24,6 +24,7 @@ or ``planes.agents.{normal, d}``), or ``--plane plane.json`` (``staticdepth grou
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Sequence as _SequenceABC
 from dataclasses import dataclass
 from typing import Any
@@ -148,6 +149,7 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
                 raise InputError(f"no prediction {depth_pred!r} in the sequence (has: "
                                  f"{', '.join(r.predictions()) or 'none'})", seq_path)
             pred = depth_pred
+        static = _static_map(r, pred) if pred is not None else None
         frames = _instances_and_rows(r, detector, detector_model, detector_mask)
         for i, inst, rows in progress(frames, total=len(r), desc="locate", unit="frame"):
             det = _detections(inst, rows, i, conf.contact_px)
@@ -183,7 +185,7 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
                     out["rider"][k] = True
             Z = r.prediction(pred, i) if pred is not None else None
             if Z is not None:               # a static object (bench, kerb) hides the feet
-                occl |= _static_occluder(Z, K, n, d, out["u"], out["v"] - conf.edge_px,
+                occl |= _static_occluder(static, K, n, d, out["u"], out["v"] - conf.edge_px,
                                          conf.contact_px) & ~out["rider"]
             out["occluded"] = occl
             out["source"] = "plane"
@@ -236,22 +238,37 @@ def _detections(inst: np.ndarray, rows, frame: int, contact_px: int) -> np.ndarr
                            for sel in (~wheels, wheels) if sel.any()])
 
 
+def _static_map(reader, pred: str, max_frames: int = 32) -> np.ndarray:
+    """The per-pixel median of the metric map over up to ``max_frames`` evenly spaced frames: the
+    static scene. A network's error that moves with the agents (their feet, their shadows) is not
+    in it, so it does not pass for a static occluder."""
+    idx = np.unique(np.linspace(0, len(reader) - 1, min(max_frames, len(reader))).astype(int))
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # all-NaN pixels stay NaN
+        return np.nanmedian(np.stack([reader.prediction(pred, int(i)) for i in idx]), axis=0)
+
+
 def _static_occluder(Z: np.ndarray, K, n, d: float, u, v_low, rows: int,
-                     ratio: float = 0.9) -> np.ndarray:
-    """Whether the metric depth map, ``rows`` rows under each lowest row, sees something clearly
-    nearer than the ground plane there (< ``ratio`` x the plane's depth): a static occluder that
-    no instance map shows."""
+                     ratio: float = 0.9, step: int = 2) -> np.ndarray:
+    """Whether the static metric map (:func:`_static_map`), ``rows`` rows under each lowest row,
+    sees something that stands up, clearly nearer than the ground plane there (< ``ratio`` x the
+    plane's depth): a static occluder that no instance map shows. Standing up: over the next
+    ``step`` rows down the map's depth changes by less than half the plane's (a vertical face
+    keeps its depth; a ground the map gets wrong by a smooth factor, as a weak network's, still
+    recedes like the plane and flags nothing)."""
     from staticdepth.geometry.plane import plane_depth_at_pixels
 
     h, w = Z.shape
     uu = np.clip(np.round(np.asarray(u)).astype(int), 0, w - 1)
     vv = np.asarray(v_low).astype(int) + rows
-    inside = vv < h
-    vv = np.minimum(vv, h - 1)
+    inside = vv + step < h
+    vv = np.minimum(vv, h - 1 - step)
     zp = plane_depth_at_pixels(K, n, d, uu, vv)
-    zm = Z[vv, uu]
+    zp2 = plane_depth_at_pixels(K, n, d, uu, vv + step)
+    zm, zm2 = Z[vv, uu], Z[vv + step, uu]
     with np.errstate(invalid="ignore"):
-        return inside & np.isfinite(zm) & np.isfinite(zp) & (zp > 0) & (zm < ratio * zp)
+        return (inside & np.isfinite(zm) & np.isfinite(zm2) & np.isfinite(zp) & (zp > 0)
+                & (zm < ratio * zp) & (np.abs(zm - zm2) < 0.5 * np.abs(zp - zp2)))
 
 
 def _ids_below(inst: np.ndarray, det, contact_px: int, side_px: int = 2) -> list[int]:
