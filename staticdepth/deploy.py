@@ -271,17 +271,23 @@ class MetricOnnx:
     def predict(self, image: np.ndarray) -> np.ndarray:
         """A frame of another size with the same aspect (the video before ``import-video
         --width``) is resized to the model's; the depth is at the model's size."""
-        img = np.ascontiguousarray(image, dtype=np.uint8)
-        if img.shape != self.shape:
-            h, w = self.shape[:2]
-            if (img.ndim != 3 or img.shape[2] != 3
-                    or abs(img.shape[1] / img.shape[0] - w / h) > 0.01 * w / h):
-                raise InputError(f"frame is {img.shape}, the exported model takes {self.shape}",
-                                 self.path)
-            import cv2
-
-            img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+        img = camera_frame(image, self.shape[1], self.shape[0], self.path)
         return self.session.run(None, {self.name: img})[0]
+
+
+def camera_frame(image: np.ndarray, width: int, height: int, where: str) -> np.ndarray:
+    """The frame at the deployed camera's size: a frame of another size with the same aspect (the
+    video before ``import-video --width``) is resized (area); another aspect is refused."""
+    img = np.ascontiguousarray(image, dtype=np.uint8)
+    if img.shape != (height, width, 3):
+        if (img.ndim != 3 or img.shape[2] != 3
+                or abs(img.shape[1] / img.shape[0] - width / height) > 0.01 * width / height):
+            raise InputError(f"frame is {img.shape}, the exported model takes "
+                             f"{(height, width, 3)}", where)
+        import cv2
+
+        img = cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA)
+    return img
 
 
 # -- command line --------------------------------------------------------------------------------

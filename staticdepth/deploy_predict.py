@@ -13,7 +13,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from staticdepth.deploy import MetricOnnx, deployment_constants, metric_depth_reference
+from staticdepth.deploy import (MetricOnnx, camera_frame, deployment_constants,
+                                metric_depth_reference)
 from staticdepth.errors import InputError
 
 
@@ -58,7 +59,8 @@ def make_predictor(model: str, summary: str | None, sequence: str | None,
         if not sequence:
             raise InputError("--summary needs --sequence (the camera and its ground region)")
         c = deployment_constants(summary, sequence, ground_mask_png, log)
-        return (lambda im: metric_depth_reference(net, im, c)), "metric", \
+        size = (c["width"], c["height"], sequence)
+        return (lambda im: metric_depth_reference(net, camera_frame(im, *size), c)), "metric", \
             f"{model} + alignment + scale x{c['scale']:.3f} (numpy pipeline)"
     return (lambda im: depth_from_inverse(net.predict(im))), "relative", \
         f"{model} (relative depth 1/D: give --summary and --sequence for metres)"

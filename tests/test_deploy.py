@@ -176,6 +176,13 @@ def test_predict_formats(deployment, capsys):
 
     with pytest.raises(InputError, match="exported model takes"):
         m.predict(np.zeros((100, 100, 3), np.uint8))
+    # the numpy pipeline (a model SPEC with the summary) takes the raw video's size too
+    from staticdepth.deploy_predict import make_predictor
+
+    fn, kind, _ = make_predictor(f"builtin:{d / 'm.pt'}", str(summary), str(seq),
+                                 log=lambda s: None, device="cpu")
+    assert kind == "metric" and fn(big).shape == (100, 200)
+    assert np.median(np.abs(fn(big) - first) / first) <= 0.005
     assert main(["predict", "--model", str(onnx_path), "--input", str(seq), "--out",
                  str(d / "png"), "--format", "png16", "--max-frames", "2"]) == 0
     png = cv2.imread(str(d / "png" / "000000.png"), cv2.IMREAD_UNCHANGED)
