@@ -20,7 +20,6 @@ import time
 from dataclasses import dataclass
 from typing import Iterator
 
-import cv2
 import numpy as np
 
 from staticdepth.errors import InputError
@@ -63,6 +62,8 @@ def iter_frames(source: str, *, every: int = 1, max_frames: int | None = None,
     """Yield every ``every``-th frame of a video file, a camera/stream URL or an image folder, at
     most ``max_frames`` of them, one at a time. ``fps`` sets the frame rate of a folder (default
     10) or overrides a video's."""
+    import cv2
+
     if every < 1:
         raise InputError(f"--every must be >= 1, got {every}")
     if max_frames is not None and max_frames < 1:
@@ -152,6 +153,8 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
     """Stream ``source`` into the sequence file ``out``; returns a report dict (frames, size,
     intrinsics, adapt_frames, path). ``width`` resizes frames (aspect kept; intrinsics follow);
     ``adapt_frames`` None = every frame is in the adaptation split (clipped to the frames read)."""
+    import cv2
+
     from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
     from staticdepth.fileio import exclusive_lock
     from staticdepth.progress import progress
@@ -215,8 +218,9 @@ def register(sub) -> None:
     p.add_argument("--fps", type=float, default=None,
                    help="frame rate of an image folder (default 10), or override a video's")
     p.add_argument("--name", default=None, help="sequence name (default: the input's name)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace outputs that exist already (refused otherwise)")
+    from staticdepth.cli import add_overwrite_argument
+
+    add_overwrite_argument(p)
     p.set_defaults(func=_run)
 
 
