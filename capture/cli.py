@@ -157,9 +157,9 @@ def _capture(args: argparse.Namespace) -> int:
     from staticdepth.geometry.camera import StereoRig
     from staticdepth.progress import progress
 
-    refuse_existing(args.summary_json, overwrite=args.overwrite)
     if args.summary_json:
         check_writable(args.summary_json)       # before anything is recorded
+    refuse_existing(args.summary_json, overwrite=args.overwrite)
 
     if args.record_preset not in RECORD_PRESETS:
         raise InputError(f"unknown record preset {args.record_preset!r} "

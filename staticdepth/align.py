@@ -208,9 +208,11 @@ def _align_cmd(args: argparse.Namespace) -> int:
     from staticdepth.fileio import atomic_write_json, check_writable
     from staticdepth.geometry.agent_plane import AgentPlane
 
-    refuse_existing(args.json, None if args.sequence else args.out, overwrite=args.overwrite)
     if args.json:  # before any map is written
         check_writable(args.json)
+    if args.pred and args.out and not os.path.isdir(args.pred):
+        check_writable(args.out)   # one map: a file (a folder of maps goes to a folder)
+    refuse_existing(args.json, None if args.sequence else args.out, overwrite=args.overwrite)
     plane = AgentPlane.from_dict(read_json(args.plane), args.plane)
     height = args.camera_height if args.camera_height is not None else plane.camera_height_m
     if height is not None and not height > 0:

@@ -173,8 +173,8 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
     from staticdepth.fileio import check_writable
     from staticdepth.geometry.agent_plane import PRESETS
 
-    refuse_existing(args.out, overwrite=args.overwrite)
     check_writable(args.out)
+    refuse_existing(args.out, overwrite=args.overwrite)
     camera = load_camera(args.intrinsics)
     obs = read_observations_csv(args.observations)
     conf = PRESETS[args.model]

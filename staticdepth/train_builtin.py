@@ -139,7 +139,9 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from staticdepth.cli import refuse_existing, resolve_device
+    from staticdepth.fileio import check_writable
 
+    check_writable(args.out)       # a folder, a missing or read-only folder: said first
     refuse_existing(args.out, overwrite=args.overwrite)
     w, h = parse_size(args.size)
     conf = TrainBuiltinConfig(frames=args.frames, epochs=args.epochs, width=w, height=h,
