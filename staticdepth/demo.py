@@ -34,9 +34,23 @@ def register(sub) -> None:
 QUICK = {"frames": "30", "adapt_frames": "20", "builtin_frames": "48", "builtin_epochs": "2",
          "builtin_size": "128x64", "adapt_epochs": "2", "baseline_epochs": "2"}
 
-ORACLE = ("oracle inputs: the agents are the scene's ground-truth instances (--detector gt) and "
-          "the camera height is the true one stored in the rendered sequence; on real video use "
-          "--detector motion or yolox and leave the height to the agents' 1.7 m prior")
+def inputs_note(adapt_args: dict) -> str:
+    """Which of the adaptation's inputs were real (as on a site) and which oracle (the scene's
+    own ground truth), from the demo recipe's adapt stage."""
+    oracle, real = [], []
+    if adapt_args.get("detector") == "gt":
+        oracle.append("the agents are the scene's ground-truth instances (--detector gt)")
+    else:
+        real.append(f"the agents come from the {adapt_args.get('detector')} detector")
+    settings = adapt_args.get("set") or {}
+    if str(settings.get("scale.sequence_height", "true")).lower() in ("true", "1", "yes"):
+        oracle.append("the camera height is the true one stored in the rendered sequence")
+    else:
+        real.append("the camera height comes from the agents' 1.7 m height prior (the true one "
+                    "only scores the result)")
+    parts = ([f"real inputs: {'; '.join(real)}"] if real else []) + \
+        ([f"oracle inputs: {'; '.join(oracle)}"] if oracle else [])
+    return ". ".join(parts)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -73,6 +87,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"picture: {png} (frame {i}: image, ground truth, base prediction, adapted metric "
           f"prediction; turbo, near = red)")
     print(f"report: {os.path.join(recipe['out_dir'], 'report', 'report_demo.html')}")
-    print(ORACLE)
+    print(inputs_note(recipe["stages"]["adapt"]["args"]))
     print(f"demo finished in {time.perf_counter() - t0:.0f} s")
     return 0
