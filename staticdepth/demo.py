@@ -54,9 +54,12 @@ def inputs_note(adapt_args: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from staticdepth import report_figures as rf
     from staticdepth.cli import parse_overrides
     from staticdepth.dataset.h5 import SequenceReader
-    from staticdepth.dataset.inspect import _label, colorize_depth, write_png
+    from staticdepth.dataset.inspect import write_png
     from staticdepth.run import load_recipe, run_recipe
 
     t0 = time.perf_counter()
@@ -67,20 +70,16 @@ def run(args: argparse.Namespace) -> int:
     seq = os.path.join(recipe["out_dir"], "demo.h5")
     with SequenceReader(seq) as r:
         i = r.split("eval")[len(r.split("eval")) // 2]
-        import numpy as np
-
         gt = r.depth(i)
-        ok = np.isfinite(gt) & (gt > 0)
-        lo, hi = float(np.percentile(gt[ok], 2)), float(np.percentile(gt[ok], 98))
-        rows = [_label(r.left(i), f"frame {i}"),
-                _label(colorize_depth(gt, lo, hi), f"ground truth ({lo:.1f}-{hi:.1f} m)")]
-        labels = {"base": "base prediction (relative, own colour scale)",
-                  "ft-align-metric": "adapted, metric (ground truth's colour scale)"}
+        rng = rf.depth_range(gt)          # the report's colours: one range, the ground truth's
+        rows = [rf.label(r.left(i), f"frame {i}"),
+                rf.depth_panel(gt, "ground truth (metres)", rng)]
+        labels = {"base": "base prediction (relative: its own colour range)",
+                  "ft-align-metric": "adapted, metric (the ground truth's colours)"}
         for name, text in labels.items():
             if name in r.predictions():
                 pred = r.prediction(name, i)
-                rows.append(_label(colorize_depth(pred, *((lo, hi) if "metric" in name
-                                                          else (None, None))), text))
+                rows.append(rf.depth_panel(pred, text, rng if "metric" in name else None))
         picture = np.concatenate(rows, axis=0)
     png = os.path.join(recipe["out_dir"], "demo_depth.png")
     write_png(png, picture)

@@ -95,8 +95,9 @@ def sequence_figures(path: str | os.PathLike, summary: Mapping[str, Any] | None 
                          rf.label(rf.draw_planes(img, r.camera.K, planes), "ground planes")))
             k += 1
         if len(agents):
-            figs.append((f"{k}. agents' foot points over the last 6 frames up to frame {i}, one "
-                         "colour per track (newest = dot)",
+            figs.append((f"{k}. the sequence's own agents (its annotation, not the detector's): "
+                         f"foot points over the last 6 frames up to frame {i}, one colour per "
+                         "track (newest = dot)",
                          rf.label(rf.draw_tracks(img, agents, i), "agents' tracks")))
     return figs
 
