@@ -47,28 +47,33 @@ def _bar(colours: np.ndarray, ticks: Sequence[tuple[float, str]], caption: str) 
     w = len(colours)
     bar = np.full((34, w, 3), 255, np.uint8)
     bar[2:14] = colours[None]
-    for t, text in ticks:
+    placed: list[tuple[int, int]] = []
+    # the ends first (they carry the range), then the others where their labels fit
+    for t, text in sorted(ticks, key=lambda tt: min(tt[0], 1 - tt[0]) > 1e-9):
         x = int(round(t * (w - 1)))
-        bar[14:18, max(0, x - 0):x + 1] = 0
         (tw, _), _ = cv2.getTextSize(text, FONT, 0.35, 1)
-        cv2.putText(bar, text, (int(np.clip(x - tw / 2, 0, w - tw)), 28), FONT, 0.35, (0, 0, 0),
-                    1, cv2.LINE_AA)
+        x0 = int(np.clip(x - tw / 2, 0, w - tw))
+        if any(x0 < b + 8 and a < x0 + tw + 8 for a, b in placed):   # 8 px apart
+            continue
+        placed.append((x0, x0 + tw))
+        bar[14:18, x:x + 1] = 0
+        cv2.putText(bar, text, (x0, 28), FONT, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
     (cw, _), _ = cv2.getTextSize(caption, FONT, 0.35, 1)
     if caption and cw < w // 3:
         cv2.putText(bar, caption, (w - cw - 2, 12), FONT, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
     return bar
 
 
-def depth_colour_bar(width: int, near_m: float, far_m: float) -> np.ndarray:
+def depth_colour_bar(width: int, near_m: float, far_m: float, caption: str = "depth m"
+                     ) -> np.ndarray:
     """The bar of :func:`colorize_depth` over [near_m, far_m] (inverse depth), ticks in metres."""
     t = np.linspace(0, 1, width)
     d = 1.0 / (1.0 / far_m + t * (1.0 / near_m - 1.0 / far_m))
     colours = colorize_depth(d[None, :], near_m, far_m)[0]
     pos = lambda v: (1.0 / v - 1.0 / far_m) / (1.0 / near_m - 1.0 / far_m)  # noqa: E731
-    ticks = [(pos(v), f"{v:g}") for v in NICE_M if near_m <= v <= far_m
-             and 0.08 < pos(v) < 0.92]                   # the ends carry the range's own values
-    ticks = [(0.0, f"{far_m:.3g}"), *ticks, (1.0, f"{near_m:.3g}")]
-    return _bar(colours, ticks, "depth m")
+    ticks = [(pos(v), f"{v:g}") for v in NICE_M if near_m < v < far_m]
+    ticks = [(0.0, f"{far_m:.3g}"), *ticks, (1.0, f"{near_m:.3g}")]  # the ends: the range
+    return _bar(colours, ticks, caption)
 
 
 def error_colour_bar(width: int, vmax: float = 0.5) -> np.ndarray:
@@ -96,9 +101,7 @@ def depth_panel(depth: np.ndarray, title: str, rng: tuple[float, float] | None) 
     if rng is None:
         return label(np.zeros(depth.shape + (3,), np.uint8), title + " (no valid pixel)")
     img = colorize_depth(depth, *rng)
-    bar = depth_colour_bar(depth.shape[1], *rng)
-    if own:
-        cv2.putText(bar, "relative units", (3, 12), FONT, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
+    bar = depth_colour_bar(depth.shape[1], *rng, caption="relative" if own else "depth m")
     return np.concatenate([label(img, title), bar], axis=0)
 
 
