@@ -19,7 +19,6 @@ process was killed, and readers then trust the CSV files alone.
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
