@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import signal
 import sys
 import threading
@@ -58,6 +57,10 @@ def register(sub) -> None:
                    help="override a record setting (png_compression, png_strategy, png_filter, "
                         "segment_frames, workers, queue_frames) or a depthai setting")
     p.add_argument("--summary-json", help="also write the summary as JSON here")
+    from staticdepth.cli import add_overwrite_argument
+
+    add_overwrite_argument(p, "replace an existing --summary-json (a recording folder is never "
+                              "replaced)")
     p.set_defaults(func=_capture)
 
 
@@ -148,9 +151,14 @@ def _capture(args: argparse.Namespace) -> int:
     from staticdepth import config
     from staticdepth.capture.record import (RECORD_PRESETS, RecordConfig, format_summary,
                                             record)
-    from staticdepth.cli import parse_overrides
+    from staticdepth.cli import parse_overrides, refuse_existing
+    from staticdepth.fileio import check_writable
     from staticdepth.geometry.camera import StereoRig
     from staticdepth.progress import progress
+
+    if args.summary_json:
+        check_writable(args.summary_json)       # before anything is recorded
+    refuse_existing(args.summary_json, overwrite=args.overwrite)
 
     if args.record_preset not in RECORD_PRESETS:
         raise InputError(f"unknown record preset {args.record_preset!r} "

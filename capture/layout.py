@@ -12,14 +12,13 @@
     DIR/seg_0001/...                  a new segment every ``segment_frames`` frames
 
 A row is appended to ``timestamps.csv`` only after both PNGs of that frame are complete (each is
-written to ``*.png.tmp`` and renamed), so a recording killed at any moment reads back to its last
+written to a temporary file beside it and renamed by :func:`staticdepth.fileio.atomic_path`), so a recording killed at any moment reads back to its last
 complete frame: every listed frame's images exist and decode; a torn last line is ignored.
 ``manifest.json`` is rewritten atomically at the end; ``status`` stays ``"recording"`` when the
 process was killed, and readers then trust the CSV files alone.
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -80,14 +79,11 @@ def create_recording_dir(path: str | os.PathLike, numbered: bool = False) -> Pat
 
 
 def write_json_atomic(path: str | os.PathLike, data: dict[str, Any]) -> None:
-    """Write JSON to a temporary file, fsync, rename over ``path``."""
-    path = os.fspath(path)
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as f:
-        json.dump(data, f, indent=2)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    """Write JSON atomically (:func:`staticdepth.fileio.atomic_write_json`: temporary file,
+    fsync, rename over ``path``); a failure raises :class:`InputError` naming ``path``."""
+    from staticdepth.fileio import atomic_write_json
+
+    atomic_write_json(path, data)
 
 
 @dataclass(frozen=True)

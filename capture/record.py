@@ -35,6 +35,7 @@ from staticdepth.capture import layout
 from staticdepth.capture.sources.base import SourceLost, StereoFrame, StereoSource
 from staticdepth.capture.sync import stream_summary
 from staticdepth.errors import InputError
+from staticdepth.fileio import atomic_path, temporary_path
 from staticdepth.geometry.camera import StereoRig
 
 
@@ -110,11 +111,17 @@ class RecordingFailed(RuntimeError):
 
 
 def write_file(path: str, data: bytes) -> None:
-    """Write ``data`` to ``path`` via ``path.tmp`` and a rename (no half-written final names)."""
-    tmp = path + ".tmp"
-    with open(tmp, "wb") as f:
-        f.write(data)
-    os.replace(tmp, path)
+    """Write ``data`` to ``path`` through :func:`staticdepth.fileio.atomic_path` (a temporary file
+    and a rename: no half-written final names). No fsync per image: the frame's CSV row, written
+    after both images, is the commit. A failure raises the ``OSError`` itself, so that a full disk
+    is told apart (:attr:`RecordingFailed.disk_full`)."""
+    try:
+        with atomic_path(path, "png", fsync=False) as tmp, open(tmp, "wb") as f:
+            f.write(data)
+    except InputError as e:
+        if isinstance(e.__cause__, OSError):
+            raise e.__cause__ from None
+        raise
 
 
 def encode_png(image: np.ndarray, params: list[int]) -> bytes:
@@ -269,7 +276,7 @@ class Recorder:
 
     def _remove_uncommitted(self, index: int, segment: int) -> None:
         for p in layout.frame_paths(self.root, segment, index):
-            for q in (p, Path(os.fspath(p) + ".tmp")):
+            for q in (p, Path(temporary_path(p, "png"))):
                 with contextlib.suppress(OSError):
                     q.unlink()
 
@@ -293,7 +300,7 @@ class Recorder:
             for s, (a, b, n) in sorted(self._segments.items())])
         try:
             layout.write_json_atomic(self.root / layout.MANIFEST, self._manifest)
-        except OSError as e:  # disk full: the first manifest and every CSV row stay valid
+        except (OSError, InputError) as e:  # disk full: the first manifest and every CSV row stay valid
             summary["manifest_error"] = str(e)
         return summary
 

@@ -27,7 +27,6 @@ import time
 from dataclasses import dataclass
 from typing import Iterator
 
-import cv2
 import numpy as np
 
 from staticdepth.errors import InputError
@@ -71,6 +70,8 @@ def iter_frames(source: str, *, every: int = 1, max_frames: int | None = None,
     most ``max_frames`` of them, one at a time. ``fps`` sets the frame rate of a folder (default
     10) or overrides a video's. The first ``skip`` of those frames are passed over undecoded
     (they count towards ``max_frames``)."""
+    import cv2
+
     if every < 1:
         raise InputError(f"--every must be >= 1, got {every}")
     if max_frames is not None and max_frames < 1:
@@ -167,6 +168,8 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
     intrinsics, adapt_frames, path, resumed_from). ``width`` resizes frames (aspect kept;
     intrinsics follow); ``adapt_frames`` None = every frame is in the adaptation split (clipped
     to the frames read). ``resume``/``restart``: continue or discard ``out.partial``."""
+    import cv2
+
     from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
     from staticdepth.fileio import exclusive_lock
     from staticdepth.progress import progress
@@ -262,8 +265,9 @@ def register(sub) -> None:
     p.add_argument("--fps", type=float, default=None,
                    help="frame rate of an image folder (default 10), or override a video's")
     p.add_argument("--name", default=None, help="sequence name (default: the input's name)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="replace outputs that exist already (refused otherwise)")
+    from staticdepth.cli import add_overwrite_argument
+
+    add_overwrite_argument(p)
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted import (<out>.partial) of the same source and "
                         "settings (not for a URL)")

@@ -40,8 +40,7 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
 
     conf = conf if conf is not None else AdaptConfig()
     seq_path = os.fspath(seq_path)
-    summary_path = os.fspath(summary_path) if summary_path else \
-        f"{os.path.splitext(seq_path)[0]}.adapt.json"
+    summary_path = os.fspath(summary_path) if summary_path else default_summary_path(seq_path)
     ws = Workspace(seq_path, log)
     model, detector, layers = checks.prepare(conf, ws, device=device, summary_path=summary_path,
                                              save_model=save_model)
@@ -105,6 +104,11 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
     atomic_write_json(summary_path, _jsonable(summary), indent=1)
     summary["summary_path"] = summary_path
     return summary
+
+
+def default_summary_path(seq_path: str | os.PathLike) -> str:
+    """``SEQ.adapt.json`` beside ``SEQ.h5``."""
+    return f"{os.path.splitext(os.fspath(seq_path))[0]}.adapt.json"
 
 
 def _jsonable(o):
@@ -183,8 +187,8 @@ def config_from_args(args) -> tuple[Any, dict[str, Any]]:
 
 
 def register(sub) -> None:
-    from staticdepth.cli import add_device_argument
     from staticdepth import train_builtin
+    from staticdepth.cli import add_device_argument, add_overwrite_argument
 
     p = sub.add_parser("adapt", help="adapt a depth network to a static camera's sequence",
                        description="On-site adaptation (BMVC 2023) as resumable stages: base "
@@ -211,12 +215,14 @@ def register(sub) -> None:
                    help="print the configuration tree (defaults, recipe, flags and --set "
                         "applied) and exit")
     add_device_argument(p)
+    add_overwrite_argument(p, "replace the summary and --save-model files when they exist "
+                              "(refused otherwise; stages up to date are skipped either way)")
     p.set_defaults(func=run)
     train_builtin.register(sub)
 
 
 def run(args) -> int:
-    from staticdepth.cli import resolve_device
+    from staticdepth.cli import refuse_existing, resolve_device
     from staticdepth.config import format_config
 
     conf, extras = config_from_args(args)
@@ -226,6 +232,8 @@ def run(args) -> int:
     seq = extras.get("sequence")
     if not seq:
         raise InputError("no sequence given (a positional SEQ.h5 or 'sequence:' in the recipe)")
+    refuse_existing(extras.get("summary") or default_summary_path(seq), extras.get("save_model"),
+                    overwrite=args.overwrite)
     device = resolve_device(extras.get("device", args.device))
     summary = adapt(seq, conf, device=device, summary_path=extras.get("summary"),
                     save_model=extras.get("save_model"))

@@ -17,20 +17,19 @@ import argparse
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from staticdepth.errors import InputError
 from staticdepth.geometry import load_camera
-from staticdepth.geometry.agent_plane import AgentPlane
-from staticdepth.geometry.alignment import (align_depth, depth_from_inverse,
-                                            ground_mask_from_polygon, ground_mask_from_semantics)
 from staticdepth.geometry.camera import read_json
 from staticdepth.geometry.scale import scale_from_anchor, temporal_scale
 from staticdepth.metrics import check_prediction
-from staticdepth.ground_plane import write_json
 from staticdepth.progress import progress
+
+if TYPE_CHECKING:  # the plane and the alignment import scipy: loaded when run, not for --help
+    from staticdepth.geometry.agent_plane import AgentPlane
 
 
 def load_mask(path: str | os.PathLike, what: str = "ground", allow_empty: bool = False
@@ -112,6 +111,8 @@ def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: n
               ) -> tuple[np.ndarray, dict[str, Any]]:
     """Align one predicted map; returns the map and its info (plane fit, fallback, anchor scale).
     ``agent_mask`` (H, W) pixels leave the plane fit, are always aligned and skip the anchor."""
+    from staticdepth.geometry.alignment import align_depth, depth_from_inverse
+
     pred = np.asarray(pred, dtype=np.float32)
     if pred.ndim != 2:
         raise InputError(f"a prediction must be a 2-D (H, W) map, got shape {pred.shape}")
@@ -161,6 +162,9 @@ def register(sub) -> None:
     p.add_argument("--out", help=".npy file (or folder for a folder of inputs); not with "
                                  "--sequence")
     p.add_argument("--json", help="write per-frame information here")
+    from staticdepth.cli import add_overwrite_argument
+
+    add_overwrite_argument(p)
     p.set_defaults(func=_align_cmd)
 
 
@@ -177,6 +181,9 @@ class _Masks:
         self.source = args.ground_mask or args.ground_polygon
 
     def ground(self, shape: tuple[int, int], reader=None, i: int = 0) -> np.ndarray:
+        from staticdepth.geometry.alignment import (ground_mask_from_polygon,
+                                                    ground_mask_from_semantics)
+
         if self.aux is not None:
             try:
                 return ground_mask_from_semantics(reader.aux(self.aux, i))
@@ -197,9 +204,15 @@ class _Masks:
 
 
 def _align_cmd(args: argparse.Namespace) -> int:
+    from staticdepth.cli import refuse_existing
+    from staticdepth.fileio import atomic_write_json, check_writable
+    from staticdepth.geometry.agent_plane import AgentPlane
+
     if args.json:  # before any map is written
-        from staticdepth.fileio import check_writable
         check_writable(args.json)
+    if args.pred and args.out and not os.path.isdir(args.pred):
+        check_writable(args.out)   # one map: a file (a folder of maps goes to a folder)
+    refuse_existing(args.json, None if args.sequence else args.out, overwrite=args.overwrite)
     plane = AgentPlane.from_dict(read_json(args.plane), args.plane)
     height = args.camera_height if args.camera_height is not None else plane.camera_height_m
     if height is not None and not height > 0:
@@ -218,7 +231,7 @@ def _align_cmd(args: argparse.Namespace) -> int:
         result["scale"] = temporal_scale(scales) if scales else None
         result.update({k: frames[0][k] for k in ("anchor_depth_m", "anchor_depth_parallel_m")})
     if args.json:
-        write_json(args.json, result)
+        atomic_write_json(args.json, result)
     print(f"aligned {len(frames)} map(s) -> {out_desc} ({units})")
     if height is not None:
         print(f"  anchor depth {result['anchor_depth_m']:.3f} m (parallel-camera baseline "

@@ -206,10 +206,11 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-def add_overwrite_argument(p: argparse.ArgumentParser) -> None:
-    """``--overwrite``: the one rule for every output (sequence files, JSON, images, folders)."""
+def add_overwrite_argument(p: argparse.ArgumentParser, help: str | None = None) -> None:
+    """``--overwrite``: the one rule for every output (sequence files, JSON, images, folders);
+    ``help`` names the outputs when a command has some that are never replaced."""
     p.add_argument("--overwrite", action="store_true",
-                   help="replace outputs that exist already (refused otherwise)")
+                   help=help or "replace outputs that exist already (refused otherwise)")
 
 
 def refuse_existing(*paths, overwrite: bool) -> None:

@@ -34,15 +34,32 @@ def register(sub) -> None:
 QUICK = {"frames": "30", "adapt_frames": "20", "builtin_frames": "48", "builtin_epochs": "2",
          "builtin_size": "128x64", "adapt_epochs": "2", "baseline_epochs": "2"}
 
-ORACLE = ("oracle inputs: the agents are the scene's ground-truth instances (--detector gt) and "
-          "the camera height is the true one stored in the rendered sequence; on real video use "
-          "--detector motion or yolox and leave the height to the agents' 1.7 m prior")
+def inputs_note(adapt_args: dict) -> str:
+    """Which of the adaptation's inputs were real (as on a site) and which oracle (the scene's
+    own ground truth), from the demo recipe's adapt stage."""
+    oracle, real = [], []
+    if adapt_args.get("detector") == "gt":
+        oracle.append("the agents are the scene's ground-truth instances (--detector gt)")
+    else:
+        real.append(f"the agents come from the {adapt_args.get('detector')} detector")
+    settings = adapt_args.get("set") or {}
+    if str(settings.get("scale.sequence_height", "true")).lower() in ("true", "1", "yes"):
+        oracle.append("the camera height is the true one stored in the rendered sequence")
+    else:
+        real.append("the camera height comes from the agents' 1.7 m height prior (the true one "
+                    "only scores the result)")
+    parts = ([f"real inputs: {'; '.join(real)}"] if real else []) + \
+        ([f"oracle inputs: {'; '.join(oracle)}"] if oracle else [])
+    return ". ".join(parts)
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from staticdepth import report_figures as rf
     from staticdepth.cli import parse_overrides
     from staticdepth.dataset.h5 import SequenceReader
-    from staticdepth.dataset.inspect import _label, colorize_depth, write_png
+    from staticdepth.dataset.inspect import write_png
     from staticdepth.run import load_recipe, run_recipe
 
     t0 = time.perf_counter()
@@ -53,26 +70,22 @@ def run(args: argparse.Namespace) -> int:
     seq = os.path.join(recipe["out_dir"], "demo.h5")
     with SequenceReader(seq) as r:
         i = r.split("eval")[len(r.split("eval")) // 2]
-        import numpy as np
-
         gt = r.depth(i)
-        ok = np.isfinite(gt) & (gt > 0)
-        lo, hi = float(np.percentile(gt[ok], 2)), float(np.percentile(gt[ok], 98))
-        rows = [_label(r.left(i), f"frame {i}"),
-                _label(colorize_depth(gt, lo, hi), f"ground truth ({lo:.1f}-{hi:.1f} m)")]
-        labels = {"base": "base prediction (relative, own colour scale)",
-                  "ft-align-metric": "adapted, metric (ground truth's colour scale)"}
+        rng = rf.depth_range(gt)          # the report's colours: one range, the ground truth's
+        rows = [rf.label(r.left(i), f"frame {i}"),
+                rf.depth_panel(gt, "ground truth (metres)", rng)]
+        labels = {"base": "base prediction (relative: its own colour range)",
+                  "ft-align-metric": "adapted, metric (the ground truth's colours)"}
         for name, text in labels.items():
             if name in r.predictions():
                 pred = r.prediction(name, i)
-                rows.append(_label(colorize_depth(pred, *((lo, hi) if "metric" in name
-                                                          else (None, None))), text))
+                rows.append(rf.depth_panel(pred, text, rng if "metric" in name else None))
         picture = np.concatenate(rows, axis=0)
     png = os.path.join(recipe["out_dir"], "demo_depth.png")
     write_png(png, picture)
     print(f"picture: {png} (frame {i}: image, ground truth, base prediction, adapted metric "
           f"prediction; turbo, near = red)")
     print(f"report: {os.path.join(recipe['out_dir'], 'report', 'report_demo.html')}")
-    print(ORACLE)
+    print(inputs_note(recipe["stages"]["adapt"]["args"]))
     print(f"demo finished in {time.perf_counter() - t0:.0f} s")
     return 0

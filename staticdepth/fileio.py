@@ -111,7 +111,7 @@ def atomic_path(path: str | os.PathLike, tag: str = "", *, fsync: bool = True) -
         if fsync:
             _fsync_dir(path)
     except OSError as e:
-        raise os_error(e, path) from None
+        raise os_error(e, path) from e      # __cause__ keeps the errno (capture: disk full)
     finally:
         if os.path.lexists(tmp):
             with contextlib.suppress(OSError):

@@ -122,9 +122,11 @@ def _load_trainable_state(model: TorchDepthModel, state: dict[str, torch.Tensor]
 
 
 def save_checkpoint(path: str, payload: dict[str, Any]) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    torch.save(payload, tmp)
-    os.replace(tmp, path)
+    """``torch.save`` atomically (:func:`staticdepth.fileio.atomic_path`)."""
+    from staticdepth.fileio import atomic_path
+
+    with atomic_path(path, "ckpt") as tmp, open(tmp, "wb") as f:
+        torch.save(payload, f)
 
 
 def data_fingerprint(images: np.ndarray, targets: np.ndarray) -> str:

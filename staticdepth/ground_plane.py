@@ -12,23 +12,29 @@ import argparse
 import csv
 import os
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from staticdepth.errors import InputError
 from staticdepth.geometry import load_camera
-from staticdepth.geometry.agent_plane import (MODELS, PRESETS, AgentPlane, AgentPlaneConfig,
-                                              camera_height_from_prior, fit_agent_plane)
 from staticdepth.geometry.agent_plane_gate import (CLASS_SETS, camera_height_from_agents,
                                                    class_set, plane_gate)
-from staticdepth.tracking import OBS_DTYPE
+
+if TYPE_CHECKING:  # the fit imports scipy: loaded when a plane is fitted, not for --help
+    from staticdepth.geometry.agent_plane import AgentPlane, AgentPlaneConfig
+
+# geometry.agent_plane.MODELS, named here so that `ground-plane --help` does not import scipy
+# (tests/test_cli_startup.py checks that the two agree).
+MODELS = ("joint", "exact", "affine", "paper")
 
 REQUIRED_COLUMNS = ("frame", "track", "foot_u", "foot_v", "height_px")
 
 
 def read_observations_csv(path: str | os.PathLike) -> np.ndarray:
     """The observation table (:data:`~staticdepth.tracking.OBS_DTYPE`) from a CSV with a header."""
+    from staticdepth.tracking import OBS_DTYPE
+
     try:
         with open(path, newline="") as f:
             rows = list(csv.reader(f))
@@ -75,12 +81,17 @@ def read_observations_csv(path: str | os.PathLike) -> np.ndarray:
 
 
 def estimate_ground_plane(observations: np.ndarray, K: np.ndarray,
-                          conf: AgentPlaneConfig = AgentPlaneConfig(), *,
+                          conf: AgentPlaneConfig | None = None, *,
                           agent_height_m: float | None = None,
                           camera_height_m: float | None = None) -> AgentPlane:
     """Fit the plane and attach a camera height: the given one, else from one agent height (the
     median over person tracks), else from the classes' height distributions (people when the
-    plane has person tracks, else every class; with its uncertainty); none when that fails."""
+    plane has person tracks, else every class; with its uncertainty); none when that fails.
+    ``conf`` None = the default :class:`AgentPlaneConfig`."""
+    from staticdepth.geometry.agent_plane import (AgentPlaneConfig, camera_height_from_prior,
+                                                  fit_agent_plane)
+
+    conf = AgentPlaneConfig() if conf is None else conf
     plane = fit_agent_plane(K, observations, conf)
     if camera_height_m is not None:
         return plane.with_camera_height(camera_height_m, "given")
@@ -151,10 +162,19 @@ def register(sub) -> None:
                    help="weight of the head-column residuals (0: rows only; default 1 for "
                         "joint, scaled down by the columns' noise, 0 for exact)")
     p.add_argument("--out", required=True, help="plane JSON to write")
+    from staticdepth.cli import add_overwrite_argument
+
+    add_overwrite_argument(p)
     p.set_defaults(func=_ground_plane_cmd)
 
 
 def _ground_plane_cmd(args: argparse.Namespace) -> int:
+    from staticdepth.cli import refuse_existing
+    from staticdepth.fileio import check_writable
+    from staticdepth.geometry.agent_plane import PRESETS
+
+    check_writable(args.out)
+    refuse_existing(args.out, overwrite=args.overwrite)
     camera = load_camera(args.intrinsics)
     obs = read_observations_csv(args.observations)
     conf = PRESETS[args.model]

@@ -15,10 +15,8 @@ import os
 import re
 from typing import Any, Mapping, Sequence
 
-import cv2
 import numpy as np
 
-from staticdepth.dataset.inspect import colorize_depth
 from staticdepth.errors import InputError
 from staticdepth.evaluate import default_protocol, evaluate_sequence
 from staticdepth.metrics import apply_protocol, valid_mask
@@ -26,6 +24,8 @@ from staticdepth.tables import Table, table1, table2, table3, table_regions, wri
 
 def error_map(pred: np.ndarray, gt: np.ndarray, vmax: float = 0.5) -> np.ndarray:
     """|pred - gt| / gt coloured from black (0) through red to yellow (>= vmax); no gt = grey."""
+    import cv2
+
     ok = valid_mask(gt)
     rel = np.zeros(gt.shape)
     rel[ok] = np.abs(pred[ok] - gt[ok]) / gt[ok]
@@ -36,6 +36,8 @@ def error_map(pred: np.ndarray, gt: np.ndarray, vmax: float = 0.5) -> np.ndarray
 
 
 def _png_uri(rgb: np.ndarray) -> str:
+    import cv2
+
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
     if not ok:
         raise RuntimeError("PNG encoding failed")
@@ -93,8 +95,9 @@ def sequence_figures(path: str | os.PathLike, summary: Mapping[str, Any] | None 
                          rf.label(rf.draw_planes(img, r.camera.K, planes), "ground planes")))
             k += 1
         if len(agents):
-            figs.append((f"{k}. agents' foot points over the last 6 frames up to frame {i}, one "
-                         "colour per track (newest = dot)",
+            figs.append((f"{k}. the sequence's own agents (its annotation, not the detector's): "
+                         f"foot points over the last 6 frames up to frame {i}, one colour per "
+                         "track (newest = dot)",
                          rf.label(rf.draw_tracks(img, agents, i), "agents' tracks")))
     return figs
 
@@ -182,6 +185,10 @@ def register(sub) -> None:
     p.add_argument("--summary", nargs="*", default=[],
                    help="SCENE=SEQ.adapt.json ... (anchor depths, planes) written by `adapt`")
     p.add_argument("--out", required=True, help="output folder")
+    from staticdepth.cli import add_overwrite_argument
+
+    add_overwrite_argument(p, "replace the tables and HTML files of an earlier report in --out "
+                              "(refused otherwise)")
     p.set_defaults(func=_report_cmd)
 
 
@@ -193,10 +200,25 @@ def _pairs(items: Sequence[str]) -> dict[str, str]:
     return out
 
 
+def report_outputs(scenes: Sequence[str], out_dir: str | os.PathLike) -> list[str]:
+    """The files a report of ``scenes`` writes into ``out_dir`` that are there already: the tables
+    (``tables.md``, ``tables_N.csv``) and each scene's HTML."""
+    import glob
+
+    out_dir = os.fspath(out_dir)
+    paths = [os.path.join(out_dir, "tables.md"),
+             *sorted(glob.glob(os.path.join(glob.escape(out_dir), "tables_*.csv"))),
+             *(os.path.join(out_dir, f"report_{_file_stem(s)}.html") for s in scenes)]
+    return [p for p in paths if os.path.lexists(p)]
+
+
 def _report_cmd(args: argparse.Namespace) -> int:
+    from staticdepth.cli import refuse_existing
     from staticdepth.geometry.camera import read_json
 
     seqs = _pairs(args.sequences)
+    if os.path.isdir(args.out):
+        refuse_existing(*report_outputs(list(seqs), args.out), overwrite=args.overwrite)
     summaries = {scene: read_json(p) for scene, p in _pairs(args.summary).items()}
     res = build_report(seqs, args.out, summaries)
     for t in res["tables"]:

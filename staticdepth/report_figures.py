@@ -28,6 +28,13 @@ def pipeline_sorted(names: Sequence[str]) -> list[str]:
     return sorted(names, key=lambda n: (rank.get(n, len(rank)), n))
 
 
+def outlined_text(img: np.ndarray, text: str, org: tuple[int, int], colour, scale: float = 0.35
+                  ) -> None:
+    """``text`` in ``colour`` with a dark outline, readable on any background (in place)."""
+    cv2.putText(img, text, org, FONT, scale, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(img, text, org, FONT, scale, tuple(int(c) for c in colour), 1, cv2.LINE_AA)
+
+
 def label(tile: np.ndarray, text: str) -> np.ndarray:
     """A title strip above the tile (RGB uint8), the tile unchanged below it."""
     strip = np.full((18, tile.shape[1], 3), 255, np.uint8)
@@ -40,34 +47,41 @@ def _bar(colours: np.ndarray, ticks: Sequence[tuple[float, str]], caption: str) 
     w = len(colours)
     bar = np.full((34, w, 3), 255, np.uint8)
     bar[2:14] = colours[None]
-    for t, text in ticks:
+    placed: list[tuple[int, int]] = []
+    # the ends first (they carry the range), then the others where their labels fit
+    for t, text in sorted(ticks, key=lambda tt: min(tt[0], 1 - tt[0]) > 1e-9):
         x = int(round(t * (w - 1)))
-        bar[14:18, max(0, x - 0):x + 1] = 0
         (tw, _), _ = cv2.getTextSize(text, FONT, 0.35, 1)
-        cv2.putText(bar, text, (int(np.clip(x - tw / 2, 0, w - tw)), 28), FONT, 0.35, (0, 0, 0),
-                    1, cv2.LINE_AA)
+        x0 = int(np.clip(x - tw / 2, 0, w - tw))
+        if any(x0 < b + 8 and a < x0 + tw + 8 for a, b in placed):   # 8 px apart
+            continue
+        placed.append((x0, x0 + tw))
+        bar[14:18, x:x + 1] = 0
+        cv2.putText(bar, text, (x0, 28), FONT, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
     (cw, _), _ = cv2.getTextSize(caption, FONT, 0.35, 1)
     if caption and cw < w // 3:
         cv2.putText(bar, caption, (w - cw - 2, 12), FONT, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
     return bar
 
 
-def depth_colour_bar(width: int, near_m: float, far_m: float) -> np.ndarray:
+def depth_colour_bar(width: int, near_m: float, far_m: float, caption: str = "depth m"
+                     ) -> np.ndarray:
     """The bar of :func:`colorize_depth` over [near_m, far_m] (inverse depth), ticks in metres."""
     t = np.linspace(0, 1, width)
     d = 1.0 / (1.0 / far_m + t * (1.0 / near_m - 1.0 / far_m))
     colours = colorize_depth(d[None, :], near_m, far_m)[0]
-    ticks = [((1.0 / v - 1.0 / far_m) / (1.0 / near_m - 1.0 / far_m), f"{v:g}")
-             for v in NICE_M if near_m <= v <= far_m]
-    return _bar(colours, ticks, "depth m")
+    pos = lambda v: (1.0 / v - 1.0 / far_m) / (1.0 / near_m - 1.0 / far_m)  # noqa: E731
+    ticks = [(pos(v), f"{v:g}") for v in NICE_M if near_m < v < far_m]
+    ticks = [(0.0, f"{far_m:.3g}"), *ticks, (1.0, f"{near_m:.3g}")]  # the ends: the range
+    return _bar(colours, ticks, caption)
 
 
 def error_colour_bar(width: int, vmax: float = 0.5) -> np.ndarray:
     t = np.linspace(0, 1, width)
     colours = cv2.applyColorMap((t * 255).astype(np.uint8)[None, :],
                                 cv2.COLORMAP_HOT)[0, :, ::-1]
-    ticks = [(v / vmax, f"{v:g}") for v in (0, 0.1, 0.2, 0.3, 0.4, 0.5) if v <= vmax]
-    return _bar(np.ascontiguousarray(colours), ticks, "")
+    ticks = [(v / vmax, f"{v:g}") for v in (0, 0.1, 0.2, 0.3, 0.4, 0.5) if v < vmax]
+    return _bar(np.ascontiguousarray(colours), [*ticks, (1.0, f">={vmax:g}")], "")
 
 
 def depth_range(depth: np.ndarray) -> tuple[float, float] | None:
@@ -87,9 +101,7 @@ def depth_panel(depth: np.ndarray, title: str, rng: tuple[float, float] | None) 
     if rng is None:
         return label(np.zeros(depth.shape + (3,), np.uint8), title + " (no valid pixel)")
     img = colorize_depth(depth, *rng)
-    bar = depth_colour_bar(depth.shape[1], *rng)
-    if own:
-        cv2.putText(bar, "relative units", (3, 12), FONT, 0.35, (255, 255, 255), 1, cv2.LINE_AA)
+    bar = depth_colour_bar(depth.shape[1], *rng, caption="relative" if own else "depth m")
     return np.concatenate([label(img, title), bar], axis=0)
 
 
@@ -117,11 +129,16 @@ def draw_planes(image: np.ndarray, K: np.ndarray, planes: Mapping[str, tuple[np.
                 continue
             out[vs, us] = colour
             # label each line near a column of its own, so the planes' labels do not overlap
-            j = np.argmin(np.abs(us - w * (0.15 + 0.25 * k)))
-            cv2.putText(out, f"{zc:g}m", (int(us[j]) + 2, int(vs[j]) - 2), FONT, 0.33, colour,
-                        1, cv2.LINE_AA)
-        cv2.rectangle(out, (2, 4 + 14 * k), (12, 12 + 14 * k), colour, -1)
-        cv2.putText(out, name, (16, 13 + 14 * k), FONT, 0.4, colour, 1, cv2.LINE_AA)
+            j = np.argmin(np.abs(us - w * (0.3 + 0.22 * k)))
+            outlined_text(out, f"{zc:g} m", (int(us[j]) + 2, int(vs[j]) - 3), colour)
+    # the legend on a white card in the top-left corner
+    names = list(planes)
+    card_w = 18 + max((cv2.getTextSize(n, FONT, 0.4, 1)[0][0] for n in names), default=0)
+    out[2:6 + 14 * len(names), 2:4 + card_w] = 255
+    for k, name in enumerate(names):
+        colour = PLANE_COLOURS.get(name, (255, 255, 255))
+        cv2.rectangle(out, (4, 5 + 14 * k), (14, 13 + 14 * k), colour, -1)
+        cv2.putText(out, name, (18, 14 + 14 * k), FONT, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
     return out
 
 

@@ -131,14 +131,18 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the scenes and the training")
     p.add_argument("--arch", choices=("tiny", "unet"), default="tiny",
                    help="network: tiny (the default encoder-decoder) or unet (a second one)")
-    from staticdepth.cli import add_device_argument
+    from staticdepth.cli import add_device_argument, add_overwrite_argument
     add_device_argument(p)
+    add_overwrite_argument(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from staticdepth.cli import resolve_device
+    from staticdepth.cli import refuse_existing, resolve_device
+    from staticdepth.fileio import check_writable
 
+    check_writable(args.out)       # a folder, a missing or read-only folder: said first
+    refuse_existing(args.out, overwrite=args.overwrite)
     w, h = parse_size(args.size)
     conf = TrainBuiltinConfig(frames=args.frames, epochs=args.epochs, width=w, height=h,
                               lr=args.lr, batch_size=args.batch_size, seed=args.seed,

@@ -72,8 +72,9 @@ def write_cameras_txt(path: str | os.PathLike, cameras: dict[int, Camera]) -> No
         model, params = camera_to_colmap(cam)
         lines.append(" ".join([str(cid), model, str(cam.width), str(cam.height)]
                               + [repr(float(x)) for x in params]))
-    with open(path, "w") as f:
-        f.write("\n".join(lines) + "\n")
+    from staticdepth.fileio import atomic_write_text
+
+    atomic_write_text(path, "\n".join(lines) + "\n")
 
 
 def read_cameras_txt(path: str | os.PathLike) -> dict[int, Camera]:

@@ -144,7 +144,7 @@ def test_align_command_errors(tmp_path, capsys):
 def _align(tmp_path, *extra):
     return main(["align", "--pred", str(tmp_path / "pred.npy"), "--inverse", "--intrinsics",
                  str(tmp_path / "cam.json"), "--plane", str(tmp_path / "plane.json"),
-                 "--camera-height", "5", "--out", str(tmp_path / "out.npy"), *extra])
+                 "--camera-height", "5", "--out", str(tmp_path / "out.npy"), "--overwrite", *extra])
 
 
 def test_align_with_a_ground_polygon_text_json_or_txt(tmp_path):
@@ -274,7 +274,7 @@ def test_ground_plane_command_reads_top_columns(tmp_path):
         write_csv(tmp_path / "obs.csv", obs, cols)
         rc = main(["ground-plane", "--observations", str(tmp_path / "obs.csv"), "--intrinsics",
                    str(tmp_path / "cam.json"), "--bootstrap", "0", "--column-weight", "1",
-                   "--out", str(tmp_path / "p.json")])
+                   "--out", str(tmp_path / "p.json"), "--overwrite"])
         assert rc == 0
         errs.append(angle_between_deg(json.loads((tmp_path / "p.json").read_text())["normal"], n))
     print(f"rows only {errs[0]:.2f} deg, rows + columns {errs[1]:.2f} deg")
@@ -304,5 +304,5 @@ def test_ground_plane_gate_refuses_then_accepts(tmp_path, capsys):
     assert p["gate"]["ok"] is False and p["gate"]["tracks_needed"] > p["gate"]["tracks"]
     assert p["extents"]["people"] and p["camera_height_m"] > 0
     assert "warning: ground plane refused" in capsys.readouterr().out
-    assert main(args + ["--classes", "vehicles"]) == 2
+    assert main(args + ["--classes", "vehicles", "--overwrite"]) == 2
     assert "no observation of the classes selected" in capsys.readouterr().err

@@ -16,7 +16,6 @@ PNG channels are written as CARLA has them (R really is red: OpenCV's BGR is rev
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -116,6 +115,7 @@ def write_carla_export(scene_or_frames, out_dir: str | os.PathLike, n_frames: in
         count += 1
     meta = sensor_json(camera, mounting, baseline_m, fps)
     meta["n_frames"] = count
-    with open(out / "sensor.json", "w") as f:
-        json.dump(meta, f, indent=2)
+    from staticdepth.fileio import atomic_write_json
+
+    atomic_write_json(out / "sensor.json", meta)
     return out

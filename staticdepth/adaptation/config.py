@@ -71,6 +71,8 @@ class ScaleConfig:
     camera_height_m: float | None = None   # None: the sequence's, else the agent-height prior
     agent_height_m: float = 1.7            # the prior, when no camera height is known
     metric_scale: str = "plane"            # plane: x H_c; anchor: METHOD.md 5's anchor pixel
+    sequence_height: bool = True           # false: ignore the sequence's stored height (the
+                                           # agents' prior gives it, as on a site without one)
 
     def __post_init__(self):
         if self.metric_scale not in ("plane", "anchor"):

@@ -1,6 +1,7 @@
 """Stage scale: metric outputs ``align-metric`` and ``ft-align-metric`` (METHOD.md section 5).
 
-The camera height: ``scale.camera_height_m``, else the sequence's, else the agents' height prior.
+The camera height: ``scale.camera_height_m``, else the sequence's (unless
+``scale.sequence_height`` is false), else the agents' height prior.
 The aligned maps are in units of the camera height, so ``metric_scale = plane`` multiplies them
 by H_c; ``anchor`` uses the temporal median of the per-frame anchor-pixel scales instead (frames
 whose anchor an agent covers are skipped, unless every frame's is). Both scales are reported.
@@ -22,7 +23,7 @@ def with_camera_height(conf: AdaptConfig, ws: Workspace, plane: AgentPlane) -> A
     s = conf.scale
     if s.camera_height_m is not None:
         return plane.with_camera_height(s.camera_height_m, "given")
-    if ws.camera_height_m is not None:
+    if ws.camera_height_m is not None and s.sequence_height:
         return plane.with_camera_height(ws.camera_height_m, "sequence")
     return plane.with_camera_height(camera_height_from_prior(plane, s.agent_height_m),
                                     f"agent height prior {s.agent_height_m:g} m")

@@ -47,16 +47,11 @@ def default_checkpoint_path(sequence_path: str | os.PathLike) -> str:
 
 
 def save_checkpoint(path: str, state: dict[str, Any]) -> None:
-    """Write ``state`` with ``torch.save`` to a temporary file and rename it onto ``path``."""
-    tmp = f"{path}.tmp{os.getpid()}"
-    try:
-        torch.save(state, tmp)
-        with open(tmp, "rb") as f:
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    """Write ``state`` with ``torch.save`` atomically (:func:`staticdepth.fileio.atomic_path`)."""
+    from staticdepth.fileio import atomic_path
+
+    with atomic_path(path, "ckpt") as tmp, open(tmp, "wb") as f:
+        torch.save(state, f)
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:

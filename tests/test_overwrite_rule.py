@@ -1,0 +1,113 @@
+"""One overwrite rule for every output: an output that exists already is refused with one line and
+exit code 2, and left as it was; with ``--overwrite`` the command replaces it.
+
+Each case builds the smallest real inputs of its command and names the output that is already
+there; the same command line then runs twice, without and with ``--overwrite``.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from staticdepth.cli import main
+from test_agent_plane import camera_K, people_observations, true_normal
+from test_cli_ground_align import _align_inputs, write_csv
+
+OLD = b"an earlier run's output\n"
+
+
+def _ground_plane(d: Path):
+    K, w, h = camera_K(600.0)
+    obs = people_observations(np.random.default_rng(5), K, w, h, true_normal(30.0), 6.0,
+                              n_tracks=20)
+    write_csv(d / "obs.csv", obs)
+    (d / "cam.json").write_text(json.dumps({"fx": 600.0, "fy": 600.0, "cx": K[0, 2],
+                                            "cy": K[1, 2]}))
+    return (["ground-plane", "--observations", str(d / "obs.csv"), "--intrinsics",
+             str(d / "cam.json"), "--bootstrap", "0", "--out", str(d / "plane.json")],
+            d / "plane.json", lambda p: "normal" in json.loads(p.read_text()))
+
+
+def _align(d: Path, output: str):
+    _align_inputs(d)
+    argv = ["align", "--pred", str(d / "pred.npy"), "--inverse", "--intrinsics",
+            str(d / "cam.json"), "--plane", str(d / "plane.json"), "--ground-mask",
+            str(d / "mask.png"), "--camera-height", "5", "--out", str(d / "out.npy"),
+            "--json", str(d / "info.json")]
+    if output == "json":
+        return argv, d / "info.json", lambda p: json.loads(p.read_text())["units"] == "m"
+    return argv, d / "out.npy", lambda p: np.load(p).shape == np.load(d / "pred.npy").shape
+
+
+def _report(d: Path):
+    from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter, add_prediction
+    from staticdepth.geometry import Camera, Mounting, plane_depth_map
+
+    cam, mnt = Camera.from_fov(64, 32, 90), Mounting.from_pitch_roll(5.0, 45.0)
+    gt = plane_depth_map(cam.K, mnt.normal, mnt.height_m, 64, 32)
+    with SequenceWriter(d / "s.h5", SequenceMeta(name="s", camera=cam, gt_kind="synthetic",
+                                                 adapt_frames=1, mounting=mnt),
+                        streams=("left", "depth")) as w:
+        for _ in range(2):
+            w.append(left=np.zeros((32, 64, 3), np.uint8), depth=gt)
+    add_prediction(d / "s.h5", "base", [gt * 2] * 2)
+    (d / "rep").mkdir()
+    return (["report", f"S={d / 's.h5'}", "--out", str(d / "rep")], d / "rep" / "tables.md",
+            lambda p: "Table 1" in p.read_text())
+
+
+def _capture(d: Path):
+    argv = ["capture", "--source", "synthetic", "--size", "32x16", "--frames", "1",
+            "--summary-json", str(d / "sum.json"), "--numbered", "--out", str(d / "recs")]
+    return argv, d / "sum.json", lambda p: json.loads(p.read_text())["frames"] == 1
+
+
+def _train_builtin(d: Path):
+    return (["train-builtin", "--out", str(d / "b.pt"), "--frames", "2", "--epochs", "1",
+             "--size", "64x32", "--batch-size", "2", "--device", "cpu"], d / "b.pt",
+            lambda p: p.read_bytes()[:2] == b"PK")        # a torch zip archive
+
+
+def _adapt(d: Path):
+    import torch
+
+    from staticdepth.dataset.synth_io import render_to_file
+    from staticdepth.models.tiny import TinyDepthNet, builtin_model, save_builtin
+
+    torch.manual_seed(0)
+    save_builtin(d / "tiny.pt", builtin_model(TinyDepthNet(enc_channels=(4, 8, 8, 16, 16),
+                                                           dec_channels=(16, 8, 8, 4)),
+                                              input_height=32, input_width=64))
+    render_to_file(d / "c.h5", preset_name="c1", n_frames=40, adapt_frames=40, seed=1,
+                   overrides={"width": 64, "height": 32})
+    return (["adapt", str(d / "c.h5"), "--model", f"builtin:{d / 'tiny.pt'}", "--detector", "gt",
+             "--epochs", "0", "--device", "cpu", "--set", "tracking.min_height_px=3",
+             "--set", "plane.bootstrap=0"], d / "c.adapt.json",
+            lambda p: "plane" in json.loads(p.read_text()))
+
+
+CASES = {"ground-plane --out": _ground_plane,
+         "align --json": lambda d: _align(d, "json"),
+         "align --out": lambda d: _align(d, "npy"),
+         "report --out": _report,
+         "capture --summary-json": _capture,
+         "train-builtin --out": _train_builtin,
+         "adapt summary": _adapt}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_existing_output_is_refused_then_replaced_with_overwrite(case, tmp_path, capsys):
+    argv, out, is_new = CASES[case](tmp_path)
+    out.write_bytes(OLD)
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "exists already; pass --overwrite" in err, err
+    assert str(out) in err
+    assert out.read_bytes() == OLD                       # left as it was
+    assert main([*argv, "--overwrite"]) == 0
+    assert out.read_bytes() != OLD and is_new(out)       # replaced by this run's output
+    assert not list(tmp_path.rglob("*.tmp-*"))           # the atomic writer left nothing behind
