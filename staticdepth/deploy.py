@@ -307,6 +307,9 @@ def register(sub) -> None:
     p.add_argument("--check-frames", type=int, default=5,
                    help="frames on which the export is checked against the torch/numpy pipeline")
     p.add_argument("--opset", type=int, default=17, help="ONNX opset of the exported file")
+    from staticdepth.cli import add_device_argument, add_overwrite_argument
+
+    add_overwrite_argument(p)
     p.set_defaults(func=_run_export)
 
     p = sub.add_parser("predict", help="stream a video, folder or sequence through a model to "
@@ -323,13 +326,16 @@ def register(sub) -> None:
     p.add_argument("--sequence", help="the adapted sequence (with --summary)")
     p.add_argument("--every", type=int, default=1, help="keep every K-th frame")
     p.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
-    from staticdepth.cli import add_device_argument
-
     add_device_argument(p)
+    add_overwrite_argument(p, help="write into an output folder that holds files already "
+                                   "(same-named frames are replaced; refused otherwise)")
     p.set_defaults(func=_run_predict)
 
 
 def _run_export(args) -> int:
+    from staticdepth.cli import refuse_existing
+
+    refuse_existing(args.out, overwrite=args.overwrite)
     info = export_model(args.model, args.summary, args.sequence, args.out,
                         ground_mask_png=args.ground_mask, check_frames=args.check_frames,
                         opset=args.opset)
@@ -343,6 +349,9 @@ def _run_export(args) -> int:
 def _run_predict(args) -> int:
     from staticdepth.deploy_predict import predict
 
+    if os.path.isdir(args.out) and os.listdir(args.out) and not args.overwrite:
+        raise InputError("exists already and holds files; pass --overwrite to write into "
+                         "it", args.out)
     rep = predict(args.model, args.input, args.out, args.format, summary=args.summary,
                   sequence=args.sequence, every=args.every, max_frames=args.max_frames,
                   device=args.device)

@@ -358,6 +358,9 @@ def register(sub) -> None:
     p.add_argument("--annotate", help="annotated frames: .gif or .mp4 (and a PNG sheet beside)")
     p.add_argument("--annotate-frames", type=int, default=12, help="how many frames to annotate")
     p.add_argument("--person-radius", type=float, default=0.2, help="body radius of people (m)")
+    from staticdepth.cli import add_overwrite_argument
+
+    add_overwrite_argument(p)
     p.set_defaults(func=_run)
 
 
@@ -365,8 +368,13 @@ def _run(args) -> int:
     from staticdepth.geometry.camera import read_json
     from staticdepth.locate_tables import check_table_path, write_pairs, write_positions
 
+    from staticdepth.cli import refuse_existing
+
     for path in (args.out, args.pairs):
         check_table_path(path)          # before the work: a .parquet path without pyarrow
+    sheet = os.path.splitext(args.annotate)[0] + "_sheet.png" if args.annotate else None
+    refuse_existing(args.out, args.pairs, args.bev, args.annotate, sheet,
+                    overwrite=args.overwrite)
     if not args.close_m > 0:
         raise InputError(f"--close-m must be positive, got {args.close_m}")
     n, h, src = load_plane(args.summary, args.plane, args.camera_height, args.sequence)

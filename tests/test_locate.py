@@ -164,7 +164,7 @@ def test_locate_command_outputs(tmp_path):
     assert prs and set(prs[0]) >= {"frame", "track_a", "track_b", "distance_m", "close"}
     for name in ("bev.png", "frames.gif", "frames_sheet.png"):
         assert (tmp_path / name).stat().st_size > 1000
-    assert main(argv + ["--camera-height", "5", "--close-m", "0"]) == 2
+    assert main(argv + ["--camera-height", "5", "--close-m", "0", "--overwrite"]) == 2
 
 
 def test_hidden_feet_use_the_metric_map(tmp_path):

@@ -89,13 +89,64 @@ def _adapt(d: Path):
             lambda p: "plane" in json.loads(p.read_text()))
 
 
+def _tiny_model_and_sequence(d: Path):
+    import torch
+
+    from staticdepth.dataset.synth_io import render_to_file
+    from staticdepth.models.tiny import TinyDepthNet, builtin_model, save_builtin
+
+    torch.manual_seed(0)
+    save_builtin(d / "tiny.pt", builtin_model(TinyDepthNet(enc_channels=(4, 8, 8, 16, 16),
+                                                           dec_channels=(16, 8, 8, 4)),
+                                              input_height=32, input_width=64))
+    render_to_file(d / "s.h5", preset_name="demo", n_frames=10, adapt_frames=8, seed=1,
+                   overrides={"width": 160, "height": 80})
+    return f"builtin:{d / 'tiny.pt'}", d / "s.h5"
+
+
+def _locate(d: Path):
+    from upright_scene import UprightScene
+
+    scene = UprightScene(n_people=4, seed=4)
+    scene.write(str(d / "up.h5"), frames=3)
+    (d / "plane.json").write_text(json.dumps({"normal": scene.normal.tolist()}))
+    return (["locate", str(d / "up.h5"), "--plane", str(d / "plane.json"), "--camera-height",
+             str(scene.height_m), "--out", str(d / "pos.csv")], d / "pos.csv",
+            lambda p: p.read_text().startswith("frame,"))
+
+
+def _export_model(d: Path):
+    from staticdepth.dataset.h5 import SequenceReader
+
+    model, seq = _tiny_model_and_sequence(d)
+    with SequenceReader(seq) as r:
+        m = r.meta.mounting
+    (d / "s.adapt.json").write_text(json.dumps({
+        "plane": {"normal": m.normal.tolist()}, "camera_height_m": m.height_m,
+        "scale": {"ft-align": m.height_m}, "config": {"eps": 1e-6, "detector": "gt"}}))
+    return (["export-model", "--model", model, "--summary", str(d / "s.adapt.json"),
+             "--sequence", str(seq), "--out", str(d / "m.onnx"), "--check-frames", "1"],
+            d / "m.onnx", lambda p: p.stat().st_size > 1000)
+
+
+def _predict(d: Path):
+    model, seq = _tiny_model_and_sequence(d)
+    (d / "pred").mkdir()
+    return (["predict", "--model", model, "--input", str(seq), "--out", str(d / "pred"),
+             "--format", "npy", "--max-frames", "1", "--device", "cpu"],
+            d / "pred" / "000000.npy", lambda p: np.load(p).shape == (80, 160))
+
+
 CASES = {"ground-plane --out": _ground_plane,
          "align --json": lambda d: _align(d, "json"),
          "align --out": lambda d: _align(d, "npy"),
          "report --out": _report,
          "capture --summary-json": _capture,
          "train-builtin --out": _train_builtin,
-         "adapt summary": _adapt}
+         "adapt summary": _adapt,
+         "locate --out": _locate,
+         "export-model --out": _export_model,
+         "predict --out (a folder holding files)": _predict}
 
 
 @pytest.mark.parametrize("case", list(CASES))
@@ -105,8 +156,8 @@ def test_existing_output_is_refused_then_replaced_with_overwrite(case, tmp_path,
     capsys.readouterr()
     assert main(argv) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "exists already; pass --overwrite" in err, err
-    assert str(out) in err
+    assert err.count("\n") == 1 and "exists already" in err and "pass --overwrite" in err, err
+    assert str(out if out.parent.name != "pred" else out.parent) in err   # predict names its folder
     assert out.read_bytes() == OLD                       # left as it was
     assert main([*argv, "--overwrite"]) == 0
     assert out.read_bytes() != OLD and is_new(out)       # replaced by this run's output
