@@ -29,9 +29,10 @@ NAMES = ("base", "ft", "align-eq2", "align", "ft-align-eq2", "ft-align", "ft-ali
          "stereo-baseline")
 
 
-def add_eq2(seq: str, summary: dict) -> None:
-    """The paper's Eq. 2 alignment of the stored base and ft predictions, as adapt would do it
-    with ``align_mode=eq2`` (same plane, ground mask and agents at their contact)."""
+def add_eq2(seq: str, summary: dict, mode: str = "eq2", suffix: str = "-eq2", **kw) -> None:
+    """Another alignment mode (default the paper's Eq. 2) of the stored base and ft predictions,
+    as adapt would do it with ``align.mode=mode`` (same plane, ground mask and agents at their
+    contact); written as ``align<suffix>`` and ``ft-align<suffix>``."""
     from staticdepth.dataset.h5 import SequenceReader, add_prediction
     from staticdepth.geometry.alignment import agents_at_contact, align_depth, ground_mask_from_feet
     from staticdepth.config import setting_from
@@ -50,15 +51,15 @@ def add_eq2(seq: str, summary: dict) -> None:
         ground = ground_mask_from_feet(feet, W, H, W / 80.0 if erode is None else erode)
         maps = {src: np.stack([r.prediction(src, i) for i in range(n)]) for src in ("base", "ft")}
     pl = PseudoLabelConfig(contact=setting_from(conf, "pseudo_labels.contact", "lowest"))
-    for name, src in (("align-eq2", "base"), ("ft-align-eq2", "ft")):
+    for name, src in (("align" + suffix, "base"), ("ft-align" + suffix, "ft")):
         out = []
         for i in range(n):
             m = inst[i] > 0
             a = align_depth(maps[src][i], K, n_g, 1.0, ground,
                             agent_mask=m if np.count_nonzero(ground & ~m) >= 50 else None,
-                            mode="eq2").depth
+                            mode=mode, **kw).depth
             out.append(agents_at_contact(a, K, n_g, 1.0, inst[i], rows[i], pl)[0])
-        add_prediction(seq, name, out, {"stage": "bench_gains", "align_mode": "eq2"})
+        add_prediction(seq, name, out, {"stage": "bench_gains", "align_mode": mode})
 
 
 def run_scene(seq: str, model: str, args) -> dict:
