@@ -140,7 +140,8 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
                 agent_mask: np.ndarray | None = None, near_plane_rel: float | None = None,
                 eps: float = 1e-3, nadir_tol: float = 1e-6, mode: str = "eq2",
                 snap_rel: float = 0.1, jump_rel: float = 0.08,
-                shape: str = "network") -> Alignment:
+                shape: str = "network", recede: tuple[float, float] | None = (0.1, 8.0)
+                ) -> Alignment:
     """Align a relative depth map (H, W) to the agents' ground plane ``n_g . P = d_g``.
 
     ground_mask: (H, W) bool where the ground is expected; ``agent_mask`` pixels are removed from
@@ -181,7 +182,7 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
         return align_ground(Z, K, n_g, d_g, G, snap_rel=snap_rel)
     if mode == "upright":
         return align_upright(Z, K, n_g, d_g, G, snap_rel=snap_rel, jump_rel=jump_rel, shape=shape,
-                             agent_mask=agent_mask)
+                             agent_mask=agent_mask, recede=recede)
     n_p, d_p = fit_predicted_plane(Z, K, G)
     a, b, c = n_p
     s2 = a * a + b * b
@@ -261,7 +262,8 @@ def align_ground(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask:
 
 def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: np.ndarray, *,
                   snap_rel: float = 0.1, jump_rel: float = 0.08, shape: str = "network",
-                  agent_mask: np.ndarray | None = None, max_points: int = 20000) -> Alignment:
+                  agent_mask: np.ndarray | None = None, max_points: int = 20000,
+                  recede: tuple[float, float] | None = (0.1, 8.0)) -> Alignment:
     """The ``ground`` mode, then every structure above the ground re-anchored at its contact with
     it (geometry/alignment_upright.py). The frame's agents (``agent_mask``) are never ground.
     ``n_fallback`` counts the pixels that were not re-anchored (neither ground nor traced to it).
@@ -271,7 +273,9 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
     g, snap, q, raw = _ground_fit(depth, K, n_g, d_g, ground_mask, snap_rel, max_points)
     if agent_mask is not None:
         snap = snap & ~np.asarray(agent_mask, bool)
-    new, moved = upright_depth(raw, K, n_g, d_g, snap, q, jump_rel=jump_rel, shape=shape)
+    new, moved = upright_depth(raw, K, n_g, d_g, snap, q, jump_rel=jump_rel, shape=shape,
+                               recede=recede,
+                               not_ground=None if agent_mask is None else np.asarray(agent_mask, bool))
     valid = np.isfinite(g.depth)
     out = np.where(moved, new, g.depth)
     out[~valid] = np.nan

@@ -26,6 +26,7 @@ from staticdepth.errors import InputError
 from staticdepth.geometry.projection import ray_grid
 
 SHAPES = ("network", "vertical")
+RECEDE = (0.1, 8.0)     # ground: the network's depth grows up the vertical 0.1-8x as fast as the plane's
 
 
 def down_step(K: np.ndarray, n: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -127,6 +128,31 @@ def refine_contacts(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.nda
         qc.ravel()[pix], idx.ravel()[pix] = new_q[k], base[k]
 
 
+def recedes_like_plane(A: np.ndarray, q: np.ndarray, du: np.ndarray, span: int,
+                       band: tuple[float, float]) -> np.ndarray:
+    """(H, W) bool: pixels where the depth grows up the image's vertical like the plane's does:
+    the ratio of ``ln A`` to ``ln (1 / q)`` differences over ``span`` rows lies in ``band``. A
+    structure standing on the ground gets nearer (or stays) going up; the ground recedes, even
+    where the network has it at the wrong depth."""
+    h, w = A.shape
+    out = np.zeros((h, w), bool)
+    if span >= h:
+        return out
+    vs = np.arange(h - span)[:, None]
+    us = np.rint(np.arange(w)[None, :] + span * np.nan_to_num(du[: h - span])).astype(np.int64)
+    inside = np.isfinite(du[: h - span]) & (us >= 0) & (us < w)
+    us = np.clip(us, 0, w - 1)
+    a0, a1 = A[: h - span], A[vs + span, us]
+    q0, q1 = q[: h - span], q[vs + span, us]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        g_net = np.log(a0 / a1)
+        g_pl = np.log(q1 / q0)
+        k = g_net / g_pl
+        out[: h - span] = inside & (q0 > 0) & (q1 > 0) & (g_pl > 1e-6) & (k >= band[0]) \
+            & (k <= band[1])
+    return out
+
+
 def fill_along_rows(ratio: np.ndarray, A: np.ndarray, todo: np.ndarray, jump_rel: float) -> None:
     """In place: pixels of ``todo`` without a ratio take their left, then right, neighbour's when
     their depths are continuous (one sweep each way)."""
@@ -142,7 +168,9 @@ def fill_along_rows(ratio: np.ndarray, A: np.ndarray, todo: np.ndarray, jump_rel
 
 def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, ground: np.ndarray,
                   q: np.ndarray, *, jump_rel: float = 0.08, shape: str = "network",
-                  max_ratio: float = 4.0, near_rel: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+                  max_ratio: float = 4.0, near_rel: float = 0.02,
+                  recede: tuple[float, float] | None = RECEDE, span: int = 3,
+                  not_ground: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
     ``q``: the plane's inverse depth ``n_g . r / d_g`` per pixel. Returns the new map and the
@@ -158,6 +186,12 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     n = np.asarray(n_g, dtype=np.float64)
     n = n / np.linalg.norm(n)
     du = down_step(K, n, w, h)
+    planar = np.zeros((h, w), bool)
+    if recede is not None:
+        planar = recedes_like_plane(A, q, du, span, recede) & ~ground
+        if not_ground is not None:
+            planar &= ~not_ground
+        ground = ground | planar
     qc, idx = contact_ratios(A, ground, q, du, jump_rel)
     refine_contacts(A, ground, q, du, qc, idx, jump_rel, near_rel, max(2, h // 16))
     have = idx >= 0
@@ -181,4 +215,6 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     moved = todo & np.isfinite(ratio)
     ratio = np.clip(np.nan_to_num(ratio, nan=1.0), 1.0 / max_ratio, max_ratio)
     out = np.where(moved, A * ratio, A)
-    return out.astype(np.float32), moved
+    with np.errstate(divide="ignore"):
+        out = np.where(planar & ~moved, 1.0 / q, out)
+    return out.astype(np.float32), moved | planar
