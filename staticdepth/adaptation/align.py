@@ -59,21 +59,26 @@ def upright_options(align) -> dict:
     return {"shape": align.shape, "jump_rel": align.jump_rel, "recede": recede}
 
 
+def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,
+                  instances: np.ndarray, rows: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """One frame's depth ``Z`` aligned as adapt does it (units of the camera height)."""
+    m = instances > 0
+    # the frame's agents leave the ground mask, unless they would leave too little of it
+    agent_mask = m if np.count_nonzero(ground & ~m) >= 50 else None
+    A = align_depth(Z, K, normal, 1.0, ground, agent_mask=agent_mask, mode=conf.align.mode,
+                    snap_rel=conf.align.snap_rel, **upright_options(conf.align)).depth
+    if conf.align.agents_at_contact:
+        A = agents_at_contact(A, K, normal, 1.0, instances, rows, conf.pseudo_labels)[0]
+    return A
+
+
 def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, feet: np.ndarray,
         config_hash: str) -> None:
     ground = ground_region(conf, ws, feet)
-    K, normal = ws.K, plane.normal
 
     def aligned(i: int, Z: np.ndarray) -> np.ndarray:
-        inst = agents.instances(i)
-        m = inst > 0
-        # the frame's agents leave the ground mask, unless they would leave too little of it
-        agent_mask = m if np.count_nonzero(ground & ~m) >= 50 else None
-        A = align_depth(Z, K, normal, 1.0, ground, agent_mask=agent_mask, mode=conf.align.mode,
-                        snap_rel=conf.align.snap_rel, **upright_options(conf.align)).depth
-        if conf.align.agents_at_contact:
-            A = agents_at_contact(A, K, normal, 1.0, inst, agents.rows(i), conf.pseudo_labels)[0]
-        return A
+        return aligned_frame(conf, ws.K, plane.normal, ground, agents.instances(i),
+                             agents.rows(i), Z)
 
     align_prediction(ws, {out: (src, aligned) for out, src in OUTPUTS.items()}, config_hash,
                      {"stage": "adapt", "metric": False, "units": "camera heights"})

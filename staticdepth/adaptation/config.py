@@ -151,6 +151,8 @@ def stage_hashes(conf: AdaptConfig, model_id: Mapping[str, Any] | None = None) -
     labels: dict[str, Any] = {"conf": conf.pseudo_labels, "base": h["base"], "agents": h["agents"]}
     if conf.pseudo_labels.source == "plane":  # labels read from the plane over the feet's region
         labels.update(plane=h["ground_plane"], erode_px=conf.align.erode_px)
+    elif conf.pseudo_labels.source == "aligned":   # labels are the base's alignment
+        labels.update(plane=h["ground_plane"], align=conf.align)
     h["pseudo_labels"] = config_hash(labels)
     if conf.finetune.epochs > 0:
         h["finetune"] = config_hash({"conf": conf.finetune, "labels": h["pseudo_labels"],

@@ -274,7 +274,7 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
     if agent_mask is not None:
         snap = snap & ~np.asarray(agent_mask, bool)
     new, moved = upright_depth(raw, K, n_g, d_g, snap, q, jump_rel=jump_rel, shape=shape,
-                               recede=recede,
+                               recede=recede, native=depth,
                                not_ground=None if agent_mask is None else np.asarray(agent_mask, bool))
     valid = np.isfinite(g.depth)
     out = np.where(moved, new, g.depth)

@@ -128,28 +128,34 @@ def refine_contacts(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.nda
         qc.ravel()[pix], idx.ravel()[pix] = new_q[k], base[k]
 
 
-def recedes_like_plane(A: np.ndarray, q: np.ndarray, du: np.ndarray, span: int,
-                       band: tuple[float, float]) -> np.ndarray:
-    """(H, W) bool: pixels where the depth grows up the image's vertical like the plane's does:
-    the ratio of ``ln A`` to ``ln (1 / q)`` differences over ``span`` rows lies in ``band``. A
-    structure standing on the ground gets nearer (or stays) going up; the ground recedes, even
-    where the network has it at the wrong depth."""
+def recession(A: np.ndarray, q: np.ndarray, du: np.ndarray, span: int,
+              jump_rel: float) -> np.ndarray:
+    """(H, W) how fast the depth grows up the image's vertical relative to the plane's: the ratio
+    of the ``ln A`` to the ``ln (1 / q)`` difference over ``span`` rows; NaN where that is not
+    measurable or a single row's step exceeds the plane's by more than a depth step
+    (``jump_rel``). About 1 on the ground (also where the network has it at the wrong depth),
+    0 or below on a structure standing on it (it gets nearer or stays going up)."""
     h, w = A.shape
-    out = np.zeros((h, w), bool)
+    out = np.full((h, w), np.nan)
     if span >= h:
         return out
-    vs = np.arange(h - span)[:, None]
-    us = np.rint(np.arange(w)[None, :] + span * np.nan_to_num(du[: h - span])).astype(np.int64)
-    inside = np.isfinite(du[: h - span]) & (us >= 0) & (us < w)
-    us = np.clip(us, 0, w - 1)
-    a0, a1 = A[: h - span], A[vs + span, us]
-    q0, q1 = q[: h - span], q[vs + span, us]
+    n = h - span
+    vs = np.arange(n)[:, None]
+    u = np.broadcast_to(np.arange(w, dtype=np.float64)[None, :], (n, w)).copy()
+    ok = np.ones((n, w), bool)
+    a_prev, q_prev = A[:n], q[:n]
     with np.errstate(invalid="ignore", divide="ignore"):
-        g_net = np.log(a0 / a1)
-        g_pl = np.log(q1 / q0)
-        k = g_net / g_pl
-        out[: h - span] = inside & (q0 > 0) & (q1 > 0) & (g_pl > 1e-6) & (k >= band[0]) \
-            & (k <= band[1])
+        for j in range(1, span + 1):
+            u = u + np.nan_to_num(du[vs + j - 1, np.clip(np.rint(u), 0, w - 1).astype(np.int64)])
+            ui = np.rint(u).astype(np.int64)
+            ok &= (ui >= 0) & (ui < w)
+            ui = np.clip(ui, 0, w - 1)
+            a_j, q_j = A[vs + j, ui], q[vs + j, ui]
+            ok &= (q_j > 0) & (np.log(a_prev / a_j) <= np.log1p(jump_rel) + np.log(q_j / q_prev))
+            a_prev, q_prev = a_j, q_j
+        g_net = np.log(A[:n] / a_prev)
+        g_pl = np.log(q_prev / q[:n])
+        out[:n] = np.where(ok & (q[:n] > 0) & (g_pl > 1e-6), g_net / g_pl, np.nan)
     return out
 
 
@@ -170,7 +176,8 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   q: np.ndarray, *, jump_rel: float = 0.08, shape: str = "network",
                   max_ratio: float = 4.0, near_rel: float = 0.02,
                   recede: tuple[float, float] | None = RECEDE, span: int = 3,
-                  not_ground: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  not_ground: np.ndarray | None = None, native: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
     ``q``: the plane's inverse depth ``n_g . r / d_g`` per pixel. Returns the new map and the
@@ -188,17 +195,26 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     du = down_step(K, n, w, h)
     planar = np.zeros((h, w), bool)
     if recede is not None:
-        planar = recedes_like_plane(A, q, du, span, recede) & ~ground
+        k = recession(A, q, du, span, jump_rel)
+        # snapped, but neither it nor the pixels above it recede: a structure on the plane's depth
+        vu = np.arange(h)[:, None] - span
+        uu = np.clip(np.rint(np.arange(w)[None, :] - span * np.nan_to_num(du)), 0, w - 1)
+        k_up = np.where(vu >= 0, k[np.maximum(vu, 0), uu.astype(np.int64)], np.nan)
+        with np.errstate(invalid="ignore"):
+            flat = (k < recede[0]) & ~(k_up >= recede[0])
+        k_any = np.where(np.isfinite(k), k, k_up)     # a step below: measured from above
+        with np.errstate(invalid="ignore"):
+            planar = (k_any >= recede[0]) & (k_any <= recede[1]) & ~ground
         if not_ground is not None:
             planar &= ~not_ground
-        ground = ground | planar
+        ground = (ground & ~flat) | planar
     qc, idx = contact_ratios(A, ground, q, du, jump_rel)
     refine_contacts(A, ground, q, du, qc, idx, jump_rel, near_rel, max(2, h // 16))
     have = idx >= 0
-    Aflat = A.ravel()
+    src = A if native is None else np.asarray(native, dtype=np.float64)
     ratio = np.full((h, w), np.nan)
     if shape == "network":
-        ratio[have] = (1.0 / qc[have]) / Aflat[idx[have]]
+        ratio[have] = (1.0 / qc[have]) / src.ravel()[idx[have]]
     else:
         r = ray_grid(np.asarray(K, dtype=np.float64), w, h).reshape(-1, 3)
         rc = r[idx[have]]
@@ -207,14 +223,14 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
         rn = rp @ n
         lam = (np.einsum("ij,ij->i", rp, F) - rn * (F @ n)) / np.maximum(
             np.einsum("ij,ij->i", rp, rp) - rn * rn, 1e-12)
-        ratio[have] = lam / A[have]                # ray r has r_z = 1: depth = lam
+        ratio[have] = lam / src[have]              # ray r has r_z = 1: depth = lam
     with np.errstate(invalid="ignore"):
         ratio[~(ratio > 0)] = np.nan
     todo = (~ground | have) & np.isfinite(A)
     fill_along_rows(ratio, A, todo, jump_rel)
     moved = todo & np.isfinite(ratio)
     ratio = np.clip(np.nan_to_num(ratio, nan=1.0), 1.0 / max_ratio, max_ratio)
-    out = np.where(moved, A * ratio, A)
+    out = np.where(moved, src * ratio, A)
     with np.errstate(divide="ignore"):
         out = np.where(planar & ~moved, 1.0 / q, out)
     return out.astype(np.float32), moved | planar
