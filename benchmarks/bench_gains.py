@@ -184,6 +184,8 @@ def main() -> None:
         for k, model in enumerate(args.models.split(",")):
             seq = os.path.join(args.work, f"{scene}-m{k}.h5")
             if not (args.reuse and os.path.exists(seq + ".adapt.json")):
+                for stale in (seq + ".adapt", seq + ".pred"):      # an earlier run's stages
+                    shutil.rmtree(stale, ignore_errors=True)
                 shutil.copyfile(src, seq)
             results.setdefault(model, {})[scene] = run_scene(seq, model, args)
             print(f"{scene} {model}: " + ", ".join(
