@@ -72,12 +72,13 @@ def run_scene(seq: str, model: str, args) -> dict:
     sets = {"model": model, "detector.name": args.detector, "finetune.epochs": args.epochs,
             "finetune.seed": 0, "plane.seed": 0, "tracking.min_height_px": args.min_height_px,
             "pseudo_labels.source": args.label_source, **dict(kv.split("=", 1) for kv in args.set)}
-    if args.reuse and os.path.exists(seq + ".adapt.json"):
-        with open(seq + ".adapt.json") as f:
-            summary = json.load(f)
-    else:
-        summary = adapt(seq, build_config(sets), summary_path=seq + ".adapt.json",
-                        log=lambda s: None)
+    if args.reuse:      # keep the network's predictions and the adaptation stages, align again
+        keep = {"base.h5", "ft.h5"}
+        pred_dir = seq + ".pred"
+        for name in os.listdir(pred_dir) if os.path.isdir(pred_dir) else ():
+            if name.split(".lock")[0] not in keep:
+                os.remove(os.path.join(pred_dir, name))
+    summary = adapt(seq, build_config(sets), summary_path=seq + ".adapt.json", log=lambda s: None)
     for mode in filter(None, args.extra_modes.split(",")):
         add_mode(seq, summary, mode=mode, suffix="-" + mode)
     if args.stereo_epochs > 0:
@@ -170,7 +171,8 @@ def main() -> None:
     ap.add_argument("--extra-modes", default="eq2,ground",
                     help="alignment modes written beside adapt's as align-MODE, ft-align-MODE")
     ap.add_argument("--reuse", action="store_true",
-                    help="keep an adapted sequence (its .adapt.json) from an earlier run")
+                    help="keep an earlier run's sequence, predictions base/ft and adaptation "
+                         "stages (same settings): only the alignment and scale run again")
     ap.add_argument("--json")
     args = ap.parse_args()
     w, h = (int(x) for x in args.size.split("x"))
