@@ -273,8 +273,13 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
     g, snap, q, raw = _ground_fit(depth, K, n_g, d_g, ground_mask, snap_rel, max_points)
     if agent_mask is not None:
         snap = snap & ~np.asarray(agent_mask, bool)
+    Z = np.asarray(depth, dtype=np.float32)
+    both = np.isfinite(raw) & np.isfinite(Z) & (Z > 0)
+    # the network's own depth, brought to the aligned map's units (its shape is what is kept)
+    unit = float(np.median((raw[both] / Z[both])[:: max(1, int(both.sum()) // max_points)])) \
+        if both.any() else 1.0
     new, moved = upright_depth(raw, K, n_g, d_g, snap, q, jump_rel=jump_rel, shape=shape,
-                               recede=recede, native=depth,
+                               recede=recede, native=Z * np.float32(unit),
                                not_ground=None if agent_mask is None else np.asarray(agent_mask, bool))
     valid = np.isfinite(g.depth)
     out = np.where(moved, new, g.depth)

@@ -2,21 +2,28 @@
 
 After the ``ground`` mode (alignment.align_ground: one scale and shift of the network's inverse
 depth fitted on the ground, pixels the plane explains snapped to it), whatever the network gets
-wrong on a wall, pole or facade stays wrong by that global correction. The upright-world prior the
-method uses for agents extends to them: a structure standing on the ground has, at its base, the
-agents' plane depth. Every pixel above the ground is traced down the image of the vertical (the
-lines through the vertical vanishing point ``K n``), row by row, as long as the aligned depth
-stays continuous (relative step below ``jump_rel``); the first ground pixel below it is the
-structure's contact. Then, with ``shape="network"``, every pixel of that run is multiplied by the
-run's ratio (plane depth at the contact) / (aligned depth at the contact): the network's shape is
-kept inside, its scale is fixed at the base. With ``shape="vertical"`` the pixel takes the depth
-of the vertical line through the contact point instead (no network shape at all).
+wrong on a wall, pole or facade, or on a far ground it squashed, stays wrong by that global
+correction. The upright-world prior the method uses for agents extends to them:
+
+1. Ground: the snapped pixels, plus pixels whose depth grows up the image of the vertical (the
+   lines through the vertical vanishing point ``K n``) ``recede`` times as fast as the plane's
+   (0.1-8x: a squashed far ground still recedes, a structure gets nearer or stays); a snapped pixel
+   that does not recede, nor the pixels above it, is a structure the network put at the plane's
+   depth. Those unsnapped ground pixels take the plane's depth.
+2. Every other pixel is traced down its vertical, row by row, while the aligned depth has no step
+   (relative ``jump_rel``); the first ground pixel below is the structure's contact, moved down to
+   the structure's foot where the foot fell within the snapping tolerance (the network nearer than
+   the plane there) and placed between rows where that run's depth meets the plane's.
+3. With ``shape="network"`` every pixel of the run takes the network's own depth (brought to the
+   aligned map's units by one global factor) times the run's ratio (plane depth at the contact) /
+   (network depth there): the network's shape is kept inside, the scale is fixed at the base. With
+   ``shape="vertical"`` the pixel takes the depth of the vertical line through the contact instead.
 Runs without a contact (cut by the image's bottom, standing on something that is not ground, or
 behind a depth step) take the ratio of a continuous neighbour in the same row, else keep the
 ``ground`` result. Ratios are clipped to ``[1 / max_ratio, max_ratio]``.
 
 A pure function of (depth, K, plane, ground mask[, agent mask]); ``geometry/alignment.py``
-dispatches ``mode="upright"`` here.
+dispatches ``mode="upright"`` here. Sequential over rows (the march) and columns (the fill).
 """
 from __future__ import annotations
 
@@ -180,8 +187,9 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
-    ``q``: the plane's inverse depth ``n_g . r / d_g`` per pixel. Returns the new map and the
-    (H, W) bool mask of re-anchored pixels."""
+    ``q``: the plane's inverse depth ``n_g . r / d_g`` per pixel; ``not_ground``: pixels never
+    ground (the frame's agents); ``native``: the depth whose shape a run keeps (default ``A``).
+    Returns the new map and the (H, W) bool mask of re-anchored pixels."""
     if shape not in SHAPES:
         raise InputError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
     if not (np.isfinite(jump_rel) and jump_rel > 0):
