@@ -2,14 +2,16 @@
 
 Renders the independent scenes of ``tests/indep_scenes.py`` (own textures, ellipsoid people, box
 vehicles, static structures; C1/C2/C3-like mounts), runs ``adapt`` on each with each network
-(ground-truth instances or a real detector, the known camera height), adds the paper's Eq. 2
-alignment beside the default ``ground`` mode, optionally trains the stereo baseline with its
-scene fit, and prints AbsRel per scene, prediction and region, then the issue's checks.
+(ground-truth instances or a real detector, the known camera height), adds other alignment modes
+(``--extra-modes``, default the paper's Eq. 2 and ``ground``) beside adapt's default, optionally
+trains the stereo baseline with its scene fit, and prints AbsRel per scene, prediction and region,
+then the issue's checks.
 
 Usage:
   python benchmarks/bench_gains.py --models builtin:out/builtin.pt,builtin:out/unet.pt \\
       [--scenes i1,i2,i3] [--frames 90] [--epochs 6] [--detector gt] [--stereo-epochs 0] \\
-      [--label-source plane|prediction] [--work out/bench] [--json out/bench/gains.json]
+      [--label-source plane|prediction] [--work out/bench] [--json out/bench/gains.json] \\
+      [--set align.mode=ground] [--extra-modes eq2,ground] [--reuse]
 """
 from __future__ import annotations
 
@@ -25,13 +27,14 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from tests.indep_scenes import SCENES, write_scene  # noqa: E402
 
 REGIONS = ("all", "ground", "agents", "structures", "0-10m", "10-20m", "20-40m", "40-80m")
-NAMES = ("base", "ft", "align-eq2", "align", "ft-align-eq2", "ft-align", "ft-align-metric",
-         "stereo-baseline")
+NAMES = ("base", "ft", "align-eq2", "align-ground", "align", "ft-align-eq2", "ft-align-ground",
+         "ft-align", "ft-align-metric", "stereo-baseline")
 
 
-def add_eq2(seq: str, summary: dict) -> None:
-    """The paper's Eq. 2 alignment of the stored base and ft predictions, as adapt would do it
-    with ``align_mode=eq2`` (same plane, ground mask and agents at their contact)."""
+def add_mode(seq: str, summary: dict, mode: str = "eq2", suffix: str = "-eq2", **kw) -> None:
+    """Another alignment mode (default the paper's Eq. 2) of the stored base and ft predictions,
+    as adapt would do it with ``align.mode=mode`` (same plane, ground mask and agents at their
+    contact); written as ``align<suffix>`` and ``ft-align<suffix>``."""
     from staticdepth.dataset.h5 import SequenceReader, add_prediction
     from staticdepth.geometry.alignment import agents_at_contact, align_depth, ground_mask_from_feet
     from staticdepth.config import setting_from
@@ -50,15 +53,15 @@ def add_eq2(seq: str, summary: dict) -> None:
         ground = ground_mask_from_feet(feet, W, H, W / 80.0 if erode is None else erode)
         maps = {src: np.stack([r.prediction(src, i) for i in range(n)]) for src in ("base", "ft")}
     pl = PseudoLabelConfig(contact=setting_from(conf, "pseudo_labels.contact", "lowest"))
-    for name, src in (("align-eq2", "base"), ("ft-align-eq2", "ft")):
+    for name, src in (("align" + suffix, "base"), ("ft-align" + suffix, "ft")):
         out = []
         for i in range(n):
             m = inst[i] > 0
             a = align_depth(maps[src][i], K, n_g, 1.0, ground,
                             agent_mask=m if np.count_nonzero(ground & ~m) >= 50 else None,
-                            mode="eq2").depth
+                            mode=mode, **kw).depth
             out.append(agents_at_contact(a, K, n_g, 1.0, inst[i], rows[i], pl)[0])
-        add_prediction(seq, name, out, {"stage": "bench_gains", "align_mode": "eq2"})
+        add_prediction(seq, name, out, {"stage": "bench_gains", "align_mode": mode})
 
 
 def run_scene(seq: str, model: str, args) -> dict:
@@ -66,13 +69,18 @@ def run_scene(seq: str, model: str, args) -> dict:
     from staticdepth.adaptation.config import build_config
     from staticdepth.evaluate import evaluate_sequence
 
-    conf = build_config({"model": model, "detector.name": args.detector,
-                         "finetune.epochs": args.epochs, "align.mode": "ground",
-                         "finetune.seed": 0, "plane.seed": 0,
-                         "tracking.min_height_px": args.min_height_px,
-                         "pseudo_labels.source": args.label_source})
-    summary = adapt(seq, conf, summary_path=seq + ".adapt.json", log=lambda s: None)
-    add_eq2(seq, summary)
+    sets = {"model": model, "detector.name": args.detector, "finetune.epochs": args.epochs,
+            "finetune.seed": 0, "plane.seed": 0, "tracking.min_height_px": args.min_height_px,
+            "pseudo_labels.source": args.label_source, **dict(kv.split("=", 1) for kv in args.set)}
+    if args.reuse:      # keep the network's predictions and the adaptation stages, align again
+        keep = {"base.h5", "ft.h5"}
+        pred_dir = seq + ".pred"
+        for name in os.listdir(pred_dir) if os.path.isdir(pred_dir) else ():
+            if name.split(".lock")[0] not in keep:
+                os.remove(os.path.join(pred_dir, name))
+    summary = adapt(seq, build_config(sets), summary_path=seq + ".adapt.json", log=lambda s: None)
+    for mode in filter(None, args.extra_modes.split(",")):
+        add_mode(seq, summary, mode=mode, suffix="-" + mode)
     if args.stereo_epochs > 0:
         train_stereo(seq, args.stereo_epochs)
     res = evaluate_sequence(seq, protocols=None)["results"]
@@ -158,6 +166,13 @@ def main() -> None:
     ap.add_argument("--stereo-epochs", type=int, default=0)
     ap.add_argument("--label-source", default="plane", choices=("plane", "prediction"))
     ap.add_argument("--work", default="out/bench")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="adapt setting (e.g. align.mode=ground)")
+    ap.add_argument("--extra-modes", default="eq2,ground",
+                    help="alignment modes written beside adapt's as align-MODE, ft-align-MODE")
+    ap.add_argument("--reuse", action="store_true",
+                    help="keep an earlier run's sequence, predictions base/ft and adaptation "
+                         "stages (same settings): only the alignment and scale run again")
     ap.add_argument("--json")
     args = ap.parse_args()
     w, h = (int(x) for x in args.size.split("x"))
@@ -170,7 +185,10 @@ def main() -> None:
             write_scene(src, specs[scene], args.frames, width=w, height=h)
         for k, model in enumerate(args.models.split(",")):
             seq = os.path.join(args.work, f"{scene}-m{k}.h5")
-            shutil.copyfile(src, seq)
+            if not (args.reuse and os.path.exists(seq + ".adapt.json")):
+                for stale in (seq + ".adapt", seq + ".pred"):      # an earlier run's stages
+                    shutil.rmtree(stale, ignore_errors=True)
+                shutil.copyfile(src, seq)
             results.setdefault(model, {})[scene] = run_scene(seq, model, args)
             print(f"{scene} {model}: " + ", ".join(
                 f"{n} {v['all']:.3f}" for n, v in results[model][scene]["table"].items()),

@@ -24,7 +24,7 @@ from staticdepth.detectors.grouping import label_sources
 from staticdepth.errors import InputError
 
 CONTACTS = ("lowest", "bottom_rows")
-LABEL_SOURCES = ("prediction", "plane")
+LABEL_SOURCES = ("prediction", "plane", "aligned")
 
 
 @dataclass(frozen=True)
@@ -35,7 +35,9 @@ class PseudoLabelConfig:
     classes: frozenset = field(default_factory=lambda: AGENT_CLASSES | ACCESSORY_CLASSES)
     source: str = "prediction"         # agents' label: the network's own contact value (the
     #                                    paper's) or "plane": the agents' plane at the contact,
-    #                                    mapped into the network's space (plane_pseudo_label)
+    #                                    mapped into the network's space (plane_pseudo_label),
+    #                                    or "aligned": every pixel from the frame's alignment
+    #                                    (aligned_pseudo_label)
     label_ground: bool = False         # "plane": the ground pixels take the plane's value too
 
     def __post_init__(self):
@@ -131,3 +133,39 @@ def plane_pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.
         label = np.where(G, mapped, label)
         mask = mask | G
     return label.astype(np.float32), mask
+
+
+def aligned_pseudo_label(inv_depth: np.ndarray, aligned: np.ndarray, plane_inv: np.ndarray,
+                         ground_mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Label one frame with its alignment, in the network's inverse-depth space.
+
+    aligned: (H, W) the frame's aligned depth in the units of ``plane_inv`` (the plane's inverse
+    depth ``n . r / d``); ground_mask: (H, W) bool ground pixels without agents. The network's
+    ``inv_depth`` on the ground is fitted as ``s plane_inv + t`` (robust) and every pixel takes
+    ``s / aligned + t``: pixels the alignment left as the network saw them get their own value
+    back. A frame whose ground has no positive slope against the plane keeps its prediction.
+    Returns the label and the mask of pixels changed by more than 1e-3 relative.
+    """
+    from staticdepth.geometry.alignment import fit_inverse_affine
+
+    inv = np.asarray(inv_depth, dtype=np.float32)
+    q = np.asarray(plane_inv, dtype=np.float32)
+    A = np.asarray(aligned, dtype=np.float32)
+    if inv.shape != q.shape or A.shape != q.shape:
+        raise InputError(f"prediction {inv.shape}, alignment {A.shape} and plane {q.shape} "
+                         "differ in size")
+    G = np.asarray(ground_mask, bool) & (q > 0) & np.isfinite(inv)
+    if np.count_nonzero(G) < 3:
+        raise InputError("the ground mask holds fewer than 3 pixels below the agents' horizon: "
+                         "no aligned pseudo labels")
+    step = max(1, np.count_nonzero(G) // 20000)
+    try:
+        s, t = fit_inverse_affine(inv[G][::step], q[G][::step])
+    except InputError:
+        return inv.copy(), np.zeros(inv.shape, bool)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        label = np.where(np.isfinite(A) & (A > 0), np.float32(s) / A + np.float32(t), inv)
+    label = label.astype(np.float32)
+    with np.errstate(invalid="ignore"):
+        mask = np.abs(label - inv) > 1e-3 * np.abs(inv)
+    return label, mask

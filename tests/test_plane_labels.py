@@ -47,3 +47,22 @@ def test_ground_labels_and_errors():
     np.testing.assert_allclose(label[g], D[g], rtol=0.02)   # the noise is gone on the ground
     with pytest.raises(InputError, match="ground mask"):
         plane_pseudo_label(D, inst, rows, q, np.zeros_like(ground))
+
+
+def test_aligned_labels_are_the_alignment_in_the_networks_space():
+    from staticdepth.geometry.alignment import align_depth, depth_from_inverse
+    from staticdepth.pseudo_labels import aligned_pseudo_label
+
+    K, n, Z, ground, wall = scene(pitch_deg=30.0, cam_height=5.0)
+    D = dpt_failure(Z, s=3.0, t=0.08)
+    D_bad = D.copy()
+    D_bad[wall] = 3.0 / (1.5 * Z[wall]) + 0.08         # the network puts the wall 50% too far
+    q = (ray_grid(K, Z.shape[1], Z.shape[0]) @ n).astype(np.float32)   # plane with d = 1
+    A = align_depth(depth_from_inverse(D_bad), K, n, 1.0, ground, mode="upright").depth
+    label, mask = aligned_pseudo_label(D_bad, A, q, ground)
+    np.testing.assert_allclose(label[ground], D[ground], rtol=1e-4)
+    assert np.mean(np.abs(label[wall] - D[wall]) / D[wall]) < 0.07     # the wall's truth
+    assert np.mean(np.abs(D_bad[wall] - D[wall]) / D[wall]) > 0.2
+    assert mask[wall].mean() > 0.9 and not mask[ground].any()
+    with pytest.raises(InputError, match="ground mask"):
+        aligned_pseudo_label(D, A, q, np.zeros_like(ground))

@@ -1,7 +1,7 @@
 """Stage align: every frame of ``base`` and ``ft`` aligned to the agents' plane (METHOD.md 4).
 
-Eq. 2 and the re-projection with unit camera height (the outputs ``align`` and ``ft-align`` are in
-units of the camera height); the predicted plane is fitted on the feet's hull (eroded by
+``align.mode`` (ground, upright or the paper's Eq. 2) with unit camera height (the outputs
+``align`` and ``ft-align`` are in units of the camera height); the predicted plane is fitted on the feet's hull (eroded by
 ``align.erode_px``, default W/80) minus the frame's agents, unless that leaves fewer than 50
 pixels; with ``align.agents_at_contact`` each agent then takes the plane depth at its contact.
 :func:`align_prediction` is the streamed, resumable per-frame writer that ``staticdepth align
@@ -53,21 +53,32 @@ def ground_region(conf: AdaptConfig, ws: Workspace, feet: np.ndarray) -> np.ndar
     return ground_mask_from_feet(feet, ws.width, ws.height, erode)
 
 
+def upright_options(align) -> dict:
+    """align_depth's keywords of the ``upright`` mode from an AlignConfig."""
+    recede = (align.recede_min, align.recede_max) if align.recede_max > 0 else None
+    return {"shape": align.shape, "jump_rel": align.jump_rel, "recede": recede}
+
+
+def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,
+                  instances: np.ndarray, rows: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """One frame's depth ``Z`` aligned as adapt does it (units of the camera height)."""
+    m = instances > 0
+    # the frame's agents leave the ground mask, unless they would leave too little of it
+    agent_mask = m if np.count_nonzero(ground & ~m) >= 50 else None
+    A = align_depth(Z, K, normal, 1.0, ground, agent_mask=agent_mask, mode=conf.align.mode,
+                    snap_rel=conf.align.snap_rel, **upright_options(conf.align)).depth
+    if conf.align.agents_at_contact:
+        A = agents_at_contact(A, K, normal, 1.0, instances, rows, conf.pseudo_labels)[0]
+    return A
+
+
 def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, feet: np.ndarray,
         config_hash: str) -> None:
     ground = ground_region(conf, ws, feet)
-    K, normal = ws.K, plane.normal
 
     def aligned(i: int, Z: np.ndarray) -> np.ndarray:
-        inst = agents.instances(i)
-        m = inst > 0
-        # the frame's agents leave the ground mask, unless they would leave too little of it
-        agent_mask = m if np.count_nonzero(ground & ~m) >= 50 else None
-        A = align_depth(Z, K, normal, 1.0, ground, agent_mask=agent_mask, mode=conf.align.mode,
-                        snap_rel=conf.align.snap_rel).depth
-        if conf.align.agents_at_contact:
-            A = agents_at_contact(A, K, normal, 1.0, inst, agents.rows(i), conf.pseudo_labels)[0]
-        return A
+        return aligned_frame(conf, ws.K, plane.normal, ground, agents.instances(i),
+                             agents.rows(i), Z)
 
     align_prediction(ws, {out: (src, aligned) for out, src in OUTPUTS.items()}, config_hash,
                      {"stage": "adapt", "metric": False, "units": "camera heights"})

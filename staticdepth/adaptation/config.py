@@ -54,6 +54,13 @@ class AlignConfig:
     #                                  near it, agents), scale and shift the rest in inverse
     #                                  depth (alignment.align_ground); eq2: the paper's Eq. 2
     snap_rel: float = 0.1            # ground: pixels this close to the plane (relative) take it
+    #                                  upright: ground, then structures re-anchored at their
+    #                                  contact with it (geometry/alignment_upright.py)
+    shape: str = "network"           # upright: network (its shape, scaled at the contact) or
+    #                                  vertical (the vertical line through the contact)
+    jump_rel: float = 0.08           # upright: a relative depth step this large ends a structure
+    recede_min: float = 0.1          # upright: pixels whose depth recedes up the image this
+    recede_max: float = 8.0          # fast relative to the plane's are ground (0 and 0: off)
 
     def __post_init__(self):
         from staticdepth.geometry.alignment import ALIGN_MODES
@@ -62,6 +69,15 @@ class AlignConfig:
             raise InputError(f"align.mode must be one of {ALIGN_MODES}, got {self.mode!r}")
         if not (math.isfinite(self.snap_rel) and self.snap_rel >= 0):
             raise InputError(f"align.snap_rel must be >= 0, got {self.snap_rel}")
+        from staticdepth.geometry.alignment_upright import SHAPES
+
+        if self.shape not in SHAPES:
+            raise InputError(f"align.shape must be one of {SHAPES}, got {self.shape!r}")
+        if not (math.isfinite(self.jump_rel) and self.jump_rel > 0):
+            raise InputError(f"align.jump_rel must be > 0, got {self.jump_rel}")
+        if not (0 <= self.recede_min <= self.recede_max and math.isfinite(self.recede_max)):
+            raise InputError(f"align.recede_min/recede_max must satisfy 0 <= min <= max, got "
+                             f"{self.recede_min}, {self.recede_max}")
         if self.erode_px is not None and not (math.isfinite(self.erode_px) and self.erode_px >= 0):
             raise InputError(f"align.erode_px must be >= 0, got {self.erode_px}")
 
@@ -137,6 +153,8 @@ def stage_hashes(conf: AdaptConfig, model_id: Mapping[str, Any] | None = None) -
     labels: dict[str, Any] = {"conf": conf.pseudo_labels, "base": h["base"], "agents": h["agents"]}
     if conf.pseudo_labels.source == "plane":  # labels read from the plane over the feet's region
         labels.update(plane=h["ground_plane"], erode_px=conf.align.erode_px)
+    elif conf.pseudo_labels.source == "aligned":   # labels are the base's alignment
+        labels.update(plane=h["ground_plane"], align=conf.align)
     h["pseudo_labels"] = config_hash(labels)
     if conf.finetune.epochs > 0:
         h["finetune"] = config_hash({"conf": conf.finetune, "labels": h["pseudo_labels"],

@@ -11,7 +11,7 @@ from staticdepth.adaptation.common import Agents, Workspace
 from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.geometry.agent_plane import AgentPlane
 from staticdepth.progress import progress
-from staticdepth.pseudo_labels import plane_pseudo_label, pseudo_label
+from staticdepth.pseudo_labels import aligned_pseudo_label, plane_pseudo_label, pseudo_label
 
 ROWS = np.dtype([("frame", np.int32), ("agent_pixels", np.int64)])
 
@@ -21,7 +21,9 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
     """Write the labels; returns the number of agent pixels relabelled.
 
     ``pseudo_labels.source = "plane"`` reads each agent's label from the agents' ``plane`` (mapped
-    into the network's space by a fit over the ground region of ``feet``)."""
+    into the network's space by a fit over the ground region of ``feet``); ``"aligned"`` labels
+    every pixel with the frame's alignment (``align.mode``, agents at their contact) mapped back
+    into the network's space the same way."""
     pl = conf.pseudo_labels
     if pl.source == "plane":
         from staticdepth.adaptation.align import ground_region
@@ -34,6 +36,20 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
         def label_frame(i, inv):
             return plane_pseudo_label(inv, agents.instances(i), agents.rows(i), plane_inv, ground,
                                       pl, label_ground=pl.label_ground)
+    elif pl.source == "aligned":
+        from staticdepth.adaptation.align import aligned_frame, ground_region
+        from staticdepth.geometry.alignment import depth_from_inverse
+        from staticdepth.geometry.projection import ray_grid
+
+        plane_inv = (ray_grid(ws.K, ws.width, ws.height) @ np.asarray(plane.normal)
+                     ).astype(np.float32)
+        ground = ground_region(conf, ws, feet)
+
+        def label_frame(i, inv):
+            inst = agents.instances(i)
+            A = aligned_frame(conf, ws.K, plane.normal, ground, inst, agents.rows(i),
+                              depth_from_inverse(inv))
+            return aligned_pseudo_label(inv, A, plane_inv, ground & (inst == 0))
     else:
         def label_frame(i, inv):
             return pseudo_label(inv, agents.instances(i), agents.rows(i), pl)

@@ -133,13 +133,15 @@ class Alignment:
     skipped: bool
 
 
-ALIGN_MODES = ("ground", "eq2")
+ALIGN_MODES = ("ground", "eq2", "upright")
 
 
 def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: np.ndarray, *,
                 agent_mask: np.ndarray | None = None, near_plane_rel: float | None = None,
                 eps: float = 1e-3, nadir_tol: float = 1e-6, mode: str = "eq2",
-                snap_rel: float = 0.1) -> Alignment:
+                snap_rel: float = 0.1, jump_rel: float = 0.08,
+                shape: str = "network", recede: tuple[float, float] | None = (0.1, 8.0)
+                ) -> Alignment:
     """Align a relative depth map (H, W) to the agents' ground plane ``n_g . P = d_g``.
 
     ground_mask: (H, W) bool where the ground is expected; ``agent_mask`` pixels are removed from
@@ -178,6 +180,9 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
         raise InputError(f"alignment mode must be one of {ALIGN_MODES}, got {mode!r}")
     if mode == "ground":
         return align_ground(Z, K, n_g, d_g, G, snap_rel=snap_rel)
+    if mode == "upright":
+        return align_upright(Z, K, n_g, d_g, G, snap_rel=snap_rel, jump_rel=jump_rel, shape=shape,
+                             agent_mask=agent_mask, recede=recede)
     n_p, d_p = fit_predicted_plane(Z, K, G)
     a, b, c = n_p
     s2 = a * a + b * b
@@ -252,6 +257,40 @@ def align_ground(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask:
     a scale is fitted (median ratio, t = 0). ``plane_normal``/``plane_d`` of the result hold
     (s, t, 1 if scale only else 0) and the far limit, for the summary.
     """
+    return _ground_fit(depth, K, n_g, d_g, ground_mask, snap_rel, max_points)[0]
+
+
+def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: np.ndarray, *,
+                  snap_rel: float = 0.1, jump_rel: float = 0.08, shape: str = "network",
+                  agent_mask: np.ndarray | None = None, max_points: int = 20000,
+                  recede: tuple[float, float] | None = (0.1, 8.0)) -> Alignment:
+    """The ``ground`` mode, then every structure above the ground re-anchored at its contact with
+    it (geometry/alignment_upright.py). The frame's agents (``agent_mask``) are never ground.
+    ``n_fallback`` counts the pixels that were not re-anchored (neither ground nor traced to it).
+    """
+    from staticdepth.geometry.alignment_upright import upright_depth
+
+    g, snap, q, raw = _ground_fit(depth, K, n_g, d_g, ground_mask, snap_rel, max_points)
+    if agent_mask is not None:
+        snap = snap & ~np.asarray(agent_mask, bool)
+    Z = np.asarray(depth, dtype=np.float32)
+    both = np.isfinite(raw) & np.isfinite(Z) & (Z > 0)
+    # the network's own depth, brought to the aligned map's units (its shape is what is kept)
+    unit = float(np.median((raw[both] / Z[both])[:: max(1, int(both.sum()) // max_points)])) \
+        if both.any() else 1.0
+    new, moved = upright_depth(raw, K, n_g, d_g, snap, q, jump_rel=jump_rel, shape=shape,
+                               recede=recede, native=Z * np.float32(unit),
+                               not_ground=None if agent_mask is None else np.asarray(agent_mask, bool))
+    valid = np.isfinite(g.depth)
+    out = np.where(moved, new, g.depth)
+    out[~valid] = np.nan
+    return Alignment(out, g.plane_normal, g.plane_d, g.fallback_ratio,
+                     int(np.count_nonzero(valid & ~snap & ~moved)), False)
+
+
+def _ground_fit(depth, K, n_g, d_g, ground_mask, snap_rel, max_points):
+    """align_ground's work: (Alignment, (H, W) bool snapped pixels, (H, W) plane inverse depth,
+    (H, W) depth before snapping)."""
     Z = np.asarray(depth, dtype=np.float32)
     h, w = Z.shape
     n_g = np.asarray(n_g, dtype=np.float64)
@@ -278,10 +317,11 @@ def align_ground(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask:
     floor = np.float32(np.median(q[vs, us]) / 50.0)
     snap = valid & (q > 0) & (np.abs(new_inv - q) <= np.float32(snap_rel) * q)
     n_fb = int(np.count_nonzero(valid & ~snap & (new_inv < floor)))
-    new_inv = np.where(snap, q, np.maximum(new_inv, floor))
-    out = np.where(valid, 1.0 / new_inv, np.nan).astype(np.float32)
-    return Alignment(out, np.array([s, t, float(scale_only)]), float(1.0 / floor), float("nan"),
-                     n_fb, False)
+    new_inv = np.maximum(new_inv, floor)
+    raw = np.where(valid, 1.0 / new_inv, np.nan).astype(np.float32)
+    out = np.where(valid, 1.0 / np.where(snap, q, new_inv), np.nan).astype(np.float32)
+    return (Alignment(out, np.array([s, t, float(scale_only)]), float(1.0 / floor), float("nan"),
+                      n_fb, False), snap, q, raw)
 
 
 def agents_at_contact(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, instances: np.ndarray,

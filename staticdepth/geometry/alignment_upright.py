@@ -1,0 +1,244 @@
+"""The ``upright`` alignment mode: structures standing on the ground take its depth at their base.
+
+After the ``ground`` mode (alignment.align_ground: one scale and shift of the network's inverse
+depth fitted on the ground, pixels the plane explains snapped to it), whatever the network gets
+wrong on a wall, pole or facade, or on a far ground it squashed, stays wrong by that global
+correction. The upright-world prior the method uses for agents extends to them:
+
+1. Ground: the snapped pixels, plus pixels whose depth grows up the image of the vertical (the
+   lines through the vertical vanishing point ``K n``) ``recede`` times as fast as the plane's
+   (0.1-8x: a squashed far ground still recedes, a structure gets nearer or stays); a snapped pixel
+   that does not recede, nor the pixels above it, is a structure the network put at the plane's
+   depth. Those unsnapped ground pixels take the plane's depth.
+2. Every other pixel is traced down its vertical, row by row, while the aligned depth has no step
+   (relative ``jump_rel``); the first ground pixel below is the structure's contact, moved down to
+   the structure's foot where the foot fell within the snapping tolerance (the network nearer than
+   the plane there) and placed between rows where that run's depth meets the plane's.
+3. With ``shape="network"`` every pixel of the run takes the network's own depth (brought to the
+   aligned map's units by one global factor) times the run's ratio (plane depth at the contact) /
+   (network depth there): the network's shape is kept inside, the scale is fixed at the base. With
+   ``shape="vertical"`` the pixel takes the depth of the vertical line through the contact instead.
+Runs without a contact (cut by the image's bottom, standing on something that is not ground, or
+behind a depth step) take the ratio of a continuous neighbour in the same row, else keep the
+``ground`` result. Ratios are clipped to ``[1 / max_ratio, max_ratio]``.
+
+A pure function of (depth, K, plane, ground mask[, agent mask]); ``geometry/alignment.py``
+dispatches ``mode="upright"`` here. Sequential over rows (the march) and columns (the fill).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from staticdepth.errors import InputError
+from staticdepth.geometry.projection import ray_grid
+
+SHAPES = ("network", "vertical")
+RECEDE = (0.1, 8.0)     # ground: the network's depth grows up the vertical 0.1-8x as fast as the plane's
+
+
+def down_step(K: np.ndarray, n: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(H, W) horizontal pixel shift ``du`` per one row down along the image of the vertical
+    direction ``n`` (pointing into the ground) at each pixel; NaN where moving down the vertical
+    does not move down the image (beyond the nadir's image row)."""
+    K = np.asarray(K, dtype=np.float64)
+    fx, fy, cx, cy, sk = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
+    y = ((np.arange(height) - cy) / fy)[:, None]
+    x = (np.arange(width)[None, :] - cx - sk * y) / fx
+    dx = n[0] - x * n[2]          # d(normalised coordinates) of P + l n, times Z
+    dy = n[1] - y * n[2]
+    dv = fy * dy
+    du = fx * dx + sk * dy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(dv > 1e-9, du / np.where(dv > 1e-9, dv, 1.0), np.nan)
+
+
+def contact_ratios(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndarray,
+                   jump_rel: float) -> tuple[np.ndarray, np.ndarray]:
+    """March every row from the bottom up: each non-ground pixel inherits the contact of the
+    pixel below it on its vertical line when their depths are continuous, or becomes a contact
+    when that pixel is ground. Returns (H, W) the contact's plane inverse depth ``qc`` and the
+    contact's flat pixel index (NaN / -1 where a pixel has no contact)."""
+    h, w = A.shape
+    qc = np.full((h, w), np.nan, np.float64)
+    idx = np.full((h, w), -1, np.int64)
+    cols = np.arange(w)
+    for v in range(h - 2, -1, -1):
+        step = du[v]
+        ok = np.isfinite(step) & ~ground[v] & np.isfinite(A[v])
+        ub = np.where(ok, np.rint(cols + np.nan_to_num(step)), -1).astype(np.int64)
+        ok &= (ub >= 0) & (ub < w)
+        ub = np.clip(ub, 0, w - 1)
+        below, a_b = ground[v + 1, ub], A[v + 1, ub]
+        qv = 0.5 * (q[v] + q[v + 1, ub])
+        contact = ok & below & (qv > 0)
+        qc[v, contact] = qv[contact]
+        idx[v, contact] = v * w + cols[contact]
+        with np.errstate(invalid="ignore"):
+            cont = ok & ~below & (np.abs(A[v] - a_b) <= jump_rel * np.minimum(A[v], a_b))
+        qc[v, cont] = qc[v + 1, ub[cont]]
+        idx[v, cont] = idx[v + 1, ub[cont]]
+    return qc, idx
+
+
+def refine_contacts(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndarray,
+                    qc: np.ndarray, idx: np.ndarray, jump_rel: float, near_rel: float,
+                    max_walk: int) -> None:
+    """In place: move each contact down its vertical line over ground pixels that the network
+    sees nearer than the plane (by more than ``near_rel``) and continuous with it, at most
+    ``max_walk`` rows: the foot of a wall whose depth fell within the snapping tolerance. The
+    pixels walked over join the run; every pixel of the run takes the lower contact."""
+    h, w = A.shape
+    flat = np.arange(h * w).reshape(h, w)
+    C = np.unique(idx[idx >= 0])
+    if len(C) == 0:
+        return
+    cv, cu = np.divmod(C, w)
+    active = np.ones(len(C), bool)
+    walked_pix, walked_c = [], []
+    for _ in range(max_walk):
+        step = du[cv, cu]
+        bv = cv + 1
+        bu = np.rint(cu + np.nan_to_num(step)).astype(np.int64)
+        act = active & np.isfinite(step) & (bv < h) & (bu >= 0) & (bu < w)
+        bv, bu = np.where(act, bv, 0), np.clip(bu, 0, w - 1)
+        a, a_b, qb = A[cv, cu], A[bv, bu], q[bv, bu]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            act &= ground[bv, bu] & (qb > 0) & (a_b * qb < 1.0 - near_rel) \
+                & (np.abs(a - a_b) <= jump_rel * np.minimum(a, a_b))
+        if not act.any():
+            break
+        cv, cu = np.where(act, bv, cv), np.where(act, bu, cu)
+        walked_pix.append(flat[cv[act], cu[act]])
+        walked_c.append(np.flatnonzero(act))
+        active = act
+    base = flat[cv, cu]
+    # the contact: where the run's A q (1 on the plane, < 1 on a structure nearer than the plane)
+    # extrapolated from its two lowest pixels reaches 1, at most one row below the base pixel
+    bv = np.minimum(cv + 1, h - 1)
+    bu = np.clip(np.rint(cu + np.nan_to_num(du[cv, cu])), 0, w - 1).astype(np.int64)
+    av = np.maximum(cv - 1, 0)
+    au = np.clip(np.rint(cu - np.nan_to_num(du[av, cu])), 0, w - 1).astype(np.int64)
+    r0, ra = A[cv, cu] * q[cv, cu], A[av, au] * q[av, au]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        x = np.where((r0 - ra > 1e-6) & (av < cv), (1.0 - r0) / (r0 - ra), 0.5)
+    x = np.clip(np.nan_to_num(x, nan=0.5), 0.0, 1.0)
+    qb = np.where(q[bv, bu] > 0, q[bv, bu], q[cv, cu])
+    new_q = q[cv, cu] + x * (qb - q[cv, cu])
+    new_a = A[cv, cu] + x * (A[cv, cu] - A[av, au])
+    new_q = new_q * new_a / A[cv, cu]      # so that 1 / (qc A[base]) is the run's ratio
+    lut_i = np.full(h * w, -1, np.int64)
+    lut_q = np.full(h * w, np.nan)
+    lut_i[C], lut_q[C] = base, new_q
+    have = idx >= 0
+    qc[have], idx[have] = lut_q[idx[have]], lut_i[idx[have]]
+    for pix, k in zip(walked_pix, walked_c):
+        qc.ravel()[pix], idx.ravel()[pix] = new_q[k], base[k]
+
+
+def recession(A: np.ndarray, q: np.ndarray, du: np.ndarray, span: int,
+              jump_rel: float) -> np.ndarray:
+    """(H, W) how fast the depth grows up the image's vertical relative to the plane's: the ratio
+    of the ``ln A`` to the ``ln (1 / q)`` difference over ``span`` rows; NaN where that is not
+    measurable or a single row's step exceeds the plane's by more than a depth step
+    (``jump_rel``). About 1 on the ground (also where the network has it at the wrong depth),
+    0 or below on a structure standing on it (it gets nearer or stays going up)."""
+    h, w = A.shape
+    out = np.full((h, w), np.nan)
+    if span >= h:
+        return out
+    n = h - span
+    vs = np.arange(n)[:, None]
+    u = np.broadcast_to(np.arange(w, dtype=np.float64)[None, :], (n, w)).copy()
+    ok = np.ones((n, w), bool)
+    a_prev, q_prev = A[:n], q[:n]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for j in range(1, span + 1):
+            u = u + np.nan_to_num(du[vs + j - 1, np.clip(np.rint(u), 0, w - 1).astype(np.int64)])
+            ui = np.rint(u).astype(np.int64)
+            ok &= (ui >= 0) & (ui < w)
+            ui = np.clip(ui, 0, w - 1)
+            a_j, q_j = A[vs + j, ui], q[vs + j, ui]
+            ok &= (q_j > 0) & (np.log(a_prev / a_j) <= np.log1p(jump_rel) + np.log(q_j / q_prev))
+            a_prev, q_prev = a_j, q_j
+        g_net = np.log(A[:n] / a_prev)
+        g_pl = np.log(q_prev / q[:n])
+        out[:n] = np.where(ok & (q[:n] > 0) & (g_pl > 1e-6), g_net / g_pl, np.nan)
+    return out
+
+
+def fill_along_rows(ratio: np.ndarray, A: np.ndarray, todo: np.ndarray, jump_rel: float) -> None:
+    """In place: pixels of ``todo`` without a ratio take their left, then right, neighbour's when
+    their depths are continuous (one sweep each way)."""
+    h, w = A.shape
+    for order in (range(1, w), range(w - 2, -1, -1)):
+        for u in order:
+            prev = u - 1 if order.step == 1 else u + 1
+            with np.errstate(invalid="ignore"):
+                m = (todo[:, u] & ~np.isfinite(ratio[:, u]) & np.isfinite(ratio[:, prev])
+                     & (np.abs(A[:, u] - A[:, prev]) <= jump_rel * np.minimum(A[:, u], A[:, prev])))
+            ratio[m, u] = ratio[m, prev]
+
+
+def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, ground: np.ndarray,
+                  q: np.ndarray, *, jump_rel: float = 0.08, shape: str = "network",
+                  max_ratio: float = 4.0, near_rel: float = 0.02,
+                  recede: tuple[float, float] | None = RECEDE, span: int = 3,
+                  not_ground: np.ndarray | None = None, native: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
+    contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
+    ``q``: the plane's inverse depth ``n_g . r / d_g`` per pixel; ``not_ground``: pixels never
+    ground (the frame's agents); ``native``: the depth whose shape a run keeps (default ``A``).
+    Returns the new map and the (H, W) bool mask of re-anchored pixels."""
+    if shape not in SHAPES:
+        raise InputError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
+    if not (np.isfinite(jump_rel) and jump_rel > 0):
+        raise InputError(f"upright alignment jump_rel must be > 0, got {jump_rel}")
+    if not (np.isfinite(max_ratio) and max_ratio >= 1):
+        raise InputError(f"upright alignment max_ratio must be >= 1, got {max_ratio}")
+    h, w = A.shape
+    A = np.asarray(A, dtype=np.float64)
+    n = np.asarray(n_g, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    du = down_step(K, n, w, h)
+    planar = np.zeros((h, w), bool)
+    if recede is not None:
+        k = recession(A, q, du, span, jump_rel)
+        # snapped, but neither it nor the pixels above it recede: a structure on the plane's depth
+        vu = np.arange(h)[:, None] - span
+        uu = np.clip(np.rint(np.arange(w)[None, :] - span * np.nan_to_num(du)), 0, w - 1)
+        k_up = np.where(vu >= 0, k[np.maximum(vu, 0), uu.astype(np.int64)], np.nan)
+        with np.errstate(invalid="ignore"):
+            flat = (k < recede[0]) & ~(k_up >= recede[0])
+        k_any = np.where(np.isfinite(k), k, k_up)     # a step below: measured from above
+        with np.errstate(invalid="ignore"):
+            planar = (k_any >= recede[0]) & (k_any <= recede[1]) & ~ground
+        if not_ground is not None:
+            planar &= ~not_ground
+        ground = (ground & ~flat) | planar
+    qc, idx = contact_ratios(A, ground, q, du, jump_rel)
+    refine_contacts(A, ground, q, du, qc, idx, jump_rel, near_rel, max(2, h // 16))
+    have = idx >= 0
+    src = A if native is None else np.asarray(native, dtype=np.float64)
+    ratio = np.full((h, w), np.nan)
+    if shape == "network":
+        ratio[have] = (1.0 / qc[have]) / src.ravel()[idx[have]]
+    else:
+        r = ray_grid(np.asarray(K, dtype=np.float64), w, h).reshape(-1, 3)
+        rc = r[idx[have]]
+        F = rc / qc[have][:, None]                 # the contact's point (r_z = 1: P = Z r)
+        rp = r[np.flatnonzero(have)]
+        rn = rp @ n
+        lam = (np.einsum("ij,ij->i", rp, F) - rn * (F @ n)) / np.maximum(
+            np.einsum("ij,ij->i", rp, rp) - rn * rn, 1e-12)
+        ratio[have] = lam / src[have]              # ray r has r_z = 1: depth = lam
+    with np.errstate(invalid="ignore"):
+        ratio[~(ratio > 0)] = np.nan
+    todo = (~ground | have) & np.isfinite(A)
+    fill_along_rows(ratio, A, todo, jump_rel)
+    moved = todo & np.isfinite(ratio)
+    ratio = np.clip(np.nan_to_num(ratio, nan=1.0), 1.0 / max_ratio, max_ratio)
+    out = np.where(moved, src * ratio, A)
+    with np.errstate(divide="ignore"):
+        out = np.where(planar & ~moved, 1.0 / q, out)
+    return out.astype(np.float32), moved | planar
