@@ -80,7 +80,9 @@ class AgentPlaneConfig:
     pitch_starts_deg: tuple[float, ...] = (10.0, 25.0, 40.0, 60.0)
     pitch_bounds_deg: tuple[float, float] = (0.0, 89.0)
     max_roll_deg: float = 30.0
-    max_pitch_deg: float = 65.0      # refuse a (near-)nadir camera above it (see _check_nadir)
+    max_pitch_deg: float = 65.0      # refuse a (near-)nadir camera above it (see _check_nadir;
+    #                                  the fitted pitch for joint and exact, not for Eq. 1, whose
+    #                                  bias reaches 30 degrees)
     bootstrap: int = 20              # resamples over tracks (0 = no uncertainty)
     seed: int = 0
     shape_prior_weight: float = 1.0  # joint: pixels of residual per prior sd of an extent
@@ -267,8 +269,8 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     NaN = unknown) and ``class_id`` (only ``conf.classes`` are used).
     Raises InputError for a table without those columns, without rows of ``conf.classes``,
     fewer than 3 usable observations or tracks, collinear feet (all tracks together) or a
-    (near-)nadir camera: the head-foot axes' vanishing point (where top columns are known) or the
-    fitted normal above ``conf.max_pitch_deg``.
+    (near-)nadir camera: the people's head-foot axes' vanishing point (where top columns are
+    known) or, for ``joint`` and ``exact``, the fitted normal above ``conf.max_pitch_deg``.
     """
     K = np.asarray(K, dtype=np.float64)
     obs = _prepare(K, np.asarray(observations), conf.model, conf.fit_classes)
@@ -298,7 +300,11 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     else:
         n, s, inl, res = fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))
-    _check_nadir(n, conf)
+        _check_nadir(n, conf)
+    if conf.model in LINEAR_MODELS and (math.hypot(n[0], n[1]) < 1e-6 or pitch_roll_from_normal(
+            n)[0] >= conf.pitch_bounds_deg[1] - 0.5):
+        raise InputError("the camera looks straight down (nadir): pixel heights cannot fix the "
+                         "ground plane's tilt")
     rms = float(np.sqrt(np.mean(res[inl[obs.idx]] ** 2)))
     std_n, std_dh = (bootstrap_normal(K, obs, conf, n, inl, rng) if conf.bootstrap > 0
                       else (np.nan,) * 2)
@@ -312,9 +318,9 @@ def _check_nadir(n: np.ndarray, conf: AgentPlaneConfig, what: str = "the fit") -
     tens of degrees off (tapered walkers at 86-90 degrees: 38-70 degrees off, measured)."""
     pitch = pitch_roll_from_normal(n)[0]
     if pitch > conf.max_pitch_deg or math.hypot(n[0], n[1]) < 1e-6:
-        raise InputError(f"near-nadir camera: {what} puts the pitch at {pitch:.0f} deg (above "
-                         f"max_pitch_deg {conf.max_pitch_deg:g}); seen from above, the agents' "
-                         "head-foot axes cannot fix the ground plane's tilt")
+        raise InputError(f"near-nadir camera (or a failed fit): {what} puts the pitch at "
+                         f"{pitch:.0f} deg, above max_pitch_deg {conf.max_pitch_deg:g}; seen from "
+                         "above, the agents' head-foot axes cannot fix the ground plane's tilt")
 
 
 def camera_height_from_prior(plane: AgentPlane, agent_height_m: float = 1.7) -> float:
