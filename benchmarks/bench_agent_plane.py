@@ -64,6 +64,10 @@ def main() -> None:
         refused = {m: 0 for m in models}
         for seed in range(args.cameras):
             s = scene(kind, seed, detection=args.detection, outliers=args.outliers)
+            n_tracks = len(np.unique(s.obs["track"]))
+            if n_tracks < 8:     # e.g. a low, steep camera where whole vehicles rarely fit
+                print(f"  {kind} camera {seed}: only {n_tracks} tracks in view (the gate refuses "
+                      "fewer than 3)", flush=True)
             for m in models:
                 t0 = time.perf_counter()
                 try:
