@@ -8,7 +8,8 @@ Scenes from the independent generators of tests/plane_generators.py (cameras 3-1
 jitter and no top column; ``--outliers 0.2`` corrupts 20% of the observations). Per generator and
 model: median and max error of the normal (degrees) and of the camera height from the agents
 (percent: Eq. 1 and exact from a 1.72 m agent height, people's median; joint from the classes'
-height distributions, maximum likelihood), and seconds per fit.
+height distributions, maximum likelihood), and seconds per fit; a fit that refuses (InputError,
+e.g. a near-nadir camera) is printed and counted, not in the statistics.
 """
 from __future__ import annotations
 
@@ -60,11 +61,21 @@ def main() -> None:
     print(f"{'generator':10}" + "".join(f" | {m:^30}" for m in models))
     for kind in args.generators.split(","):
         stats = {m: ([], [], []) for m in models}
+        refused = {m: 0 for m in models}
         for seed in range(args.cameras):
             s = scene(kind, seed, detection=args.detection, outliers=args.outliers)
+            n_tracks = len(np.unique(s.obs["track"]))
+            if n_tracks < 8:     # e.g. a low, steep camera where whole vehicles rarely fit
+                print(f"  {kind} camera {seed}: only {n_tracks} tracks in view (the gate refuses "
+                      "fewer than 3)", flush=True)
             for m in models:
                 t0 = time.perf_counter()
-                p = fit_agent_plane(s.K, s.obs, CONFIGS[m])
+                try:
+                    p = fit_agent_plane(s.K, s.obs, CONFIGS[m])
+                except InputError as e:          # a refusal (e.g. near-nadir) counts, as NaN
+                    print(f"  {kind} camera {seed} {m}: refused: {e}", flush=True)
+                    refused[m] += 1
+                    continue
                 stats[m][2].append(time.perf_counter() - t0)
                 stats[m][0].append(angle_between_deg(p.normal, s.normal))
                 h = camera_height(p, m, kind == "vehicles")
@@ -72,8 +83,12 @@ def main() -> None:
         cells = []
         for m in models:
             e, h, t = (np.asarray(x) for x in stats[m])
+            if len(e) == 0:
+                cells.append(f"all {refused[m]} refused")
+                continue
             cells.append(f"{np.median(e):5.2f} / {np.max(e):5.2f}  {np.nanmedian(h):4.1f} / "
-                         f"{np.nanmax(h):4.1f}  {np.median(t):4.1f}")
+                         f"{np.nanmax(h):4.1f}  {np.median(t):4.1f}"
+                         + (f" ({refused[m]} refused)" if refused[m] else ""))
         print(f"{kind:10}" + "".join(f" | {c:^30}" for c in cells), flush=True)
 
 

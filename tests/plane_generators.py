@@ -47,10 +47,13 @@ class Scene:
     roll_deg: float
 
 
-def camera(rng) -> tuple[np.ndarray, np.ndarray, float, float, float]:
-    """(K, n, d, pitch, roll): a random camera of the issue's range."""
+def camera(rng, pitch_deg: float | None = None) -> tuple[np.ndarray, np.ndarray, float, float,
+                                                        float]:
+    """(K, n, d, pitch, roll): a random camera of the issue's range (``pitch_deg`` overrides the
+    drawn pitch, e.g. a nadir camera)."""
     f = rng.uniform(500, 900)
     pitch, roll, d = rng.uniform(10, 50), rng.uniform(-5, 5), rng.uniform(3, 12)
+    pitch = pitch if pitch_deg is None else pitch_deg
     K = np.array([[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1.0]])
     t, r = math.radians(pitch), math.radians(roll)
     Rz = np.array([[math.cos(r), -math.sin(r), 0], [math.sin(r), math.cos(r), 0], [0, 0, 1]])
@@ -123,10 +126,11 @@ def _agent_spec(kind: str, rng):
 
 
 def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.0,
-          n_tracks: int = 24, frames: tuple[int, int] = (6, 10), noise_px: float = 1.0) -> Scene:
+          n_tracks: int = 24, frames: tuple[int, int] = (6, 10), noise_px: float = 1.0,
+          pitch_deg: float | None = None) -> Scene:
     """A random camera and ``n_tracks`` tracks of ``kind`` agents; see the module doc."""
     rng = np.random.default_rng(seed)
-    K, n, d, pitch, roll = camera(rng)
+    K, n, d, pitch, roll = camera(rng, pitch_deg)
     up = -n
     e1 = np.cross(n, [1.0, 0, 0])
     e1 /= np.linalg.norm(e1)

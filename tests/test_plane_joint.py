@@ -37,7 +37,8 @@ def _fit(fits, kind, seed, **kw):
 # (median, max) normal error in degrees: the issue's goal (0.5, 1.0), except for people on
 # swinging legs, where it is missed: a walker's lowest point is its nearer foot, +-0.3 m along its
 # heading, several pixels of row noise and an off-axis foot column (measured over 8 cameras:
-# 0.61 / 1.73; these bounds guard the measured level)
+# 0.61 / 1.73, over 20: 1.05 / 2.83, the two legs side by side cost the most, see the README;
+# these bounds guard the measured level on the seeds used here)
 CLEAN = {"thin": (0.5, 1.0), "tapered": (0.5, 1.0), "cylinder": (0.5, 1.0),
          "ellipsoid": (0.7, 2.0), "vehicles": (0.5, 1.0)}
 # max error with 20% outliers: the goal is 2 degrees; the ellipsoid misses it (8 cameras: 1.53 /
@@ -129,3 +130,41 @@ def test_bad_inputs_raise():
     with pytest.raises(InputError, match="classes must be a tuple"):
         AgentPlaneConfig(classes="people")
     assert not plane_gate(p).ok and "uncertainty unknown" in plane_gate(p).message   # no bootstrap
+
+
+def test_vertical_from_axes_recovers_the_normal_of_thin_walkers():
+    """Closed-form check of the vanishing-point cue: thin axes (1 px noise) give the generator's
+    normal within 0.5 degrees at any pitch, nadir included (measured 0.02-0.34 over 4 seeds)."""
+    from staticdepth.geometry.agent_plane_linear import vertical_from_axes
+    for pitch in (20.0, 45.0, 90.0):
+        s = scene("thin", 3, pitch_deg=pitch)
+        o = s.obs
+        n = vertical_from_axes(s.K, np.stack([o["foot_u"], o["foot_v"]], 1),
+                               np.stack([o["top_u"], o["top_v"]], 1))
+        assert angle_between_deg(n, s.normal) < 0.5, pitch
+
+
+@pytest.mark.parametrize("kind,pitch", [("thin", 90.0), ("tapered", 85.0), ("ellipsoid", 80.0),
+                                        ("tapered", 70.0)])
+def test_joint_refuses_a_near_nadir_camera(kind, pitch):
+    """Seen from (nearly) above, the fit lands tens of degrees off (tapered at 86-90 degrees:
+    38-70 degrees, measured before this check): it must refuse with a one-line reason, from the
+    axes' vanishing point or from the fitted pitch (tapered at 70: the fit says 72-78)."""
+    from staticdepth.errors import InputError
+    s = scene(kind, 1, pitch_deg=pitch)
+    with pytest.raises(InputError, match="near-nadir camera") as e:
+        fit_agent_plane(s.K, s.obs, FAST)
+    assert "\n" not in str(e.value)
+
+
+def test_gate_refuses_the_box_cameras_that_miss_the_goal():
+    """Boxes carry no head column, so the extent and the pitch are nearly degenerate: wide
+    cylinders seen steeply from far are fitted several degrees off (camera 1: 48 degrees from
+    11.5 m, 6.1 off; camera 5: 2.2 off; the box's foot column is not the cause, the true lowest
+    point's column gives the same). Its bootstrap uncertainty (1.5 degrees) is above 1, so the
+    gate refuses it instead of passing a wrong plane on."""
+    conf = AgentPlaneConfig(bootstrap=10, column_weight=1.0)
+    s = scene("cylinder", 1, detection="box")
+    p = fit_agent_plane(s.K, s.obs, conf)
+    err = angle_between_deg(p.normal, s.normal)
+    assert err > 1.0 and not plane_gate(p).ok, (err, p.normal_std_deg)

@@ -3,10 +3,19 @@
 vtest.avi has no calibration: the intrinsics are assumed (f = 700 px, principal point at the
 centre), so the test checks consistency, not the true plane: each half of the video (every 4th
 frame; people only: the scene is a pedestrian area, YOLOX's rare 'car' there is a false
-detection) gives a plane and a camera height with their bootstrap uncertainty. The halves' pitch
-and camera height must agree within twice their combined uncertainty (measured: 25.2 +- 1.1 and
-26.0 +- 3.8 degrees, 6.51 +- 0.23 and 6.58 +- 0.44 m); the roll is printed, not asserted (0.2 and
--7.2 degrees: the second half's crowd breaks tracks, and its own uncertainty says so).
+detection) gives a plane and a camera height with their bootstrap uncertainty. The halves' pitch,
+normal and camera height must agree within twice their combined uncertainty (measured: pitch
+25.2 and 26.0 degrees, roll 0.2 and -7.2, normal +-1.1 and +-3.8 degrees, so the normals are
+6.7 degrees apart against a 2-sigma bound of 8.0; camera height 6.51 +- 0.23 and 6.58 +- 0.44 m).
+
+Why the second half's roll is off and uncertain (measured, see the README): one track (24, 15
+frames crossing the image sideways) moves it by 7.5 degrees: without it the roll is 0.3. The
+masks' head-foot columns disagree with the rows here: their lean is about a quarter of what the
+rows' pitch implies under the assumed f (the axes alone put the vertical vanishing point at a
+pitch of 6-8 degrees) and carries a constant -4 px (walking legs, shadows in the motion masks, or
+the assumed intrinsics), so the column cue, weighted 0.2-0.3 by the residual scales, lets a single
+sideways track pull the roll. Rows only (column_weight 0) the halves give 23.3 +- 0.9 and
+25.7 +- 3.2 degrees of pitch, -0.2 and -1.1 of roll.
 """
 from __future__ import annotations
 
@@ -55,6 +64,7 @@ def test_halves_agree_within_their_uncertainty(halves):
         assert 10 < p.pitch_deg < 45 and abs(p.roll_deg) < 15     # a camera looking down
     gap = angle_between_deg(p1.normal, p2.normal)
     print(f"angle between the halves' normals {gap:.2f} deg")
+    assert gap <= 2 * math.hypot(p1.normal_std_deg, p2.normal_std_deg), gap
     assert abs(p1.pitch_deg - p2.pitch_deg) <= 2 * math.hypot(p1.normal_std_deg,
                                                               p2.normal_std_deg)
     assert abs(d1 - d2) <= 2 * math.hypot(sd1, sd2), (d1, d2)

@@ -33,7 +33,8 @@ wide as the body, 0.0-0.15 degrees with rows only and ``head_radius_m`` 0.12 (c2
 Everything is in the camera frame (OpenCV), in units of the camera height d (plane ``n . P = 1``).
 Observations are the table of :data:`staticdepth.tracking.OBS_DTYPE` (or any structured array
 with ``track``, ``foot_u``, ``foot_v``, ``height_px`` fields; ``top_u`` and ``class_id``
-optional). The Eq. 1 solvers and the cylinder model's functions are re-exported here.
+optional). The Eq. 1 solvers and the cylinder model's functions are re-exported here; the
+exact model's fit is in :mod:`staticdepth.geometry.agent_plane_exact`.
 """
 from __future__ import annotations
 
@@ -42,18 +43,18 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Mapping
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.sparse import csr_matrix
 
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import (_BIG, AgentObservations, extreme_rim,  # noqa: F401
                                                  head_pixels, head_residuals, head_rows,
                                                  observation_residual, solve_track_scales)
+from staticdepth.geometry.agent_plane_exact import bootstrap_normal, fit_robust
 from staticdepth.geometry.agent_plane_joint import fit_joint
 from staticdepth.geometry.agent_plane_linear import (LINEAR_MODELS, fit_linear,  # noqa: F401
-                                                     plane_affine, plane_paper)
-from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
-from staticdepth.geometry.plane import angle_between_deg, horizon_line
+                                                     plane_affine, plane_paper,
+                                                     vertical_from_axes)
+from staticdepth.geometry.camera import pitch_roll_from_normal
+from staticdepth.geometry.plane import horizon_line
 from staticdepth.geometry.projection import rays_from_pixels
 
 MODELS = ("joint", "exact", "affine", "paper")
@@ -79,6 +80,9 @@ class AgentPlaneConfig:
     pitch_starts_deg: tuple[float, ...] = (10.0, 25.0, 40.0, 60.0)
     pitch_bounds_deg: tuple[float, float] = (0.0, 89.0)
     max_roll_deg: float = 30.0
+    max_pitch_deg: float = 65.0      # refuse a (near-)nadir camera above it (see _check_nadir;
+    #                                  the fitted pitch for joint and exact, not for Eq. 1, whose
+    #                                  bias reaches 30 degrees)
     bootstrap: int = 20              # resamples over tracks (0 = no uncertainty)
     seed: int = 0
     shape_prior_weight: float = 1.0  # joint: pixels of residual per prior sd of an extent
@@ -92,6 +96,8 @@ class AgentPlaneConfig:
             raise InputError(f"unknown ground-plane model {self.model!r} (use {', '.join(MODELS)})")
         if self.radius_m < 0 or self.head_radius_m < 0 or self.agent_height_m <= 0:
             raise InputError("agent radius and head radius must be >= 0 and agent height > 0")
+        if not 0 < self.max_pitch_deg < 90:
+            raise InputError(f"max_pitch_deg must be in (0, 90), got {self.max_pitch_deg}")
         if not self.fit_column_weight >= 0:
             raise InputError(f"column weight must be >= 0, got {self.column_weight}")
 
@@ -253,106 +259,6 @@ def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact",
     return AgentObservations(rays_from_pixels(K, u, v), v - h, h, u, v, idx, ids, cls, top_u)
 
 
-# -- the exact cylinder model: fit, RANSAC, refinement, bootstrap ----------------------------
-_Obs = AgentObservations      # the former private name
-
-
-def _ratio(conf: AgentPlaneConfig) -> tuple[float, float]:
-    """(foot, head) disk radius over the agent height."""
-    return conf.radius_m / conf.agent_height_m, conf.head_radius_m / conf.agent_height_m
-
-
-def _normal(pitch_rad: float, roll_rad: float) -> np.ndarray:
-    return normal_from_pitch_roll(math.degrees(pitch_rad), math.degrees(roll_rad))
-
-
-def _residuals(K, obs: AgentObservations, pitch, roll, s, ratio, col_w: float) -> np.ndarray:
-    """Row residuals (N,), then weighted column residuals of the observations with a known top
-    column; impossible predictions count as ``_BIG`` pixels."""
-    r_v, r_u = head_residuals(K, obs, _normal(pitch, roll), s, ratio)
-    r = np.nan_to_num(r_v, nan=_BIG)
-    if col_w > 0:
-        r = np.concatenate([r, col_w * np.nan_to_num(r_u[obs.has_u], nan=_BIG)])
-    return r
-
-
-def _fit_exact(K, obs: AgentObservations, conf: AgentPlaneConfig,
-               starts: list[tuple[float, float]], loss: str = "linear",
-               max_nfev: int = 200) -> tuple[float, float, np.ndarray, float]:
-    """Best of several starts (pitch, roll in degrees): returns pitch, roll (rad), s, cost.
-
-    Unknowns: pitch and roll (bounded, so every foot ray keeps n . r > 0 near the solution) and
-    the per-track s_j, solved jointly with a sparse Jacobian."""
-    ratio = _ratio(conf)
-    J, N = len(obs.ids), len(obs.top_v)
-    col = np.flatnonzero(obs.has_u) if conf.fit_column_weight > 0 else np.zeros(0, int)
-    res_obs = np.r_[np.arange(N), col]                        # observation of each residual
-    R = len(res_obs)
-    rows = np.repeat(np.arange(R), 3)
-    cols = np.stack([np.zeros(R, int), np.ones(R, int), 2 + obs.idx[res_obs]], axis=1).ravel()
-    sparsity = csr_matrix((np.ones(3 * R), (rows, cols)), shape=(R, J + 2))
-    lo_p, hi_p = (math.radians(b) for b in conf.pitch_bounds_deg)
-    mr = math.radians(conf.max_roll_deg)
-    lower = np.r_[lo_p, -mr, np.full(J, 1e-4)]
-    upper = np.r_[hi_p, mr, np.full(J, 100.0)]
-    best = None
-    for p0, r0 in starts:
-        p0 = float(np.clip(math.radians(p0), lo_p + 1e-3, hi_p - 1e-3))
-        r0 = float(np.clip(math.radians(r0), -mr + 1e-3, mr - 1e-3))
-        s0 = np.clip(solve_track_scales(K, obs, _normal(p0, r0), ratio), 2e-4, 99.0)
-        res = least_squares(
-            lambda x: _residuals(K, obs, x[0], x[1], x[2:], ratio, conf.fit_column_weight),
-            np.r_[p0, r0, s0], bounds=(lower, upper), loss=loss, f_scale=conf.f_scale_px,
-            jac_sparsity=sparsity, x_scale="jac", max_nfev=max_nfev)
-        if best is None or res.cost < best[3]:
-            best = (float(res.x[0]), float(res.x[1]), res.x[2:].copy(), float(res.cost))
-    return best
-
-
-def _observation_error(K, obs: AgentObservations, n, s, conf: AgentPlaneConfig) -> np.ndarray:
-    """(N,) the larger of |row| and |column| residual per observation (columns when used)."""
-    r_v, r_u = head_residuals(K, obs, n, s, _ratio(conf))
-    if conf.fit_column_weight <= 0:
-        r_u = np.full_like(r_u, np.nan)
-    return observation_residual(r_v, r_u)
-
-
-def _inlier_tracks(obs: AgentObservations, good: np.ndarray) -> np.ndarray:
-    """(J,) bool: tracks with at least half of their observations good."""
-    J = len(obs.ids)
-    return np.bincount(obs.idx, good, minlength=J) / np.bincount(obs.idx, minlength=J) >= 0.5
-
-
-def _ransac(K, obs: AgentObservations, conf: AgentPlaneConfig,
-            rng) -> tuple[np.ndarray, np.ndarray]:
-    """Hypotheses from 3 tracks; returns (best normal, inlier track mask)."""
-    J = len(obs.ids)
-    ratio = _ratio(conf)
-    best_n, best_inl, best_key = None, None, None
-    need, it = conf.ransac_iters, 0
-    while it < min(need, conf.ransac_iters):
-        it += 1
-        sample = rng.choice(J, 3, replace=False)
-        sub = obs.subset(sample)
-        try:
-            p0, r0 = pitch_roll_from_normal(plane_affine(K, sub.u, sub.v, sub.h)[0])
-        except InputError:
-            p0, r0 = 30.0, 0.0
-        pitch, roll, _, _ = _fit_exact(K, sub, conf, [(p0, r0)], max_nfev=40)
-        n = _normal(pitch, roll)
-        s = solve_track_scales(K, obs, n, ratio, iters=8, huber_px=conf.inlier_px)
-        res = _observation_error(K, obs, n, s, conf)
-        good = res < conf.inlier_px
-        inl = _inlier_tracks(obs, good)
-        key = (int(good[inl[obs.idx]].sum()), -float(np.sum(np.minimum(res, conf.inlier_px))))
-        if best_key is None or key > best_key:
-            best_n, best_inl, best_key = n, inl, key
-            w = max(inl.mean(), 1e-3)
-            need = math.ceil(math.log(0.01) / math.log(max(1.0 - w ** 3, 1e-12)))
-            need = max(need, 8)
-    return best_n, best_inl
-
-
 def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
                     conf: AgentPlaneConfig = AgentPlaneConfig()) -> AgentPlane:
     """Fit the ground plane to agents' observations (see module doc).
@@ -362,12 +268,19 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     highest silhouette point's row), optional ``top_u`` (column of the highest silhouette point,
     NaN = unknown) and ``class_id`` (only ``conf.classes`` are used).
     Raises InputError for a table without those columns, without rows of ``conf.classes``,
-    fewer than 3 usable observations or tracks, collinear feet (all tracks together) or a nadir
-    camera.
+    fewer than 3 usable observations or tracks, collinear feet (all tracks together) or a
+    (near-)nadir camera: the people's head-foot axes' vanishing point (where top columns are
+    known) or, for ``joint`` and ``exact``, the fitted normal above ``conf.max_pitch_deg``.
     """
     K = np.asarray(K, dtype=np.float64)
     obs = _prepare(K, np.asarray(observations), conf.model, conf.fit_classes)
     rng = np.random.default_rng(conf.seed)
+    # people's lowest and highest points are near their axis (a vehicle's are corners)
+    ppl = np.isin(obs.cls[obs.idx], PERSON_CLASSES)
+    axes_n = vertical_from_axes(K, np.stack([obs.u, obs.v], 1)[ppl],
+                                np.stack([obs.top_u, obs.top_v], 1)[ppl])
+    if axes_n is not None:
+        _check_nadir(axes_n, conf, "the head-foot axes' vanishing point")
     if conf.model in LINEAR_MODELS:
         n, d_over_h = fit_linear(K, obs.u, obs.v, obs.h, conf.model)
         inl = np.ones(len(obs.ids), bool)
@@ -385,80 +298,29 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
                                  "column_weight": boot.get("column_weight", 0.0),
                                  "inlier_px": boot.get("inlier_px", conf.inlier_px)})
     else:
-        n, s, inl, res = _fit_robust(K, obs, conf, rng)
+        n, s, inl, res = fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))
-    _check_nadir(n, conf)
+        _check_nadir(n, conf)
+    if conf.model in LINEAR_MODELS and (math.hypot(n[0], n[1]) < 1e-6 or pitch_roll_from_normal(
+            n)[0] >= conf.pitch_bounds_deg[1] - 0.5):
+        raise InputError("the camera looks straight down (nadir): pixel heights cannot fix the "
+                         "ground plane's tilt")
     rms = float(np.sqrt(np.mean(res[inl[obs.idx]] ** 2)))
-    std_n, std_dh = _bootstrap(K, obs, conf, n, inl, rng) if conf.bootstrap > 0 else (np.nan,) * 2
+    std_n, std_dh = (bootstrap_normal(K, obs, conf, n, inl, rng) if conf.bootstrap > 0
+                      else (np.nan,) * 2)
     return AgentPlane(n, horizon_line(K, n), d_over_h, obs.ids.copy(), s, inl, rms, conf.model,
                       len(obs.top_v), std_n, std_dh, extra={"classes": obs.cls})
 
 
-def _fit_robust(K, obs: AgentObservations, conf: AgentPlaneConfig, rng):
-    """RANSAC over tracks, a robust (``conf.loss``) fit on the inlier tracks from several starts,
-    then least squares on their observations within ``inlier_px``; s_j of every track last."""
-    ratio = _ratio(conf)
-    J = len(obs.ids)
-    if J >= 4:
-        n_h, inl = _ransac(K, obs, conf, rng)
-        if inl.sum() < 3:
-            inl = np.ones(J, bool)
-    else:
-        n_h, inl = None, np.ones(J, bool)
-    sub = obs.subset(np.flatnonzero(inl))
-    starts = [(p, 0.0) for p in conf.pitch_starts_deg]
-    try:
-        starts.insert(0, pitch_roll_from_normal(plane_affine(K, sub.u, sub.v, sub.h)[0]))
-    except InputError:
-        pass
-    if n_h is not None:
-        starts.insert(0, pitch_roll_from_normal(n_h))
-    pitch, roll, s, _ = _fit_exact(K, sub, conf, starts, loss=conf.loss)
-    # least squares on the inlier observations: a soft-L1 loss alone keeps a bias from one-sided
-    # outliers (shrunk heights)
-    keep = _observation_error(K, sub, _normal(pitch, roll), s, conf) < conf.inlier_px
-    if keep.sum() >= 3:
-        p_deg, r_deg = math.degrees(pitch), math.degrees(roll)
-        pitch, roll, _, _ = _fit_exact(K, sub.select(keep), conf, [(p_deg, r_deg)])
-    n = _normal(pitch, roll)
-    s = solve_track_scales(K, obs, n, ratio, iters=8, huber_px=conf.inlier_px)
-    res = head_rows(K, n, obs.rays, s[obs.idx], ratio) - obs.top_v
-    inl = _inlier_tracks(obs, _observation_error(K, obs, n, s, conf) < conf.inlier_px)
-    if inl.sum() == 0:
-        inl = np.ones(J, bool)
-    return n, s, inl, np.nan_to_num(res, nan=_BIG)
-
-
-def _check_nadir(n: np.ndarray, conf: AgentPlaneConfig) -> None:
-    near_bound = pitch_roll_from_normal(n)[0] >= conf.pitch_bounds_deg[1] - 0.5
-    if near_bound or math.hypot(n[0], n[1]) < 1e-6:
-        raise InputError("the camera looks straight down (nadir): pixel heights cannot fix the "
-                         "ground plane's tilt")
-
-
-def _bootstrap(K, obs: AgentObservations, conf: AgentPlaneConfig, n: np.ndarray,
-               inl: np.ndarray, rng):
-    """Std of the normal angle (deg) and of d/H over resamples of the inlier tracks."""
-    tracks = np.flatnonzero(inl)
-    if len(tracks) < 3:
-        return float("nan"), float("nan")
-    p0, r0 = pitch_roll_from_normal(n)
-    angles, dh = [], []
-    for _ in range(conf.bootstrap):
-        sub = obs.subset(rng.choice(tracks, len(tracks), replace=True))
-        if conf.model == "exact":
-            pitch, roll, s, _ = _fit_exact(K, sub, conf, [(p0, r0)], loss=conf.loss)
-            nb, dhb = _normal(pitch, roll), 1.0 / float(np.median(s))
-        else:
-            try:
-                nb, dhb = fit_linear(K, sub.u, sub.v, sub.h, conf.model)
-            except InputError:
-                continue
-        angles.append(angle_between_deg(nb, n))
-        dh.append(dhb)
-    if len(angles) < 2:
-        return float("nan"), float("nan")
-    return float(np.sqrt(np.mean(np.square(angles)))), float(np.std(dh, ddof=1))
+def _check_nadir(n: np.ndarray, conf: AgentPlaneConfig, what: str = "the fit") -> None:
+    """Refuse a (near-)nadir camera: from above, upright agents' head-foot axes are short and
+    converge near the image centre, the pitch/roll parametrisation degenerates and the fit lands
+    tens of degrees off (tapered walkers at 86-90 degrees: 38-70 degrees off, measured)."""
+    pitch = pitch_roll_from_normal(n)[0]
+    if pitch > conf.max_pitch_deg or math.hypot(n[0], n[1]) < 1e-6:
+        raise InputError(f"near-nadir camera (or a failed fit): {what} puts the pitch at "
+                         f"{pitch:.0f} deg, above max_pitch_deg {conf.max_pitch_deg:g}; seen from "
+                         "above, the agents' head-foot axes cannot fix the ground plane's tilt")
 
 
 def camera_height_from_prior(plane: AgentPlane, agent_height_m: float = 1.7) -> float:

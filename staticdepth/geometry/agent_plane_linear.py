@@ -69,3 +69,25 @@ def fit_linear(K: np.ndarray, u, v, h, model: str = "affine") -> tuple[np.ndarra
     if d_over_h == 0 or not np.isfinite(d_over_h) or not np.all(np.isfinite(n)):
         raise InputError("pixel heights do not vary with position: no ground plane")
     return n, d_over_h
+
+
+def vertical_from_axes(K: np.ndarray, foot_uv: np.ndarray, top_uv: np.ndarray,
+                       iters: int = 5) -> np.ndarray | None:
+    """The ground normal (3,) (camera frame, towards the ground) from upright agents' head-foot
+    axes alone: every axis lies in a plane through the camera centre that contains the vertical,
+    so with ``m_i = foot ray x top ray`` the vertical is the direction most nearly orthogonal to
+    all ``m_i`` (their vanishing point). Unnormalised ``m_i`` weigh long axes more (pixel noise
+    turns their direction less); a few Huber-reweighted passes resist off-axis detections.
+    foot_uv, top_uv: (N, 2) pixels. None with fewer than 5 finite axes."""
+    ok = np.all(np.isfinite(foot_uv), 1) & np.all(np.isfinite(top_uv), 1)
+    if ok.sum() < 5:
+        return None
+    f = rays_from_pixels(K, foot_uv[ok, 0], foot_uv[ok, 1])
+    M = np.cross(f, rays_from_pixels(K, top_uv[ok, 0], top_uv[ok, 1]))
+    w = np.ones(len(M))
+    for _ in range(iters):
+        n = np.linalg.svd(M * w[:, None], full_matrices=False)[2][-1]
+        r = np.abs(M @ n)
+        scale = 1.4826 * float(np.median(r)) + 1e-12
+        w = np.sqrt(np.minimum(1.0, 1.5 * scale / np.maximum(r, 1e-300)))
+    return n if np.median(f @ n) > 0 else -n
