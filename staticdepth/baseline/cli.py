@@ -17,7 +17,9 @@ def register(sub) -> None:
 
     t = bsub.add_parser("train", help="train on the adaptation split's stereo pairs",
                         description="Train on the adaptation split's rectified stereo pairs. "
-                                    "Resumes an unfinished checkpoint with the same settings.")
+                                    "Resumes an unfinished checkpoint with the same settings.",
+                        epilog="example:\n  staticdepth baseline train c1.h5 --preset tiny "
+                               "--set epochs=8")
     t.add_argument("sequence", help="sequence file (.h5) with left and right images")
     t.add_argument("--preset", default="default", choices=sorted(PRESETS),
                    help="network size and training schedule (tiny: a quick smoke run)")
@@ -36,7 +38,9 @@ def register(sub) -> None:
 
     q = bsub.add_parser("predict", help="predict metric depth for every frame",
                         description="Predict every frame's depth and store it in the sequence as "
-                                    "pred/NAME/depth.")
+                                    "pred/NAME/depth.",
+                        epilog="example:\n  staticdepth baseline predict c1.h5 --checkpoint "
+                               "c1.baseline.pt")
     q.add_argument("sequence", help="sequence file (.h5) whose frames are predicted")
     q.add_argument("--checkpoint", help="trained checkpoint (default: SEQ.baseline.pt)")
     q.add_argument("--name", default="stereo-baseline", help="prediction name")
