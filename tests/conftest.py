@@ -50,3 +50,20 @@ def vtest_frames(shared_data: Path, step: int, n_frames: int | None = None):
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(0)
+
+
+def trained_builtin(request, tmp_path_factory, train_args: list[str]) -> Path:
+    """Built-in network weights from ``staticdepth train-builtin`` with ``train_args`` (seeded).
+
+    pytest's cache folder keeps them between runs (keyed by the arguments); without the cache
+    plugin (``-p no:cacheprovider``) they are trained into this session's temporary folder."""
+    from staticdepth.cli import main
+    from staticdepth.config import config_hash
+
+    cache = getattr(request.config, "cache", None)
+    folder = (cache.mkdir("staticdepth-builtin") if cache is not None
+              else tmp_path_factory.mktemp("staticdepth-builtin"))
+    path = folder / f"builtin-{config_hash(train_args)}.pt"
+    if not path.exists():
+        assert main(["train-builtin", "--out", str(path), "--device", "cpu", *train_args]) == 0
+    return path

@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 
 from staticdepth.cli import main
-from staticdepth.config import config_hash
 from staticdepth.dataset.h5 import SequenceReader
 from staticdepth.dataset.synth_io import render_to_file
 from staticdepth.metrics import average, evaluate
+from conftest import trained_builtin
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 TRAIN = ["--frames", "320", "--epochs", "12", "--size", "256x128", "--seed", "0"]
@@ -26,15 +26,7 @@ TRAIN = ["--frames", "320", "--epochs", "12", "--size", "256x128", "--seed", "0"
 
 @pytest.fixture(scope="module")
 def builtin_weights(request, tmp_path_factory):
-    # pytest's cache folder keeps the weights between runs; without the cache plugin
-    # (-p no:cacheprovider) they are trained into this session's temporary folder
-    cache = getattr(request.config, "cache", None)
-    folder = (cache.mkdir("staticdepth-builtin") if cache is not None
-              else tmp_path_factory.mktemp("staticdepth-builtin"))
-    path = folder / f"builtin-{config_hash(TRAIN)}.pt"
-    if not path.exists():
-        assert main(["train-builtin", "--out", str(path), "--device", "cpu"] + TRAIN) == 0
-    return str(path)
+    return str(trained_builtin(request, tmp_path_factory, TRAIN))
 
 
 @pytest.fixture(scope="module")

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from staticdepth.cli import main
-from staticdepth.config import config_hash
 from staticdepth.dataset.h5 import SequenceReader
+from conftest import trained_builtin
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 TRAIN = ["--frames", "48", "--epochs", "4", "--size", "128x64", "--seed", "0"]
@@ -23,13 +23,7 @@ TRAIN = ["--frames", "48", "--epochs", "4", "--size", "128x64", "--seed", "0"]
 
 @pytest.fixture(scope="module")
 def trained_weights(request, tmp_path_factory):
-    cache = getattr(request.config, "cache", None)
-    folder = (cache.mkdir("staticdepth-builtin") if cache is not None
-              else tmp_path_factory.mktemp("staticdepth-builtin"))
-    path = folder / f"builtin-{config_hash(TRAIN)}.pt"
-    if not path.exists():
-        assert main(["train-builtin", "--out", str(path), "--device", "cpu"] + TRAIN) == 0
-    return path
+    return trained_builtin(request, tmp_path_factory, TRAIN)
 
 
 @pytest.fixture(scope="module")

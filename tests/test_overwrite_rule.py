@@ -71,37 +71,37 @@ def _train_builtin(d: Path):
             lambda p: p.read_bytes()[:2] == b"PK")        # a torch zip archive
 
 
-def _adapt(d: Path):
+def _tiny_model(d: Path) -> str:
     import torch
 
-    from staticdepth.dataset.synth_io import render_to_file
     from staticdepth.models.tiny import TinyDepthNet, builtin_model, save_builtin
 
     torch.manual_seed(0)
     save_builtin(d / "tiny.pt", builtin_model(TinyDepthNet(enc_channels=(4, 8, 8, 16, 16),
                                                            dec_channels=(16, 8, 8, 4)),
                                               input_height=32, input_width=64))
+    return f"builtin:{d / 'tiny.pt'}"
+
+
+def _adapt(d: Path):
+    from staticdepth.dataset.synth_io import render_to_file
+
+    model = _tiny_model(d)
     render_to_file(d / "c.h5", preset_name="c1", n_frames=40, adapt_frames=40, seed=1,
                    overrides={"width": 64, "height": 32})
-    return (["adapt", str(d / "c.h5"), "--model", f"builtin:{d / 'tiny.pt'}", "--detector", "gt",
+    return (["adapt", str(d / "c.h5"), "--model", model, "--detector", "gt",
              "--epochs", "0", "--device", "cpu", "--set", "tracking.min_height_px=3",
              "--set", "plane.bootstrap=0"], d / "c.adapt.json",
             lambda p: "plane" in json.loads(p.read_text()))
 
 
 def _tiny_model_and_sequence(d: Path):
-    import torch
-
     from staticdepth.dataset.synth_io import render_to_file
-    from staticdepth.models.tiny import TinyDepthNet, builtin_model, save_builtin
 
-    torch.manual_seed(0)
-    save_builtin(d / "tiny.pt", builtin_model(TinyDepthNet(enc_channels=(4, 8, 8, 16, 16),
-                                                           dec_channels=(16, 8, 8, 4)),
-                                              input_height=32, input_width=64))
+    model = _tiny_model(d)
     render_to_file(d / "s.h5", preset_name="demo", n_frames=10, adapt_frames=8, seed=1,
                    overrides={"width": 160, "height": 80})
-    return f"builtin:{d / 'tiny.pt'}", d / "s.h5"
+    return model, d / "s.h5"
 
 
 def _locate(d: Path):
