@@ -276,7 +276,8 @@ def write_carla_frame(folder: str | os.PathLike, index: int, rgb: np.ndarray, de
               "instance": instance_rgb_from_tags_ids(tags, ids)}
     if right is not None:
         images["right"] = right
+    from staticdepth.fileio import write_image
+
     for sub, img in images.items():
         os.makedirs(os.path.join(folder, sub), exist_ok=True)
-        if not cv2.imwrite(os.path.join(folder, sub, name), np.ascontiguousarray(img[..., ::-1])):
-            raise InputError("cannot write image", os.path.join(folder, sub, name))
+        write_image(os.path.join(folder, sub, name), img)

@@ -17,11 +17,11 @@ import os
 import shutil
 from typing import Any, Callable
 
-import cv2
 import numpy as np
 
 from staticdepth.dataset.h5 import SequenceReader
 from staticdepth.errors import InputError
+from staticdepth.fileio import write_image
 from staticdepth.progress import progress
 
 EXPORT_FORMAT = "staticdepth.kitti-export/1"
@@ -40,16 +40,6 @@ def kitti_png_from_depth(depth: np.ndarray) -> tuple[np.ndarray, int]:
     far = code > 65535
     code[far] = 0
     return code.astype(np.uint16), int(np.count_nonzero(far))
-
-
-def _write(path: str, img: np.ndarray) -> None:
-    """Encode in memory, write with Python: a full disk is an ``OSError`` naming the problem
-    (``cv2.imwrite`` only returns False and prints libpng's message)."""
-    ok, data = cv2.imencode(os.path.splitext(path)[1] or ".png", img)
-    if not ok:
-        raise InputError("cannot encode image", path)
-    with open(path, "wb") as f:
-        f.write(data.tobytes())
 
 
 MARKER = ".staticdepth-export.json"  # written into every export: what --overwrite may replace
@@ -140,12 +130,11 @@ def _export(seq, out: str, overwrite: bool) -> dict[str, Any]:
                 name = f"{i:010d}.png"
                 for s in streams:
                     a = r.read(s, i)
-                    if s in ("left", "right"):
-                        a = np.ascontiguousarray(a[..., ::-1])
-                    elif s == "depth":
+                    if s == "depth":
                         a, far = kitti_png_from_depth(a)
                         far_total += far
-                    _write(os.path.join(tmp, dirs[s], name), a)
+                    # inside the export's temporary folder, renamed (and synced) as a whole
+                    write_image(os.path.join(tmp, dirs[s], name), a, fsync=False)
             with open(os.path.join(tmp, "timestamps.txt"), "w") as f:
                 f.writelines(f"{t:.9f}\n" for t in r.timestamps())
             with open(os.path.join(tmp, "calib_cam_to_cam.txt"), "w") as f:

@@ -34,16 +34,10 @@ def colorize_depth(depth: np.ndarray, vmin: float | None = None, vmax: float | N
 
 
 def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
-    """Write an RGB image atomically (:mod:`staticdepth.fileio`); the format follows the suffix
-    (PNG when there is none)."""
-    from staticdepth.fileio import atomic_write_bytes
+    """Write an RGB image atomically; the format follows the suffix (PNG when there is none)."""
+    from staticdepth.fileio import write_image
 
-    path = os.fspath(path)
-    ext = os.path.splitext(path)[1] or ".png"
-    ok, buf = cv2.imencode(ext, np.ascontiguousarray(rgb[..., ::-1] if rgb.ndim == 3 else rgb))
-    if not ok:
-        raise InputError(f"cannot encode an image as {ext}", path)
-    atomic_write_bytes(path, buf.tobytes())
+    write_image(path, rgb)
 
 
 def summarize(reader: SequenceReader, sample: int = 16) -> dict[str, Any]:

@@ -72,7 +72,7 @@ def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
     """Stream frames through a model into ``out_dir``; returns frames, fps and the kind."""
     import cv2
 
-    from staticdepth.fileio import atomic_path, atomic_write_bytes
+    from staticdepth.fileio import atomic_path, atomic_write_bytes, write_image
     from staticdepth.progress import progress
 
     if fmt not in ("png16", "npy", "mp4"):
@@ -95,8 +95,7 @@ def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
                 atomic_write_bytes(os.path.join(out_dir, f"{n:06d}.npy"), buf.getvalue())
             elif fmt == "png16":
                 q = np.where(np.isfinite(depth), np.clip(np.round(depth * 256), 0, 65535), 0)
-                ok, enc = cv2.imencode(".png", q.astype(np.uint16))
-                atomic_write_bytes(os.path.join(out_dir, f"{n:06d}.png"), enc.tobytes())
+                write_image(os.path.join(out_dir, f"{n:06d}.png"), q.astype(np.uint16))
             else:
                 if writer is None:
                     tmp_ctx = atomic_path(os.path.join(out_dir, "depth.mp4"), "mp4")

@@ -124,6 +124,29 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
             f.write(data)
 
 
+def write_image(path: str | os.PathLike, image, *, fsync: bool = True) -> None:
+    """The one image writer: encode ``image`` in memory in the format of ``path``'s suffix (PNG
+    when there is none) and write it atomically. A 3-channel image is RGB (as everywhere in
+    the toolkit; OpenCV's BGR stays inside); 1-channel uint8/uint16 images are written as they
+    are. Encoding in memory makes a full disk an ``OSError`` named by :func:`os_error`
+    (``cv2.imwrite`` only returns False)."""
+    import cv2
+    import numpy as np
+
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1] or ".png"
+    a = np.asarray(image)
+    try:
+        ok, buf = cv2.imencode(ext, np.ascontiguousarray(a[..., ::-1] if a.ndim == 3 else a))
+    except cv2.error:               # an unknown suffix, or a dtype/shape the format cannot hold
+        ok = False
+    if not ok:
+        raise InputError(f"cannot encode an image as {ext}", path)
+    with atomic_path(path, fsync=fsync) as tmp:
+        with open(tmp, "wb") as f:
+            f.write(buf.tobytes())
+
+
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 

@@ -197,9 +197,6 @@ def write_annotated(path: str, seq_path: str, pos: np.ndarray, pairs: list, k: i
 
 
 def write_png(path: str, rgb: np.ndarray) -> None:
-    from staticdepth.fileio import atomic_write_bytes
+    from staticdepth.fileio import write_image
 
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
-    if not ok:
-        raise InputError("cannot encode the PNG", path)
-    atomic_write_bytes(path, buf.tobytes())
+    write_image(path, rgb)

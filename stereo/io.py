@@ -144,7 +144,7 @@ def write_disparity(path: str | os.PathLike, disparity: np.ndarray) -> None:
     atomically (the previous file stays whole until the new one is complete)."""
     import io
 
-    from staticdepth.fileio import atomic_write_bytes
+    from staticdepth.fileio import atomic_write_bytes, write_image
 
     path = os.fspath(path)
     d = np.asarray(disparity, dtype=np.float32)
@@ -156,10 +156,7 @@ def write_disparity(path: str | os.PathLike, disparity: np.ndarray) -> None:
             raise InputError("disparity above 255.99 px does not fit a uint16 x256 PNG "
                              "(write .pfm or .npy)", path)
         q = np.where(np.isfinite(d) & (d > 0), np.round(d * 256), 0).astype(np.uint16)
-        ok, data = cv2.imencode(".png", q)
-        if not ok:
-            raise InputError("cannot encode PNG", path)
-        atomic_write_bytes(path, data.tobytes())
+        write_image(path, q)
     elif ext == ".npy":
         buf = io.BytesIO()
         np.save(buf, d)

@@ -105,3 +105,41 @@ def test_stale_temporaries_removed(tmp_path):
     stale.write_text("x"); mine.write_text("y")
     assert remove_stale_temporaries(out) == [str(stale)]
     assert mine.exists() and not stale.exists()
+
+
+def test_write_image_is_the_one_image_writer(tmp_path):
+    """RGB in, the file holds it (OpenCV's BGR stays inside); uint16 single channel written as it
+    is; an image too big for the file-size limit: one error, the old file intact, nothing left."""
+    import cv2
+    import numpy as np
+
+    from staticdepth.fileio import write_image
+
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (12, 20, 3), dtype=np.uint8)
+    write_image(tmp_path / "a.png", rgb)
+    assert np.array_equal(cv2.imread(str(tmp_path / "a.png"))[..., ::-1], rgb)
+    d16 = rng.integers(0, 65536, (12, 20), dtype=np.uint16)
+    write_image(tmp_path / "d.png", d16, fsync=False)
+    assert np.array_equal(cv2.imread(str(tmp_path / "d.png"), cv2.IMREAD_UNCHANGED), d16)
+    with pytest.raises(InputError, match="cannot encode"):
+        write_image(tmp_path / "x.notanimage", rgb)
+    out = tmp_path / "big.png"
+    out.write_bytes(b"old")
+    code = textwrap.dedent(f"""
+        import resource, signal, sys
+        import numpy as np
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+        from staticdepth.errors import InputError
+        from staticdepth.fileio import write_image
+        noise = np.random.default_rng(1).integers(0, 256, (200, 200, 3), dtype=np.uint8)
+        try:
+            write_image({str(out)!r}, noise)
+        except InputError as e:
+            print(e); sys.exit(2)
+    """)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 2 and "file too large" in r.stdout, r.stdout + r.stderr
+    assert out.read_bytes() == b"old"
+    assert sorted(os.listdir(tmp_path)) == ["a.png", "big.png", "d.png"]

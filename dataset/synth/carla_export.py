@@ -21,7 +21,6 @@ import os
 from pathlib import Path
 from typing import Any, Iterable, Mapping
 
-import cv2
 import numpy as np
 
 from staticdepth.errors import InputError
@@ -54,8 +53,9 @@ def carla_instance_image(semantic: np.ndarray, instances: np.ndarray) -> np.ndar
 
 
 def _write_rgb(path: Path, rgb: np.ndarray) -> None:
-    if not cv2.imwrite(str(path), np.ascontiguousarray(rgb[..., ::-1])):
-        raise InputError("cannot write PNG", path)
+    from staticdepth.fileio import write_image
+
+    write_image(path, rgb)
 
 
 def sensor_json(camera: Camera, mounting: Mounting, baseline_m: float | None,
