@@ -237,9 +237,10 @@ def run(args) -> int:
     device = resolve_device(extras.get("device", args.device))
     summary = adapt(seq, conf, device=device, summary_path=extras.get("summary"),
                     save_model=extras.get("save_model"))
+    sd = (summary["plane"].get("uncertainty") or {}).get("camera_height_std_m")
     print(f"plane: pitch {summary['plane']['pitch_deg']:.2f} deg, roll "
-          f"{summary['plane']['roll_deg']:.2f} deg; camera height {summary['camera_height_m']:.2f} m "
-          f"({summary['camera_height_source']})")
+          f"{summary['plane']['roll_deg']:.2f} deg; camera height {summary['camera_height_m']:.2f}"
+          + (f" +- {sd:.2f}" if sd is not None else "") + f" m ({summary['camera_height_source']})")
     print(f"predictions written to {seq}.pred/: {', '.join(summary['predictions'])}")
     print(f"summary: {summary['summary_path']}")
     return 0

@@ -46,7 +46,7 @@ def inputs_note(adapt_args: dict) -> str:
     if str(settings.get("scale.sequence_height", "true")).lower() in ("true", "1", "yes"):
         oracle.append("the camera height is the true one stored in the rendered sequence")
     else:
-        real.append("the camera height comes from the agents' 1.7 m height prior (the true one "
+        real.append("the camera height comes from the agents' height distributions (the true one "
                     "only scores the result)")
     parts = ([f"real inputs: {'; '.join(real)}"] if real else []) + \
         ([f"oracle inputs: {'; '.join(oracle)}"] if oracle else [])

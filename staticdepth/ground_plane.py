@@ -18,8 +18,8 @@ import numpy as np
 
 from staticdepth.errors import InputError
 from staticdepth.geometry import load_camera
-from staticdepth.geometry.agent_plane_gate import (CLASS_SETS, camera_height_from_agents,
-                                                   class_set, plane_gate)
+from staticdepth.geometry.agent_plane_gate import (CLASS_SETS, class_set, plane_gate,
+                                                   with_camera_height_from_agents)
 
 if TYPE_CHECKING:  # the fit imports scipy: loaded when a plane is fitted, not for --help
     from staticdepth.geometry.agent_plane import AgentPlane, AgentPlaneConfig
@@ -88,23 +88,16 @@ def estimate_ground_plane(observations: np.ndarray, K: np.ndarray,
     median over person tracks), else from the classes' height distributions (people when the
     plane has person tracks, else every class; with its uncertainty); none when that fails.
     ``conf`` None = the default :class:`AgentPlaneConfig`."""
-    from staticdepth.geometry.agent_plane import (AgentPlaneConfig, camera_height_from_prior,
-                                                  fit_agent_plane)
+    from staticdepth.geometry.agent_plane import AgentPlaneConfig, fit_agent_plane
 
     conf = AgentPlaneConfig() if conf is None else conf
     plane = fit_agent_plane(K, observations, conf)
     if camera_height_m is not None:
         return plane.with_camera_height(camera_height_m, "given")
-    if agent_height_m is not None:
-        return plane.with_camera_height(camera_height_from_prior(plane, agent_height_m),
-                                        f"agent height prior {agent_height_m:g} m")
-    for name in ("people", "all"):
-        try:
-            d, sd, k = camera_height_from_agents(plane, CLASS_SETS[name], seed=conf.seed)
-        except InputError:
-            continue
-        return plane.with_camera_height(d, f"height distributions of {name} ({k} tracks)", sd)
-    return plane
+    try:
+        return with_camera_height_from_agents(plane, agent_height_m, seed=conf.seed)
+    except InputError:
+        return plane
 
 
 def write_json(path: str | os.PathLike, obj: Any) -> None:

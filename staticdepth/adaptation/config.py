@@ -84,11 +84,12 @@ class AlignConfig:
 
 @dataclass(frozen=True)
 class ScaleConfig:
-    camera_height_m: float | None = None   # None: the sequence's, else the agent-height prior
-    agent_height_m: float = 1.7            # the prior, when no camera height is known
+    camera_height_m: float | None = None   # None: the sequence's, else from the agents
+    agent_height_m: float | None = None    # from the agents: None = per-class height
+                                           # distributions; a number = one fixed agent height
     metric_scale: str = "plane"            # plane: x H_c; anchor: METHOD.md 5's anchor pixel
     sequence_height: bool = True           # false: ignore the sequence's stored height (the
-                                           # agents' prior gives it, as on a site without one)
+                                           # agents give it, as on a site without one)
 
     def __post_init__(self):
         if self.metric_scale not in ("plane", "anchor"):
@@ -96,7 +97,8 @@ class ScaleConfig:
         h = self.camera_height_m
         if h is not None and not (math.isfinite(h) and h > 0):
             raise InputError(f"camera height must be a positive number of metres, got {h}")
-        if not (math.isfinite(self.agent_height_m) and self.agent_height_m > 0):
+        a = self.agent_height_m
+        if a is not None and not (math.isfinite(a) and a > 0):
             raise InputError(f"agent height must be positive, got {self.agent_height_m}")
 
 

@@ -1,7 +1,8 @@
 """Stage scale: metric outputs ``align-metric`` and ``ft-align-metric`` (METHOD.md section 5).
 
 The camera height: ``scale.camera_height_m``, else the sequence's (unless
-``scale.sequence_height`` is false), else the agents' height prior.
+``scale.sequence_height`` is false), else the agents (per-class height distributions, or one
+fixed ``scale.agent_height_m``; the same rule as ``ground-plane``).
 The aligned maps are in units of the camera height, so ``metric_scale = plane`` multiplies them
 by H_c; ``anchor`` uses the temporal median of the per-frame anchor-pixel scales instead (frames
 whose anchor an agent covers are skipped, unless every frame's is). Both scales are reported.
@@ -14,7 +15,8 @@ import numpy as np
 from staticdepth.adaptation.align import OUTPUTS as ALIGNED
 from staticdepth.adaptation.common import Agents, Workspace
 from staticdepth.adaptation.config import AdaptConfig
-from staticdepth.geometry.agent_plane import AgentPlane, camera_height_from_prior
+from staticdepth.geometry.agent_plane import AgentPlane
+from staticdepth.geometry.agent_plane_gate import with_camera_height_from_agents
 from staticdepth.geometry.scale import scale_from_anchor, temporal_scale
 from staticdepth.progress import progress
 
@@ -25,8 +27,7 @@ def with_camera_height(conf: AdaptConfig, ws: Workspace, plane: AgentPlane) -> A
         return plane.with_camera_height(s.camera_height_m, "given")
     if ws.camera_height_m is not None and s.sequence_height:
         return plane.with_camera_height(ws.camera_height_m, "sequence")
-    return plane.with_camera_height(camera_height_from_prior(plane, s.agent_height_m),
-                                    f"agent height prior {s.agent_height_m:g} m")
+    return with_camera_height_from_agents(plane, s.agent_height_m, seed=conf.plane.seed)
 
 
 def anchor_scales(ws: Workspace, agents: Agents, plane: AgentPlane) -> dict[str, float]:

@@ -87,6 +87,26 @@ def camera_height_from_agents(plane, classes: tuple[int, ...] | None = (0, -1),
     return d, d * rel, int(use.sum())
 
 
+def with_camera_height_from_agents(plane, agent_height_m: float | None = None, seed: int = 0):
+    """``plane`` with its camera height from its agents, the one rule of ``ground-plane`` and
+    ``adapt``: one fixed agent height ``agent_height_m`` when given, else the per-class height
+    distributions (people's inlier tracks, else every class's) with a bootstrap uncertainty.
+    Raises InputError when no inlier track can give it."""
+    if agent_height_m is not None:
+        from staticdepth.geometry.agent_plane import camera_height_from_prior
+
+        return plane.with_camera_height(camera_height_from_prior(plane, agent_height_m),
+                                        f"agent height prior {agent_height_m:g} m")
+    for name in ("people", "all"):
+        try:
+            d, sd, k = camera_height_from_agents(plane, CLASS_SETS[name], seed=seed)
+        except InputError:
+            continue
+        return plane.with_camera_height(d, f"height distributions of {name} ({k} tracks)", sd)
+    raise InputError("no inlier agent track to take the camera height from (give the camera "
+                     "height)")
+
+
 @dataclass(frozen=True)
 class PlaneGate:
     """Verdict on a plane: ``ok``; the normal's uncertainty (deg) and inlier tracks it rests on;
