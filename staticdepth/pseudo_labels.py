@@ -111,19 +111,13 @@ def plane_pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.
     pixels (agents, and the ground with ``label_ground``). A frame whose ground has no positive
     slope against the plane (the network sees no receding ground) gets :func:`pseudo_label`.
     """
-    from staticdepth.geometry.alignment import fit_inverse_affine
-
     inv = np.asarray(inv_depth, dtype=np.float32)
     q = np.asarray(plane_inv, dtype=np.float32)
-    G = np.asarray(ground_mask, bool) & (np.asarray(instances) == 0) & (q > 0) & np.isfinite(inv)
-    if np.count_nonzero(G) < 3:
-        raise InputError("the ground mask holds fewer than 3 pixels below the agents' horizon: "
-                         "no plane pseudo labels")
-    step = max(1, np.count_nonzero(G) // 20000)
-    try:
-        s, t = fit_inverse_affine(inv[G][::step], q[G][::step])
-    except InputError:      # the network's ground does not recede here: its own contact values
+    G = np.asarray(ground_mask, bool) & (np.asarray(instances) == 0)
+    G, fit = _network_space(inv, q, G, "plane")
+    if fit is None:         # the network's ground does not recede here: its own contact values
         return pseudo_label(inv, instances, agents, conf)
+    s, t = fit
     mapped = (np.float32(s) * q + np.float32(t)).astype(np.float32)
     plane_label, mask = pseudo_label(mapped, instances, agents, conf)
     q_contact, _ = pseudo_label(q, instances, agents, conf)
@@ -146,26 +140,38 @@ def aligned_pseudo_label(inv_depth: np.ndarray, aligned: np.ndarray, plane_inv: 
     back. A frame whose ground has no positive slope against the plane keeps its prediction.
     Returns the label and the mask of pixels changed by more than 1e-3 relative.
     """
-    from staticdepth.geometry.alignment import fit_inverse_affine
-
     inv = np.asarray(inv_depth, dtype=np.float32)
     q = np.asarray(plane_inv, dtype=np.float32)
     A = np.asarray(aligned, dtype=np.float32)
     if inv.shape != q.shape or A.shape != q.shape:
         raise InputError(f"prediction {inv.shape}, alignment {A.shape} and plane {q.shape} "
                          "differ in size")
-    G = np.asarray(ground_mask, bool) & (q > 0) & np.isfinite(inv)
-    if np.count_nonzero(G) < 3:
-        raise InputError("the ground mask holds fewer than 3 pixels below the agents' horizon: "
-                         "no aligned pseudo labels")
-    step = max(1, np.count_nonzero(G) // 20000)
-    try:
-        s, t = fit_inverse_affine(inv[G][::step], q[G][::step])
-    except InputError:
+    _, fit = _network_space(inv, q, np.asarray(ground_mask, bool), "aligned")
+    if fit is None:
         return inv.copy(), np.zeros(inv.shape, bool)
+    s, t = fit
     with np.errstate(divide="ignore", invalid="ignore"):
         label = np.where(np.isfinite(A) & (A > 0), np.float32(s) / A + np.float32(t), inv)
     label = label.astype(np.float32)
     with np.errstate(invalid="ignore"):
         mask = np.abs(label - inv) > 1e-3 * np.abs(inv)
     return label, mask
+
+
+def _network_space(inv: np.ndarray, q: np.ndarray, ground: np.ndarray, what: str,
+                   max_points: int = 20000):
+    """The map from the plane's inverse depth ``q`` into the network's ``inv`` on the ground
+    pixels below the horizon: (those pixels, (s, t) of ``inv ~ s q + t``, or None when the
+    network's ground does not recede against the plane). Raises with fewer than 3 pixels."""
+    from staticdepth.geometry.alignment import fit_inverse_affine
+
+    G = ground & (q > 0) & np.isfinite(inv)
+    n = np.count_nonzero(G)
+    if n < 3:
+        raise InputError("the ground mask holds fewer than 3 pixels below the agents' horizon: "
+                         f"no {what} pseudo labels")
+    step = max(1, n // max_points)
+    try:
+        return G, fit_inverse_affine(inv[G][::step], q[G][::step])
+    except InputError:
+        return G, None
