@@ -64,10 +64,10 @@ def _synth(args: argparse.Namespace) -> int:
 
 def _inspect(args: argparse.Namespace) -> int:
     from staticdepth.dataset.h5 import SequenceReader
-    from staticdepth.dataset.inspect import format_summary, summarize, thumbnail_sheet, write_png
+    from staticdepth.dataset.inspect import format_summary, summarize, thumbnail_sheet
 
     from staticdepth.cli import refuse_existing
-    from staticdepth.fileio import atomic_write_text
+    from staticdepth.fileio import atomic_write_text, write_image
 
     if args.pred and not args.sheet:
         raise InputError("--pred adds rows to the sheet: pass --sheet FILE.png too")
@@ -78,7 +78,7 @@ def _inspect(args: argparse.Namespace) -> int:
         info = summarize(r)
         print(format_summary(info))
         if args.sheet:
-            write_png(args.sheet, thumbnail_sheet(r, n=args.frames, preds=args.pred))
+            write_image(args.sheet, thumbnail_sheet(r, n=args.frames, preds=args.pred))
             print(f"  sheet            {args.sheet}")
     if args.json:
         atomic_write_text(args.json, json.dumps(info, indent=2, default=str))

@@ -1,7 +1,6 @@
 """Summaries and pictures of a sequence file (used by ``staticdepth inspect``)."""
 from __future__ import annotations
 
-import os
 from typing import Any
 
 import cv2
@@ -31,13 +30,6 @@ def colorize_depth(depth: np.ndarray, vmin: float | None = None, vmax: float | N
     bgr = cv2.applyColorMap((t * 255).astype(np.uint8), cv2.COLORMAP_TURBO)
     out[ok] = bgr[..., ::-1][ok]
     return out
-
-
-def write_png(path: str | os.PathLike, rgb: np.ndarray) -> None:
-    """Write an RGB image atomically; the format follows the suffix (PNG when there is none)."""
-    from staticdepth.fileio import write_image
-
-    write_image(path, rgb)
 
 
 def summarize(reader: SequenceReader, sample: int = 16) -> dict[str, Any]:

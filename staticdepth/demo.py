@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from staticdepth import report_figures as rf
     from staticdepth.cli import parse_overrides
     from staticdepth.dataset.h5 import SequenceReader
-    from staticdepth.dataset.inspect import write_png
+    from staticdepth.fileio import write_image
     from staticdepth.run import load_recipe, run_recipe
 
     t0 = time.perf_counter()
@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
                 rows.append(rf.depth_panel(pred, text, rng if "metric" in name else None))
         picture = np.concatenate(rows, axis=0)
     png = os.path.join(recipe["out_dir"], "demo_depth.png")
-    write_png(png, picture)
+    write_image(png, picture)
     print(f"picture: {png} (frame {i}: image, ground truth, base prediction, adapted metric "
           f"prediction; turbo, near = red)")
     print(f"report: {os.path.join(recipe['out_dir'], 'report', 'report_demo.html')}")

@@ -368,12 +368,13 @@ def _run(args) -> int:
     from staticdepth.geometry.camera import read_json
     from staticdepth.locate_tables import check_table_path, write_pairs, write_positions
 
+    from staticdepth import locate_draw
     from staticdepth.cli import refuse_existing
 
     for path in (args.out, args.pairs):
         check_table_path(path)          # before the work: a .parquet path without pyarrow
-    sheet = os.path.splitext(args.annotate)[0] + "_sheet.png" if args.annotate else None
-    refuse_existing(args.out, args.pairs, args.bev, args.annotate, sheet,
+    refuse_existing(args.out, args.pairs, args.bev, args.annotate,
+                    args.annotate and locate_draw.sheet_path(args.annotate),
                     overwrite=args.overwrite)
     if not args.close_m > 0:
         raise InputError(f"--close-m must be positive, got {args.close_m}")
@@ -395,8 +396,6 @@ def _run(args) -> int:
     pr = pairs(pos, args.close_m)
     if args.pairs:
         write_pairs(args.pairs, pr)
-    from staticdepth import locate_draw
-
     if args.bev:
         locate_draw.write_bev(args.bev, pos)
     if args.annotate:

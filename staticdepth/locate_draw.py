@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from staticdepth.errors import InputError
+from staticdepth.fileio import write_image
 
 RED = (220, 30, 30)
 FONT = cv2.FONT_HERSHEY_SIMPLEX
@@ -145,7 +146,7 @@ def pick_frames(pos: np.ndarray, k: int) -> list[int]:
 
 
 def write_bev(path: str, pos: np.ndarray, close: list | None = None) -> None:
-    write_png(path, bev_image(pos, close=close))
+    write_image(path, bev_image(pos, close=close))
 
 
 def write_annotated(path: str, seq_path: str, pos: np.ndarray, pairs: list, k: int = 12,
@@ -191,12 +192,10 @@ def write_annotated(path: str, seq_path: str, pos: np.ndarray, pairs: list, k: i
     sheet = np.full((rows * h, cols * w, 3), 255, np.uint8)
     for i, f in enumerate(frames):
         sheet[(i // cols) * h:(i // cols + 1) * h, (i % cols) * w:(i % cols + 1) * w] = f
-    sheet_path = os.path.splitext(path)[0] + "_sheet.png"
-    write_png(sheet_path, sheet)
-    return sheet_path
+    write_image(sheet_path(path), sheet)
+    return sheet_path(path)
 
 
-def write_png(path: str, rgb: np.ndarray) -> None:
-    from staticdepth.fileio import write_image
-
-    write_image(path, rgb)
+def sheet_path(path: str) -> str:
+    """The PNG sheet written beside the annotated frames ``path``."""
+    return os.path.splitext(path)[0] + "_sheet.png"
