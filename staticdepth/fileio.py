@@ -147,6 +147,15 @@ def write_image(path: str | os.PathLike, image, *, fsync: bool = True) -> None:
             f.write(buf.tobytes())
 
 
+def atomic_torch_save(path: str | os.PathLike, obj, tag: str = "") -> None:
+    """``torch.save(obj)`` atomically (weights, checkpoints); torch is imported here, not at
+    start-up."""
+    import torch
+
+    with atomic_path(path, tag) as tmp, open(tmp, "wb") as f:   # open() errors are OSErrors
+        torch.save(obj, f)
+
+
 def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 

@@ -122,11 +122,10 @@ def _load_trainable_state(model: TorchDepthModel, state: dict[str, torch.Tensor]
 
 
 def save_checkpoint(path: str, payload: dict[str, Any]) -> None:
-    """``torch.save`` atomically (:func:`staticdepth.fileio.atomic_path`)."""
-    from staticdepth.fileio import atomic_path
+    """``torch.save`` atomically."""
+    from staticdepth.fileio import atomic_torch_save
 
-    with atomic_path(path, "ckpt") as tmp, open(tmp, "wb") as f:
-        torch.save(payload, f)
+    atomic_torch_save(path, payload, "ckpt")
 
 
 def data_fingerprint(images: np.ndarray, targets: np.ndarray) -> str:

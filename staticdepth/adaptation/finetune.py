@@ -22,7 +22,7 @@ import torch
 from staticdepth.adaptation.common import Workspace
 from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.errors import InputError
-from staticdepth.fileio import atomic_path
+from staticdepth.fileio import atomic_torch_save
 from staticdepth.finetune import (CHECKPOINT_FORMAT, _load_trainable_state, _peak_memory_mb,
                                   _trainable_state, epoch_order, train_step)
 from staticdepth.progress import progress
@@ -120,10 +120,10 @@ def run(conf: AdaptConfig, ws: Workspace, model, config_hash: str,
             rec = {"epoch": epoch + 1, "loss": float(np.mean(losses)),
                    "seconds": time.perf_counter() - t0, "peak_memory_mb": _peak_memory_mb(device)}
             history.append(rec)
-            with atomic_path(ckpt_path) as tmp:
-                torch.save({"format": CHECKPOINT_FORMAT, "key": key, "epoch": epoch + 1,
-                            "state": _trainable_state(model), "optimizer": optimizer.state_dict(),
-                            "history": history}, tmp)
+            atomic_torch_save(ckpt_path, {"format": CHECKPOINT_FORMAT, "key": key,
+                                          "epoch": epoch + 1, "state": _trainable_state(model),
+                                          "optimizer": optimizer.state_dict(),
+                                          "history": history})
             ws.log(f"  epoch {rec['epoch']}: loss {rec['loss']:.5f} ({rec['seconds']:.1f} s, "
                    f"peak {rec['peak_memory_mb']:.0f} MiB)")
     finally:

@@ -47,11 +47,10 @@ def default_checkpoint_path(sequence_path: str | os.PathLike) -> str:
 
 
 def save_checkpoint(path: str, state: dict[str, Any]) -> None:
-    """Write ``state`` with ``torch.save`` atomically (:func:`staticdepth.fileio.atomic_path`)."""
-    from staticdepth.fileio import atomic_path
+    """Write ``state`` with ``torch.save`` atomically."""
+    from staticdepth.fileio import atomic_torch_save
 
-    with atomic_path(path, "ckpt") as tmp, open(tmp, "wb") as f:
-        torch.save(state, f)
+    atomic_torch_save(path, state, "ckpt")
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:

@@ -18,7 +18,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from staticdepth.errors import InputError
-from staticdepth.fileio import atomic_path
+from staticdepth.fileio import atomic_torch_save
 from staticdepth.models.base import IMAGENET_MEAN, IMAGENET_STD, Resize, TorchDepthModel
 from staticdepth.models.trust import torch_load
 
@@ -99,8 +99,7 @@ def save_builtin(path: str | os.PathLike, model: TorchDepthModel, info: dict | N
             "input_size": (model.resize.height, model.resize.width),
             "state_dict": {k: v.detach().cpu() for k, v in net.state_dict().items()},
             "info": dict(info or {})}
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:  # open() errors are OSErrors
-        torch.save(ckpt, f)
+    atomic_torch_save(path, ckpt)
     return path
 
 
