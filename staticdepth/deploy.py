@@ -7,7 +7,7 @@ whole chain of ``adapt`` after fine-tuning fits in one graph:
 
     uint8 RGB (H, W, 3) -> /255, resize, normalise -> network -> relative inverse depth D
     -> Z = 1 / max(D, eps) -> scene alignment (METHOD.md 4; geometry/alignment_torch.py, in the
-    adapt summary's ``align.mode``: ``eq2`` or ``ground``) -> x scale (METHOD.md 5: the camera
+    adapt summary's ``align.mode``: ``eq2``, ``ground`` or ``upright``) -> x scale (METHOD.md 5: the camera
     height) -> metric depth (H, W) float32
 
 The reference it is checked against, :func:`metric_depth_reference`, is the same chain with the
@@ -19,7 +19,8 @@ the per-frame removal of the agents' pixels from the ground mask (no detector in
 Keys read from the adapt summary: ``plane.normal`` (or ``planes.agents.normal``),
 ``camera_height_m``, ``scale.ft-align`` (else the camera height), ``config.eps``,
 ``config.erode_px``, ``config.detector``, ``config.detector_model``, ``config.align.mode`` (an
-older summary without it: ``eq2``), ``config.align.snap_rel``, and ``ground_polygon`` when present
+older summary without it: ``eq2``), ``config.align.snap_rel``, the upright mode's
+``config.align.shape/jump_rel/recede_min/recede_max``, and ``ground_polygon`` when present
 (the ground region's vertices in pixels; otherwise the feet hull is rebuilt from the sequence's
 agents or by running the summary's detector again).
 """
@@ -66,13 +67,29 @@ def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str 
         else:
             G, how = _ground_from_feet(r, cfg, log)
     mode = setting_from(cfg, "align.mode", "eq2")
-    if mode not in ("eq2", "ground"):
-        raise InputError(f"align.mode {mode!r} has no exported form (eq2, ground)", summary_path)
+    if mode not in ("eq2", "ground", "upright"):
+        raise InputError(f"align.mode {mode!r} has no exported form (eq2, ground, upright)",
+                         summary_path)
     return {"K": K, "width": W, "height": H, "normal": n_g, "camera_height_m": h_c,
             "scale": scale, "eps": float(setting_from(cfg, "predict.eps", 1e-6)), "ground": G,
             "ground_from": how, "mode": mode,
             "snap_rel": float(setting_from(cfg, "align.snap_rel", 0.1)),
+            "upright": upright_settings(cfg) if mode == "upright" else {},
             "agents_at_contact": bool(setting_from(cfg, "align.agents_at_contact", False))}
+
+
+def upright_settings(cfg: dict) -> dict[str, Any]:
+    """The upright mode's keywords (align_depth's) from a summary's config (AlignConfig's
+    defaults where absent)."""
+    from staticdepth.adaptation.align import upright_options
+    from staticdepth.adaptation.config import AlignConfig
+
+    d = AlignConfig()
+    return upright_options(AlignConfig(
+        mode="upright", shape=str(setting_from(cfg, "align.shape", d.shape)),
+        jump_rel=float(setting_from(cfg, "align.jump_rel", d.jump_rel)),
+        recede_min=float(setting_from(cfg, "align.recede_min", d.recede_min)),
+        recede_max=float(setting_from(cfg, "align.recede_max", d.recede_max))))
 
 
 def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:
@@ -120,7 +137,7 @@ def metric_depth_reference(model, image: np.ndarray, c: dict[str, Any]) -> np.nd
 
     Z = depth_from_inverse(model.predict(image), c["eps"])
     return align_depth(Z, c["K"], c["normal"], 1.0, c["ground"], mode=c["mode"],
-                       snap_rel=c["snap_rel"]).depth * np.float32(c["scale"])
+                       snap_rel=c["snap_rel"], **c.get("upright", {})).depth * np.float32(c["scale"])
 
 
 # -- the exported graph --------------------------------------------------------------------------
@@ -141,7 +158,8 @@ def metric_graph(model, c: dict[str, Any]):
             super().__init__()
             self.net = model.net
             self.align = alignment_module(c["mode"], c["K"], c["width"], c["height"],
-                                          c["normal"], 1.0, c["ground"], snap_rel=c["snap_rel"])
+                                          c["normal"], 1.0, c["ground"], snap_rel=c["snap_rel"],
+                                          **c.get("upright", {}))
             self.eps, self.scale = float(c["eps"]), float(c["scale"])
 
         def forward(self, image: torch.Tensor) -> torch.Tensor:
@@ -206,6 +224,8 @@ def export_metadata(c: dict[str, Any], model_spec: str, summary_path: str) -> di
     """What the exported file computes, as the ONNX model's metadata (string key -> value)."""
     return {"staticdepth.output": "metric depth (m), float32 (H, W); input uint8 RGB (H, W, 3)",
             "staticdepth.align_mode": c["mode"], "staticdepth.snap_rel": f"{c['snap_rel']:g}",
+            **({"staticdepth.upright": ", ".join(f"{k}={v}" for k, v in c["upright"].items())}
+               if c.get("upright") else {}),
             "staticdepth.scale": f"{c['scale']:.6g}",
             "staticdepth.camera_height_m": f"{c['camera_height_m']:.6g}",
             "staticdepth.ground_from": str(c["ground_from"]),

@@ -91,7 +91,7 @@ def adapted_camera(tmp_path_factory, trained_weights):
     return d, seq, d / "c1.adapt.json"
 
 
-@pytest.mark.parametrize("mode", ["ground", "eq2"])
+@pytest.mark.parametrize("mode", ["ground", "eq2", "upright"])
 def test_export_of_an_adapted_camera(adapted_camera, mode, capsys):
     """The exported graph bakes the summary's align.mode and reproduces the numpy pipeline on
     frames whose fit (s, t or the predicted plane) differs; adapt's own output differs from it
@@ -114,6 +114,7 @@ def test_export_of_an_adapted_camera(adapted_camera, mode, capsys):
     assert f"align.mode {mode}" in capsys.readouterr().out
     onnx = MetricOnnx(str(out))
     assert onnx.metadata["staticdepth.align_mode"] == mode
+    assert ("jump_rel=0.08" in onnx.metadata.get("staticdepth.upright", "")) == (mode == "upright")
     assert onnx.metadata["staticdepth.agents_at_contact"].startswith("not applied")
     model = load_model(f"builtin:{d / 'ft.pt'}")
     c = deployment_constants(str(summ), str(seq))
@@ -124,7 +125,7 @@ def test_export_of_an_adapted_camera(adapted_camera, mode, capsys):
             got, ref = onnx.predict(img), metric_depth_reference(model, img, c)
             rel.append(np.median(np.abs(got - ref) / ref))
             Z = depth_from_inverse(model.predict(img), c["eps"])
-            a = align_depth(Z, c["K"], c["normal"], 1.0, c["ground"], mode=mode)
+            a = align_depth(Z, c["K"], c["normal"], 1.0, c["ground"], mode=mode, **c["upright"])
             fits.add(tuple(np.round(a.plane_normal, 5)))
             err_onnx.append(evaluate(got, gt, "metric")["abs_rel"])
             if mode == "ground":

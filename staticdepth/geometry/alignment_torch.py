@@ -173,6 +173,10 @@ class GroundAlignment(nn.Module):
         self.snap_rel = float(np.float32(snap_rel))
 
     def forward(self, Z: torch.Tensor) -> torch.Tensor:
+        return self.parts(Z)[0]
+
+    def parts(self, Z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(aligned depth, (H, W) bool snapped pixels, depth before snapping)."""
         inv = 1.0 / Z
         ig = torch.index_select(inv.reshape(-1), 0, self.idx)
         s, t, ok = fit_inverse_affine(ig, self.qg)
@@ -182,16 +186,22 @@ class GroundAlignment(nn.Module):
         new_inv = (inv - t) / s
         q = self.q
         snap = (q > 0) & (torch.abs(new_inv - q) <= self.snap_rel * q)
-        new_inv = torch.where(snap, q, torch.clamp(new_inv, min=self.floor))
-        return 1.0 / new_inv
+        far = torch.clamp(new_inv, min=self.floor)
+        return 1.0 / torch.where(snap, q, far), snap, 1.0 / far
 
 
 def alignment_module(mode: str, K: np.ndarray, width: int, height: int, n_g, d_g: float,
-                     ground_mask: np.ndarray, *, eps: float = 1e-3, snap_rel: float = 0.1
-                     ) -> nn.Module:
-    """The exportable twin of ``align_depth(..., mode=mode, snap_rel=snap_rel)``."""
+                     ground_mask: np.ndarray, *, eps: float = 1e-3, snap_rel: float = 0.1,
+                     **upright) -> nn.Module:
+    """The exportable twin of ``align_depth(..., mode=mode, snap_rel=snap_rel, **upright)``
+    (``upright``: the upright mode's shape, jump_rel, recede; geometry/alignment_upright_torch.py)."""
     if mode == "eq2":
         return PlaneAlignment(K, width, height, n_g, d_g, ground_mask, eps=eps)
     if mode == "ground":
         return GroundAlignment(K, width, height, n_g, d_g, ground_mask, snap_rel=snap_rel)
-    raise ValueError(f"no exportable alignment for mode {mode!r} (eq2, ground)")
+    if mode == "upright":
+        from staticdepth.geometry.alignment_upright_torch import UprightAlignment
+
+        return UprightAlignment(K, width, height, n_g, d_g, ground_mask, snap_rel=snap_rel,
+                                **upright)
+    raise ValueError(f"no exportable alignment for mode {mode!r} (eq2, ground, upright)")

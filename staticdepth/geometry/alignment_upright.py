@@ -131,7 +131,9 @@ def refine_contacts(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.nda
     lut_i[C], lut_q[C] = base, new_q
     have = idx >= 0
     qc[have], idx[have] = lut_q[idx[have]], lut_i[idx[have]]
-    for pix, k in zip(walked_pix, walked_c):
+    # a pixel walked over by several contacts takes the one that reached it first (the longest
+    # walk; contacts reaching it at the same step share the rest of the walk): latest write wins
+    for pix, k in zip(walked_pix[::-1], walked_c[::-1]):
         qc.ravel()[pix], idx.ravel()[pix] = new_q[k], base[k]
 
 

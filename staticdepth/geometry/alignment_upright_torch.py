@@ -1,0 +1,267 @@
+"""The ``upright`` alignment mode (geometry/alignment_upright.py) in torch operations that export
+to ONNX: the twin of ``align_depth(Z, K, n_g, d_g, G, mode="upright", ...)`` with no agent mask,
+for a fixed camera (every input depth valid, as in alignment_torch.py).
+
+Everything that depends only on the camera and the plane is a constant of the graph: the image of
+the vertical through each pixel (``down_step``), hence for every pixel the pixel one row down its
+vertical (``nxt``), the pixels the recession is measured over, the plane's inverse depth ``q``.
+The numpy version's sequential scans become fixed-size index gathers:
+
+- the march up the rows (``contact_ratios``): each non-ground pixel either is a contact (ground
+  below it), links to the pixel below (continuous depth) or ends a run without contact; following
+  the links by pointer doubling (``link = link[link]``, ceil(log2 H) times) gives every pixel its
+  chain's end, hence its contact;
+- the walk of a contact down to the structure's foot (``refine_contacts``): ``max(2, H // 16)``
+  steps for every pixel at once; a walked-over ground pixel takes the contact that reached it at
+  the earliest step (ScatterElements: the contacts reaching it at one step share the rest of the
+  walk, so their writes are equal);
+- the fill along rows (``fill_along_rows``): left then right links, pointer doubling over W.
+The arithmetic runs in float64, as the numpy version's does, so that its threshold decisions
+(recession, depth steps) come out the same.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import nn
+
+from staticdepth.geometry.alignment_torch import GroundAlignment, masked_median
+from staticdepth.geometry.alignment_upright import RECEDE, SHAPES, down_step
+from staticdepth.geometry.projection import ray_grid
+
+
+def follow(link: torch.Tensor, steps: int) -> torch.Tensor:
+    """Each entry of a (N,) pointer array moved to the end of its chain (chains of at most
+    ``2 ** steps`` links; an end points at itself)."""
+    for _ in range(steps):
+        link = torch.index_select(link, 0, link)
+    return link
+
+
+def _doublings(n: int) -> int:
+    return max(1, math.ceil(math.log2(max(n, 2))))
+
+
+def _tables(K, n, w, h, q, span, jump_rel):
+    """The camera's constants: pixel below on the vertical, its validity, the recession paths,
+    the pixel ``span`` rows up the vertical, the pixel above (for the contact's interpolation)."""
+    du = down_step(K, n, w, h)
+    cols = np.arange(w)
+    N = h * w
+    nxt = np.arange(N).reshape(h, w).copy()
+    ok_n = np.zeros((h, w), bool)
+    for v in range(h - 1):
+        ub = np.where(np.isfinite(du[v]), np.rint(cols + np.nan_to_num(du[v])), -1).astype(np.int64)
+        ok_n[v] = np.isfinite(du[v]) & (ub >= 0) & (ub < w)
+        nxt[v] = (v + 1) * w + np.clip(ub, 0, w - 1)
+    nxt, ok_n = nxt.ravel(), ok_n.ravel()
+    qf = q.ravel()
+    qv = 0.5 * (qf + qf[nxt])
+    # the recession: span rows up from each pixel of rows [0, h - span)
+    m = max(h - span, 0)
+    vs = np.arange(m)[:, None]
+    u = np.broadcast_to(cols.astype(np.float64)[None, :], (m, w)).copy()
+    okr = np.ones((m, w), bool)
+    q_prev = q[:m]
+    paths, consts = [], []
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for j in range(1, span + 1):
+            u = u + np.nan_to_num(du[vs + j - 1, np.clip(np.rint(u), 0, w - 1).astype(np.int64)])
+            ui = np.rint(u).astype(np.int64)
+            okr &= (ui >= 0) & (ui < w)
+            ui = np.clip(ui, 0, w - 1)
+            q_j = q[vs + j, ui]
+            c = np.log1p(jump_rel) + np.log(q_j / q_prev)
+            okr &= (q_j > 0) & np.isfinite(c)
+            paths.append(((vs + j) * w + ui).ravel())
+            consts.append(np.nan_to_num(c).ravel())
+            q_prev = q_j
+        g_pl = np.log(q_prev / q[:m])
+        okr &= (q[:m] > 0) & (g_pl > 1e-6)
+    vu = np.arange(h)[:, None] - span
+    uu = np.clip(np.rint(cols[None, :] - span * np.nan_to_num(du)), 0, w - 1).astype(np.int64)
+    up = (np.maximum(vu, 0) * w + uu).ravel()
+    up_ok = np.broadcast_to(vu >= 0, (h, w)).ravel()
+    # the pixel below and above a contact's final position (refine_contacts' interpolation)
+    vv = np.repeat(np.arange(h), w)
+    uf = np.tile(cols, h)
+    dn = du.ravel()
+    bv = np.minimum(vv + 1, h - 1)
+    bu = np.clip(np.rint(uf + np.nan_to_num(dn)), 0, w - 1).astype(np.int64)
+    av = np.maximum(vv - 1, 0)
+    au = np.clip(np.rint(uf - np.nan_to_num(du[av, uf])), 0, w - 1).astype(np.int64)
+    qb = qf[bv * w + bu]
+    qb = np.where(qb > 0, qb, qf)
+    return dict(nxt=nxt, ok_n=ok_n, qv=qv, paths=paths, path_consts=consts,
+                rec_ok=okr.ravel(), g_pl=np.nan_to_num(g_pl, nan=1.0).ravel(), m=m, up=up,
+                up_ok=up_ok, above=av * w + au, has_above=vv > 0, q_below=qb)
+
+
+class UprightAlignment(nn.Module):
+    """(H, W) relative depth -> depth in units of ``d_g`` by the upright mode (module doc)."""
+
+    def __init__(self, K: np.ndarray, width: int, height: int, n_g, d_g: float,
+                 ground_mask: np.ndarray, *, snap_rel: float = 0.1, jump_rel: float = 0.08,
+                 shape: str = "network", recede: tuple[float, float] | None = RECEDE,
+                 max_ratio: float = 4.0, near_rel: float = 0.02, span: int = 3,
+                 max_points: int = 20000):
+        super().__init__()
+        if shape not in SHAPES:
+            raise ValueError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
+        self.ground = GroundAlignment(K, width, height, n_g, d_g, ground_mask, snap_rel=snap_rel,
+                                      max_points=max_points)
+        K = np.asarray(K, dtype=np.float64)
+        n = np.asarray(n_g, dtype=np.float64)
+        n = n / np.linalg.norm(n)
+        q = self.ground.q.numpy().reshape(height, width)        # float32, as the numpy one's
+        t = _tables(K, n, width, height, q, span, jump_rel)
+        f64, i64 = torch.float64, torch.int64
+        N = width * height
+        self.h, self.w, self.N = height, width, N
+        self.register_buffer("q64", torch.tensor(q.ravel(), dtype=f64))
+        self.register_buffer("ar", torch.arange(N, dtype=i64))
+        self.register_buffer("nxt", torch.tensor(t["nxt"], dtype=i64))
+        self.register_buffer("ok_n", torch.tensor(t["ok_n"]))
+        self.register_buffer("qv", torch.tensor(t["qv"], dtype=f64))
+        self.register_buffer("contact_ok", torch.tensor(t["ok_n"] & (t["qv"] > 0)))
+        self.register_buffer("walk_ok", torch.tensor(t["ok_n"] & (q.ravel()[t["nxt"]] > 0)))
+        for j, (p, c) in enumerate(zip(t["paths"], t["path_consts"])):
+            self.register_buffer(f"path{j}", torch.tensor(p, dtype=i64))
+            self.register_buffer(f"pathc{j}", torch.tensor(c, dtype=f64))
+        self.span, self.m = span, t["m"]
+        self.register_buffer("rec_ok", torch.tensor(t["rec_ok"]))
+        self.register_buffer("g_pl", torch.tensor(t["g_pl"], dtype=f64))
+        self.register_buffer("up", torch.tensor(t["up"], dtype=i64))
+        self.register_buffer("up_ok", torch.tensor(np.ascontiguousarray(t["up_ok"])))
+        self.register_buffer("above", torch.tensor(t["above"], dtype=i64))
+        self.register_buffer("has_above", torch.tensor(t["has_above"]))
+        self.register_buffer("q_below", torch.tensor(t["q_below"], dtype=f64))
+        cols = np.tile(np.arange(width), height)
+        self.register_buffer("left", torch.tensor(np.where(cols > 0, np.arange(N) - 1, np.arange(N)),
+                                                  dtype=i64))
+        self.register_buffer("right", torch.tensor(np.where(cols < width - 1, np.arange(N) + 1,
+                                                            np.arange(N)), dtype=i64))
+        r = ray_grid(K, width, height).reshape(-1, 3)
+        rn = r @ n
+        self.register_buffer("rays", torch.tensor(r, dtype=f64))
+        self.register_buffer("n", torch.tensor(n, dtype=f64))
+        self.register_buffer("rn", torch.tensor(rn, dtype=f64))
+        self.register_buffer("rden", torch.tensor(np.maximum((r * r).sum(1) - rn * rn, 1e-12),
+                                                  dtype=f64))
+        stride = max(1, N // max_points)           # align_upright's sample of raw / Z
+        self.register_buffer("unit_idx", torch.arange(0, N, stride, dtype=i64))
+        self.shape, self.jump_rel, self.near_rel = shape, float(jump_rel), float(near_rel)
+        self.recede = None if recede is None else (float(recede[0]), float(recede[1]))
+        self.max_ratio = float(max_ratio)
+        self.max_walk = max(2, height // 16)
+
+    def _cont(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+        return torch.abs(a - b) <= self.jump_rel * torch.minimum(a, b)
+
+    def _take(self, x: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+        return torch.index_select(x, 0, idx)
+
+    def _recession(self, A: torch.Tensor) -> torch.Tensor:
+        m, w = self.m, self.w
+        nan = torch.full((self.N,), float("nan"), dtype=A.dtype)
+        if m <= 0:
+            return nan
+        a0 = A[: m * w]
+        ok = self.rec_ok
+        a_prev = a0
+        for j in range(self.span):
+            a_j = self._take(A, getattr(self, f"path{j}"))
+            ok = ok & (torch.log(a_prev / a_j) <= getattr(self, f"pathc{j}"))
+            a_prev = a_j
+        k = torch.where(ok, torch.log(a0 / a_prev) / self.g_pl, nan[: m * w])
+        return torch.cat([k, nan[m * w:]])
+
+    def forward(self, Z: torch.Tensor) -> torch.Tensor:
+        h, w, N = self.h, self.w, self.N
+        g_out, snap, raw = self.ground.parts(Z)
+        z_flat, raw_flat = Z.reshape(-1), raw.reshape(-1)
+        sample = self._take(raw_flat / z_flat, self.unit_idx)
+        unit = masked_median(sample, torch.ones_like(sample, dtype=torch.bool))
+        src = (z_flat * unit).to(torch.float64)
+        A = raw_flat.to(torch.float64)
+        q = self.q64
+        ground = snap.reshape(-1)
+        nan = torch.full((N,), float("nan"), dtype=torch.float64)
+        planar = torch.zeros_like(ground)
+        if self.recede is not None:
+            lo, hi = self.recede
+            k = self._recession(A)
+            k_up = torch.where(self.up_ok, self._take(k, self.up), nan)
+            flat = (k < lo) & ~(k_up >= lo)
+            k_any = torch.where(torch.isnan(k), k_up, k)
+            planar = (k_any >= lo) & (k_any <= hi) & ~ground
+            ground = (ground & ~flat) | planar
+        # the march up the rows: contacts, links to the pixel below, chain ends
+        below = self._take(ground.to(torch.int64), self.nxt) > 0
+        a_b = self._take(A, self.nxt)
+        ok = self.ok_n & ~ground
+        contact = ok & below & self.contact_ok
+        cont = ok & ~below & self._cont(A, a_b)
+        link = follow(torch.where(cont, self.nxt, self.ar), _doublings(h))
+        qc = self._take(torch.where(contact, self.qv, nan), link)
+        idx = self._take(torch.where(contact, self.ar, -torch.ones_like(self.ar)), link)
+        # every contact walks down to the structure's foot
+        a_n = a_b
+        edge = (self.walk_ok & below & (a_n * self._take(q, self.nxt) < 1.0 - self.near_rel)
+                & self._cont(A, a_n))
+        pos, active, steps = self.ar, contact, []
+        for _ in range(self.max_walk):
+            act = active & (self._take(edge.to(torch.int64), pos) > 0)
+            pos = torch.where(act, self._take(self.nxt, pos), pos)
+            steps.append((act, pos))
+            active = act
+        above = self._take(self.above, pos)
+        r0 = self._take(A, pos) * self._take(q, pos)
+        ra = self._take(A, above) * self._take(q, above)
+        sel = (r0 - ra > 1e-6) & (self._take(self.has_above.to(torch.int64), pos) > 0)
+        x = torch.where(sel, (1.0 - r0) / torch.where(sel, r0 - ra, torch.ones_like(r0)),
+                        torch.full_like(r0, 0.5))
+        x = torch.clamp(torch.where(torch.isnan(x), torch.full_like(x, 0.5), x), 0.0, 1.0)
+        q0, a0 = self._take(q, pos), self._take(A, pos)
+        new_q = q0 + x * (self._take(self.q_below, pos) - q0)
+        new_q = new_q * (a0 + x * (a0 - self._take(A, above))) / a0
+        have = idx >= 0
+        sidx = torch.clamp(idx, min=0)
+        qc = torch.where(have, self._take(new_q, sidx), qc)
+        idx = torch.where(have, self._take(pos, sidx), idx)
+        wq = torch.cat([nan, nan[:1]])
+        wb = -torch.ones(N + 1, dtype=torch.int64)
+        dummy = torch.full_like(self.ar, N)
+        for act, p in steps:
+            free = self._take(wb, p) < 0
+            tgt = torch.where(act & free, p, dummy)
+            wq = wq.scatter(0, tgt, new_q)
+            wb = wb.scatter(0, tgt, pos)
+        walked = wb[:N] >= 0
+        qc = torch.where(walked, wq[:N], qc)
+        idx = torch.where(walked, wb[:N], idx)
+        # the run's ratio at every pixel with a contact
+        have = idx >= 0
+        sidx = torch.clamp(idx, min=0)
+        if self.shape == "network":
+            ratio = (1.0 / qc) / self._take(src, sidx)
+        else:
+            F = self._take(self.rays, sidx) / qc[:, None]
+            lam = ((self.rays * F).sum(1) - self.rn * (F @ self.n)) / self.rden
+            ratio = lam / src
+        ratio = torch.where(have & (ratio > 0), ratio, nan)
+        todo = ~ground | have
+        for step in (self.left, self.right):
+            a_s = self._take(A, step)
+            link = torch.where(todo & ~torch.isfinite(ratio) & (step != self.ar)
+                               & self._cont(A, a_s), step, self.ar)
+            ratio = self._take(ratio, follow(link, _doublings(w)))
+        moved = todo & torch.isfinite(ratio)
+        ratio = torch.clamp(torch.where(moved, ratio, torch.ones_like(ratio)),
+                            1.0 / self.max_ratio, self.max_ratio)
+        out = torch.where(moved, src * ratio, A)
+        out = torch.where(planar & ~moved, 1.0 / q, out)
+        out = out.to(torch.float32).reshape(h, w)
+        return torch.where((moved | planar).reshape(h, w), out, g_out)

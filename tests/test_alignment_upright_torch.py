@@ -1,0 +1,87 @@
+"""The exportable upright alignment (geometry/alignment_upright_torch.py) against the numpy one
+(geometry/alignment_upright.py), on a frame of the independent generator (tests/indep_scenes.py).
+
+The prediction is the frame's true depth through a MiDaS-like inverse-depth scale and shift, with
+every structure (facades, walls, poles, crates) 25-35% too near and multiplicative noise: the
+upright mode re-anchors a third of the image, so the march, the walk to the foot, the recession
+test and the row fill all decide something. Measured (i1, 320x160): ONNX vs numpy max relative
+difference 3e-5, max absolute 1.3e-3 camera heights on depths up to ~50 (float32 output)."""
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from staticdepth.geometry.alignment import align_depth
+from staticdepth.geometry.alignment_upright_torch import UprightAlignment, follow
+
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")   # the ONNX exporter's
+
+
+@pytest.fixture(scope="module")
+def frame():
+    from staticdepth.evaluate import region_masks
+    from tests.indep_scenes import SCENES, Scene
+
+    spec = SCENES[0]
+    sc = Scene(spec, 320, 160)
+    f = sc.render(3)
+    gt, K = f["depth"], sc.camera.K
+    t = math.radians(spec.pitch_deg)
+    n = np.array([0.0, math.cos(t), math.sin(t)])
+    reg = region_masks(gt, f["instances"], f["agents"], K, (n, spec.height_m), 80.0)
+    rng = np.random.default_rng(0)
+    inv = 2.0 / np.where(np.isfinite(gt), gt, 80.0) + 0.03
+    inv[reg["structures"]] *= rng.uniform(1.25, 1.35)
+    inv *= np.exp(rng.normal(0, 0.02, inv.shape))
+    G = reg["ground"] & (gt < 14)
+    return (1 / inv).astype(np.float32), K, n, G, reg
+
+
+def _rel(a, b):
+    return np.abs(a - b) / b
+
+
+@pytest.mark.parametrize("shape,recede", [("network", (0.1, 8.0)), ("vertical", (0.1, 8.0)),
+                                          ("network", None)])
+def test_torch_upright_matches_numpy(frame, shape, recede):
+    Z, K, n, G, reg = frame
+    ref = align_depth(Z, K, n, 1.0, G, mode="upright", shape=shape, recede=recede).depth
+    ground = align_depth(Z, K, n, 1.0, G, mode="ground").depth
+    assert np.mean(_rel(ref, ground) > 1e-3) > 0.25          # upright did change the frame
+    out = UprightAlignment(K, 320, 160, n, 1.0, G, shape=shape, recede=recede)(
+        torch.from_numpy(Z)).numpy()
+    assert out.dtype == np.float32 and out.shape == Z.shape
+    assert _rel(out, ref).max() < 1e-5, _rel(out, ref).max()
+
+
+def test_upright_exports_to_onnx(frame, tmp_path):
+    import onnxruntime as ort
+
+    from staticdepth.geometry.alignment_torch import alignment_module
+
+    Z, K, n, G, _ = frame
+    mod = alignment_module("upright", K, 320, 160, n, 1.0, G, snap_rel=0.1, jump_rel=0.08)
+    assert isinstance(mod, UprightAlignment)
+    path = str(tmp_path / "u.onnx")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(mod, (torch.from_numpy(Z),), path, input_names=["z"], opset_version=17,
+                          dynamo=False)
+    sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
+    for s_f, t_f in [(1.0, 0.0), (3.0, 0.02)]:             # each frame its own scale and shift
+        Zf = (1.0 / (s_f / Z + t_f)).astype(np.float32)
+        ref = align_depth(Zf, K, n, 1.0, G, mode="upright").depth
+        got = sess.run(None, {"z": Zf})[0]
+        assert _rel(got, ref).max() < 1e-4 and np.abs(got - ref).max() < 5e-3, (
+            _rel(got, ref).max(), np.abs(got - ref).max())
+
+
+def test_pointer_doubling_reaches_each_chains_end():
+    # chains 0 -> 1 -> 2 -> 3 (end), 4 (end), 5 -> 4, 6 -> 5
+    link = torch.tensor([1, 2, 3, 3, 4, 4, 5])
+    assert follow(link, 2).tolist() == [3, 3, 3, 3, 4, 4, 4]
+    assert follow(link, 1).tolist() == [2, 3, 3, 3, 4, 4, 4]   # too few doublings: not there
