@@ -1,7 +1,7 @@
 """Exported ONNX (image -> metric depth) vs the torch/numpy pipeline it replaces: speed and agreement.
 
 Usage: python benchmarks/bench_export.py [--model builtin:PATH.pt] [--frames 20] [--size 400x200]
-       [--threads N] [--mode eq2|ground|both] [--train-frames 48 --train-epochs 4]
+       [--threads N] [--mode eq2|ground|upright|all] [--train-frames 48 --train-epochs 4]
 
 A synthetic scene (``demo`` preset) with its true plane stands for an adapted camera; the model is
 the given built-in network, else the user cache's, else one trained here by ``train_builtin``
@@ -29,7 +29,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--size", default="400x200")
     ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--mode", default="both", choices=("eq2", "ground", "both"))
+    ap.add_argument("--mode", default="all", choices=("eq2", "ground", "upright", "all"))
     ap.add_argument("--train-frames", type=int, default=48)
     ap.add_argument("--train-epochs", type=int, default=4)
     args = ap.parse_args()
@@ -68,7 +68,7 @@ def main() -> None:
         gts = [r.depth(i) for i in range(len(r))]
     model = load_model(spec)
     print(f"model {spec}, {w}x{h}, {len(frames)} frames, {args.threads} threads")
-    for mode in (("eq2", "ground") if args.mode == "both" else (args.mode,)):
+    for mode in (("eq2", "ground", "upright") if args.mode == "all" else (args.mode,)):
         summary = os.path.join(tmp, f"{mode}.adapt.json")
         with open(summary, "w") as f:
             json.dump({"plane": {"normal": m.normal.tolist()}, "camera_height_m": m.height_m,

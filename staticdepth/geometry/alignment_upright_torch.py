@@ -127,6 +127,8 @@ class UprightAlignment(nn.Module):
         self.register_buffer("qv", torch.tensor(t["qv"], dtype=f64))
         self.register_buffer("contact_ok", torch.tensor(t["ok_n"] & (t["qv"] > 0)))
         self.register_buffer("walk_ok", torch.tensor(t["ok_n"] & (q.ravel()[t["nxt"]] > 0)))
+        self.register_buffer("q_nxt", torch.tensor(q.ravel()[t["nxt"]], dtype=f64))
+        self.register_buffer("q_above", torch.tensor(q.ravel()[t["above"]], dtype=f64))
         for j, (p, c) in enumerate(zip(t["paths"], t["path_consts"])):
             self.register_buffer(f"path{j}", torch.tensor(p, dtype=i64))
             self.register_buffer(f"pathc{j}", torch.tensor(c, dtype=f64))
@@ -205,63 +207,66 @@ class UprightAlignment(nn.Module):
         contact = ok & below & self.contact_ok
         cont = ok & ~below & self._cont(A, a_b)
         link = follow(torch.where(cont, self.nxt, self.ar), _doublings(h))
-        qc = self._take(torch.where(contact, self.qv, nan), link)
-        idx = self._take(torch.where(contact, self.ar, -torch.ones_like(self.ar)), link)
-        # every contact walks down to the structure's foot
-        a_n = a_b
-        edge = (self.walk_ok & below & (a_n * self._take(q, self.nxt) < 1.0 - self.near_rel)
-                & self._cont(A, a_n))
-        pos, active, steps = self.ar, contact, []
+        cid = self._take(torch.where(contact, self.ar, -torch.ones_like(self.ar)), link)
+        # every contact walks down to the structure's foot: over ground the network sees nearer
+        # than the plane, continuous with it, at most max_walk rows; a walk that stops stays
+        edge = (self.walk_ok & below & (a_b * self.q_nxt < 1.0 - self.near_rel)
+                & self._cont(A, a_b))
+        step = torch.where(edge, self.nxt, self.ar)
+        pos, walks = self.ar, []
         for _ in range(self.max_walk):
-            act = active & (self._take(edge.to(torch.int64), pos) > 0)
-            pos = torch.where(act, self._take(self.nxt, pos), pos)
-            steps.append((act, pos))
-            active = act
-        above = self._take(self.above, pos)
-        r0 = self._take(A, pos) * self._take(q, pos)
-        ra = self._take(A, above) * self._take(q, above)
-        sel = (r0 - ra > 1e-6) & (self._take(self.has_above.to(torch.int64), pos) > 0)
+            nxt = self._take(step, pos)
+            walks.append((contact & (nxt != pos), nxt))
+            pos = nxt
+        # a walked-over ground pixel takes the contact that reached it first: written last
+        wk = -torch.ones(N + 1, dtype=torch.int64)
+        dummy = torch.full_like(self.ar, N)
+        for act, p in walks[::-1]:
+            wk = wk.scatter(0, torch.where(act, p, dummy), self.ar)
+        cid = torch.where(wk[:N] >= 0, wk[:N], cid)
+        have = cid >= 0
+        foot = self._take(pos, torch.clamp(cid, min=0))      # each pixel's contact, walked
+        # the contact between rows (refine_contacts), as a field over every final position
+        a_up = self._take(A, self.above)
+        r0, ra = A * q, a_up * self.q_above
+        sel = (r0 - ra > 1e-6) & self.has_above
         x = torch.where(sel, (1.0 - r0) / torch.where(sel, r0 - ra, torch.ones_like(r0)),
                         torch.full_like(r0, 0.5))
         x = torch.clamp(torch.where(torch.isnan(x), torch.full_like(x, 0.5), x), 0.0, 1.0)
-        q0, a0 = self._take(q, pos), self._take(A, pos)
-        new_q = q0 + x * (self._take(self.q_below, pos) - q0)
-        new_q = new_q * (a0 + x * (a0 - self._take(A, above))) / a0
-        have = idx >= 0
-        sidx = torch.clamp(idx, min=0)
-        qc = torch.where(have, self._take(new_q, sidx), qc)
-        idx = torch.where(have, self._take(pos, sidx), idx)
-        wq = torch.cat([nan, nan[:1]])
-        wb = -torch.ones(N + 1, dtype=torch.int64)
-        dummy = torch.full_like(self.ar, N)
-        for act, p in steps:
-            free = self._take(wb, p) < 0
-            tgt = torch.where(act & free, p, dummy)
-            wq = wq.scatter(0, tgt, new_q)
-            wb = wb.scatter(0, tgt, pos)
-        walked = wb[:N] >= 0
-        qc = torch.where(walked, wq[:N], qc)
-        idx = torch.where(walked, wb[:N], idx)
+        new_q = (q + x * (self.q_below - q)) * (A + x * (A - a_up)) / A
+        qc = self._take(new_q, foot)
         # the run's ratio at every pixel with a contact
-        have = idx >= 0
-        sidx = torch.clamp(idx, min=0)
         if self.shape == "network":
-            ratio = (1.0 / qc) / self._take(src, sidx)
+            ratio = (1.0 / qc) / self._take(src, foot)
         else:
-            F = self._take(self.rays, sidx) / qc[:, None]
+            F = self._take(self.rays, foot) / qc[:, None]
             lam = ((self.rays * F).sum(1) - self.rn * (F @ self.n)) / self.rden
             ratio = lam / src
-        ratio = torch.where(have & (ratio > 0), ratio, nan)
-        todo = ~ground | have
-        for step in (self.left, self.right):
-            a_s = self._take(A, step)
-            link = torch.where(todo & ~torch.isfinite(ratio) & (step != self.ar)
-                               & self._cont(A, a_s), step, self.ar)
-            ratio = self._take(ratio, follow(link, _doublings(w)))
-        moved = todo & torch.isfinite(ratio)
-        ratio = torch.clamp(torch.where(moved, ratio, torch.ones_like(ratio)),
+        ratio = torch.where(have & (ratio > 0), ratio, nan).reshape(h, w)
+        todo = (~ground | have).reshape(h, w)
+        ratio = self._fill(ratio, A.reshape(h, w), todo)
+        moved = (todo & torch.isfinite(ratio)).reshape(-1)
+        ratio = torch.clamp(torch.where(moved, ratio.reshape(-1), torch.ones_like(A)),
                             1.0 / self.max_ratio, self.max_ratio)
         out = torch.where(moved, src * ratio, A)
         out = torch.where(planar & ~moved, 1.0 / q, out)
         out = out.to(torch.float32).reshape(h, w)
         return torch.where((moved | planar).reshape(h, w), out, g_out)
+
+    def _fill(self, ratio: torch.Tensor, A: torch.Tensor, todo: torch.Tensor) -> torch.Tensor:
+        """fill_along_rows: a pixel to fill links to its left (then right) neighbour; every
+        chain takes the value at its end, the k-th link-less pixel of the row (cumulative sums,
+        one scatter and one gather per sweep)."""
+        h, w = A.shape
+        none = torch.zeros((h, 1), dtype=torch.bool)
+        for left in (True, False):
+            a, b = (A[:, 1:], A[:, :-1]) if left else (A[:, :-1], A[:, 1:])
+            c = self._cont(a, b)
+            cond = torch.cat([none, c], 1) if left else torch.cat([c, none], 1)
+            end = ~(cond & todo & ~torch.isfinite(ratio))
+            cs = torch.cumsum(end.to(torch.int64), 1)
+            k = cs - 1 if left else cs - end.to(torch.int64)    # the end at or before / after
+            slot = torch.where(end, cs - 1, torch.full_like(cs, w))
+            ends = torch.full((h, w + 1), float("nan"), dtype=ratio.dtype).scatter(1, slot, ratio)
+            ratio = torch.gather(ends, 1, k)
+        return ratio
