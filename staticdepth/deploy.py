@@ -20,7 +20,7 @@ Keys read from the adapt summary: ``plane.normal`` (or ``planes.agents.normal``)
 ``camera_height_m``, ``scale.ft-align`` (else the camera height), ``config.eps``,
 ``config.erode_px``, ``config.detector``, ``config.detector_model``, ``config.align.mode`` (an
 older summary without it: ``eq2``), ``config.align.snap_rel``, the upright mode's
-``config.align.shape/jump_rel/recede_min/recede_max``, and ``ground_polygon`` when present
+``config.align.shape/jump_rel/recede_min/recede_max/fill/min_gain/contact_range``, and ``ground_polygon`` when present
 (the ground region's vertices in pixels; otherwise the feet hull is rebuilt from the sequence's
 agents or by running the summary's detector again).
 """
@@ -89,7 +89,10 @@ def upright_settings(cfg: dict) -> dict[str, Any]:
         mode="upright", shape=str(setting_from(cfg, "align.shape", d.shape)),
         jump_rel=float(setting_from(cfg, "align.jump_rel", d.jump_rel)),
         recede_min=float(setting_from(cfg, "align.recede_min", d.recede_min)),
-        recede_max=float(setting_from(cfg, "align.recede_max", d.recede_max))))
+        recede_max=float(setting_from(cfg, "align.recede_max", d.recede_max)),
+        fill=bool(setting_from(cfg, "align.fill", True)),       # older summaries: no limits
+        min_gain=float(setting_from(cfg, "align.min_gain", 0.0)),
+        contact_range=setting_from(cfg, "align.contact_range", None)))
 
 
 def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:

@@ -185,7 +185,8 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   q: np.ndarray, *, jump_rel: float = 0.08, shape: str = "network",
                   max_ratio: float = 4.0, near_rel: float = 0.02,
                   recede: tuple[float, float] | None = RECEDE, span: int = 3,
-                  not_ground: np.ndarray | None = None, native: np.ndarray | None = None
+                  not_ground: np.ndarray | None = None, native: np.ndarray | None = None,
+                  fill: bool = True, min_gain: float = 0.0, max_contact: float = np.inf
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
@@ -234,10 +235,15 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
         lam = (np.einsum("ij,ij->i", rp, F) - rn * (F @ n)) / np.maximum(
             np.einsum("ij,ij->i", rp, rp) - rn * rn, 1e-12)
         ratio[have] = lam / src[have]              # ray r has r_z = 1: depth = lam
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):
         ratio[~(ratio > 0)] = np.nan
+        # contacts not to trust keep the ground mode: beyond max_contact (the plane's depth
+        # uncertain there) or pulling the run nearer than min_gain x its ground-mode depth
+        ratio[have & ~(1.0 / qc <= max_contact)] = np.nan
+        ratio[src * np.clip(ratio, 1.0 / max_ratio, max_ratio) < min_gain * A] = np.nan
     todo = (~ground | have) & np.isfinite(A)
-    fill_along_rows(ratio, A, todo, jump_rel)
+    if fill:
+        fill_along_rows(ratio, A, todo, jump_rel)
     moved = todo & np.isfinite(ratio)
     ratio = np.clip(np.nan_to_num(ratio, nan=1.0), 1.0 / max_ratio, max_ratio)
     out = np.where(moved, src * ratio, A)

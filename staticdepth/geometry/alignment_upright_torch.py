@@ -106,6 +106,7 @@ class UprightAlignment(nn.Module):
                  ground_mask: np.ndarray, *, snap_rel: float = 0.1, jump_rel: float = 0.08,
                  shape: str = "network", recede: tuple[float, float] | None = RECEDE,
                  max_ratio: float = 4.0, near_rel: float = 0.02, span: int = 3,
+                 fill: bool = True, min_gain: float = 0.0, contact_range: float | None = None,
                  max_points: int = 20000):
         super().__init__()
         if shape not in SHAPES:
@@ -157,6 +158,10 @@ class UprightAlignment(nn.Module):
         self.shape, self.jump_rel, self.near_rel = shape, float(jump_rel), float(near_rel)
         self.recede = None if recede is None else (float(recede[0]), float(recede[1]))
         self.max_ratio = float(max_ratio)
+        self.fill, self.min_gain = bool(fill), float(min_gain)
+        qg = q[np.asarray(ground_mask, bool) & (q > 0)]      # align_upright's contact limit
+        self.max_contact = (float(contact_range / qg.min()) if contact_range is not None
+                            and qg.size else float("inf"))
         self.max_walk = max(2, height // 16)
 
     def _cont(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -242,9 +247,16 @@ class UprightAlignment(nn.Module):
             F = self._take(self.rays, foot) / qc[:, None]
             lam = ((self.rays * F).sum(1) - self.rn * (F @ self.n)) / self.rden
             ratio = lam / src
-        ratio = torch.where(have & (ratio > 0), ratio, nan).reshape(h, w)
+        ratio = torch.where(have & (ratio > 0), ratio, nan)
+        if self.max_contact < float("inf"):
+            ratio = torch.where(have & ~(1.0 / qc <= self.max_contact), nan, ratio)
+        if self.min_gain > 0:
+            cand = src * torch.clamp(ratio, 1.0 / self.max_ratio, self.max_ratio)
+            ratio = torch.where(cand < self.min_gain * A, nan, ratio)
+        ratio = ratio.reshape(h, w)
         todo = (~ground | have).reshape(h, w)
-        ratio = self._fill(ratio, A.reshape(h, w), todo)
+        if self.fill:
+            ratio = self._fill(ratio, A.reshape(h, w), todo)
         moved = (todo & torch.isfinite(ratio)).reshape(-1)
         ratio = torch.clamp(torch.where(moved, ratio.reshape(-1), torch.ones_like(A)),
                             1.0 / self.max_ratio, self.max_ratio)
