@@ -124,3 +124,28 @@ def test_upright_does_not_depend_on_the_predictions_scale():
     b = align_depth(pred * 1000.0, K, n, 5.0, ground, mode="upright").depth
     np.testing.assert_allclose(b, a, rtol=1e-3)
     assert _absrel(b, Z, wall) < 0.07
+
+
+def test_untrusted_contacts_keep_the_ground_mode():
+    """align.min_gain: a run the re-anchoring would pull nearer than min_gain x its ground-mode
+    depth keeps the ground mode; align.contact_range: so does one whose contact lies beyond
+    contact_range x the farthest plane depth of the ground mask. The wall (12 m away, the
+    network 50% too far) is pulled to 1/1.5 = 0.67 of its ground-mode depth: fixed with
+    min_gain 0.5, refused at 0.8; its contact (about 12 m) is within 1.2x of a ground mask that
+    reaches 15 m, beyond 0.5x."""
+    K, n, Z, ground, wall = scene(pitch_deg=30.0, cam_height=5.0)
+    pred = depth_from_inverse(dpt_failure(Z, s=3.0, t=0.08))
+    pred[wall] *= 1.5
+    mask = ground & (Z < 15)
+    g = align_depth(pred, K, n, 5.0, mask, mode="ground").depth
+    ok = align_depth(pred, K, n, 5.0, mask, mode="upright", min_gain=0.5, contact_range=1.2,
+                     fill=False).depth
+    assert _absrel(g, Z, wall) > 0.3 and _absrel(ok, Z, wall) < 0.07
+    for kw in ({"min_gain": 0.8}, {"contact_range": 0.5}):
+        refused = align_depth(pred, K, n, 5.0, mask, mode="upright", **kw).depth
+        np.testing.assert_allclose(refused[wall], g[wall], rtol=1e-6)
+        assert _absrel(refused, Z, mask) < 1e-4                 # the ground stays on the plane
+    with pytest.raises(InputError, match="min_gain"):
+        from staticdepth.adaptation.config import build_config
+
+        build_config({"align.min_gain": 1.5})
