@@ -7,7 +7,8 @@ whole chain of ``adapt`` after fine-tuning fits in one graph:
 
     uint8 RGB (H, W, 3) -> /255, resize, normalise -> network -> relative inverse depth D
     -> Z = 1 / max(D, eps) -> scene alignment (METHOD.md 4; geometry/alignment_torch.py, in the
-    adapt summary's ``align.mode``: ``eq2``, ``ground`` or ``upright``) -> x scale (METHOD.md 5: the camera
+    adapt summary's ``align.mode``: ``eq2``, ``ground`` or ``upright``) -> x scale (METHOD.md 5:
+    the camera
     height) -> metric depth (H, W) float32
 
 The reference it is checked against, :func:`metric_depth_reference`, is the same chain with the
@@ -20,7 +21,8 @@ Keys read from the adapt summary: ``plane.normal`` (or ``planes.agents.normal``)
 ``camera_height_m``, ``scale.ft-align`` (else the camera height), ``config.eps``,
 ``config.erode_px``, ``config.detector``, ``config.detector_model``, ``config.align.mode`` (an
 older summary without it: ``eq2``), ``config.align.snap_rel``, the upright mode's
-``config.align.shape/jump_rel/recede_min/recede_max/fill/min_gain/contact_range``, and ``ground_polygon`` when present
+``config.align.shape/jump_rel/recede_min/recede_max/fill/max_pull/contact_range``, and
+``ground_polygon`` when present
 (the ground region's vertices in pixels; otherwise the feet hull is rebuilt from the sequence's
 agents or by running the summary's detector again).
 """
@@ -91,7 +93,7 @@ def upright_settings(cfg: dict) -> dict[str, Any]:
         recede_min=float(setting_from(cfg, "align.recede_min", d.recede_min)),
         recede_max=float(setting_from(cfg, "align.recede_max", d.recede_max)),
         fill=bool(setting_from(cfg, "align.fill", True)),       # older summaries: no limits
-        min_gain=float(setting_from(cfg, "align.min_gain", 0.0)),
+        max_pull=setting_from(cfg, "align.max_pull", None),
         contact_range=setting_from(cfg, "align.contact_range", None)))
 
 
@@ -140,7 +142,8 @@ def metric_depth_reference(model, image: np.ndarray, c: dict[str, Any]) -> np.nd
 
     Z = depth_from_inverse(model.predict(image), c["eps"])
     return align_depth(Z, c["K"], c["normal"], 1.0, c["ground"], mode=c["mode"],
-                       snap_rel=c["snap_rel"], **c.get("upright", {})).depth * np.float32(c["scale"])
+                       snap_rel=c["snap_rel"], **c.get("upright", {})
+                       ).depth * np.float32(c["scale"])
 
 
 # -- the exported graph --------------------------------------------------------------------------

@@ -127,25 +127,25 @@ def test_upright_does_not_depend_on_the_predictions_scale():
 
 
 def test_untrusted_contacts_keep_the_ground_mode():
-    """align.min_gain: a run the re-anchoring would pull nearer than min_gain x its ground-mode
-    depth keeps the ground mode; align.contact_range: so does one whose contact lies beyond
+    """align.max_pull: a run the re-anchoring would pull nearer than its ground-mode depth /
+    max_pull keeps the ground mode; align.contact_range: so does one whose contact lies beyond
     contact_range x the farthest plane depth of the ground mask. The wall (12 m away, the
-    network 50% too far) is pulled to 1/1.5 = 0.67 of its ground-mode depth: fixed with
-    min_gain 0.5, refused at 0.8; its contact (about 12 m) is within 1.2x of a ground mask that
-    reaches 15 m, beyond 0.5x."""
+    network 50% too far) is pulled to about 1/1.5 of its ground-mode depth: fixed with
+    max_pull 2, refused at 1.25; its contact (about 12 m) is within 1.2x of a ground mask
+    that reaches 15 m, beyond 0.5x."""
     K, n, Z, ground, wall = scene(pitch_deg=30.0, cam_height=5.0)
     pred = depth_from_inverse(dpt_failure(Z, s=3.0, t=0.08))
     pred[wall] *= 1.5
     mask = ground & (Z < 15)
     g = align_depth(pred, K, n, 5.0, mask, mode="ground").depth
-    ok = align_depth(pred, K, n, 5.0, mask, mode="upright", min_gain=0.5, contact_range=1.2,
+    ok = align_depth(pred, K, n, 5.0, mask, mode="upright", max_pull=2.0, contact_range=1.2,
                      fill=False).depth
     assert _absrel(g, Z, wall) > 0.3 and _absrel(ok, Z, wall) < 0.07
-    for kw in ({"min_gain": 0.8}, {"contact_range": 0.5}):
+    for kw in ({"max_pull": 1.25}, {"contact_range": 0.5}):
         refused = align_depth(pred, K, n, 5.0, mask, mode="upright", **kw).depth
         np.testing.assert_allclose(refused[wall], g[wall], rtol=1e-6)
         assert _absrel(refused, Z, mask) < 1e-4                 # the ground stays on the plane
-    with pytest.raises(InputError, match="min_gain"):
+    with pytest.raises(InputError, match="max_pull"):
         from staticdepth.adaptation.config import build_config
 
-        build_config({"align.min_gain": 1.5})
+        build_config({"align.max_pull": 0.5})

@@ -46,8 +46,8 @@ def _rel(a, b):
 
 
 @pytest.mark.parametrize("kw", [{}, {"shape": "vertical"}, {"recede": None},
-                                {"fill": False, "min_gain": 0.5, "contact_range": 1.2},
-                                {"fill": True, "min_gain": 0.0, "contact_range": None}])
+                                {"fill": False, "max_pull": 2.0, "contact_range": 1.2},
+                                {"fill": True, "max_pull": 1.5, "contact_range": None}])
 def test_torch_upright_matches_numpy(frame, kw):
     Z, K, n, G, reg = frame
     ref = align_depth(Z, K, n, 1.0, G, mode="upright", **kw).depth

@@ -57,7 +57,8 @@ def upright_options(align) -> dict:
     """align_depth's keywords of the ``upright`` mode from an AlignConfig."""
     recede = (align.recede_min, align.recede_max) if align.recede_max > 0 else None
     return {"shape": align.shape, "jump_rel": align.jump_rel, "recede": recede,
-            "fill": align.fill, "min_gain": align.min_gain, "contact_range": align.contact_range}
+            "fill": align.fill, "contact_range": align.contact_range,
+            "max_pull": np.inf if align.max_pull is None else align.max_pull}
 
 
 def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,

@@ -61,11 +61,12 @@ class AlignConfig:
     jump_rel: float = 0.08           # upright: a relative depth step this large ends a structure
     recede_min: float = 0.1          # upright: pixels whose depth recedes up the image this
     recede_max: float = 8.0          # fast relative to the plane's are ground (0 and 0: off)
-    fill: bool = True                # upright: runs without a contact take a row neighbour's
-    min_gain: float = 0.0            # upright: a run pulled nearer than this x its ground-mode
-    #                                  depth keeps the ground mode
-    contact_range: float | None = None   # upright: contacts beyond this x the farthest ground
-    #                                  mask depth keep the ground mode (None: no limit)
+    fill: bool = False               # upright: runs without a contact take a row neighbour's
+    #                                  ratio (off: they keep the ground mode)
+    max_pull: float | None = 2.0     # upright: a run pulled nearer than its ground-mode depth
+    #                                  / max_pull keeps the ground mode (null: no limit)
+    contact_range: float | None = 2.0    # upright: contacts beyond this x the farthest ground
+    #                                  mask depth keep the ground mode (null: no limit)
 
     def __post_init__(self):
         from staticdepth.geometry.alignment import ALIGN_MODES
@@ -83,8 +84,9 @@ class AlignConfig:
         if not (0 <= self.recede_min <= self.recede_max and math.isfinite(self.recede_max)):
             raise InputError(f"align.recede_min/recede_max must satisfy 0 <= min <= max, got "
                              f"{self.recede_min}, {self.recede_max}")
-        if not (math.isfinite(self.min_gain) and 0 <= self.min_gain < 1):
-            raise InputError(f"align.min_gain must be in [0, 1), got {self.min_gain}")
+        if self.max_pull is not None and not (math.isfinite(self.max_pull)
+                                                and self.max_pull >= 1):
+            raise InputError(f"align.max_pull must be >= 1 or null, got {self.max_pull}")
         if self.contact_range is not None and not (math.isfinite(self.contact_range)
                                                    and self.contact_range > 0):
             raise InputError(f"align.contact_range must be > 0 or null, got {self.contact_range}")

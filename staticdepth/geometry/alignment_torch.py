@@ -194,7 +194,7 @@ def alignment_module(mode: str, K: np.ndarray, width: int, height: int, n_g, d_g
                      ground_mask: np.ndarray, *, eps: float = 1e-3, snap_rel: float = 0.1,
                      **upright) -> nn.Module:
     """The exportable twin of ``align_depth(..., mode=mode, snap_rel=snap_rel, **upright)``
-    (``upright``: the upright mode's shape, jump_rel, recede; geometry/alignment_upright_torch.py)."""
+    (``upright``: the upright mode's keywords; geometry/alignment_upright_torch.py)."""
     if mode == "eq2":
         return PlaneAlignment(K, width, height, n_g, d_g, ground_mask, eps=eps)
     if mode == "ground":

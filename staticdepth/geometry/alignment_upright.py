@@ -186,7 +186,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   max_ratio: float = 4.0, near_rel: float = 0.02,
                   recede: tuple[float, float] | None = RECEDE, span: int = 3,
                   not_ground: np.ndarray | None = None, native: np.ndarray | None = None,
-                  fill: bool = True, min_gain: float = 0.0, max_contact: float = np.inf
+                  fill: bool = True, max_pull: float = np.inf, max_contact: float = np.inf
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
@@ -238,9 +238,10 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio[~(ratio > 0)] = np.nan
         # contacts not to trust keep the ground mode: beyond max_contact (the plane's depth
-        # uncertain there) or pulling the run nearer than min_gain x its ground-mode depth
+        # uncertain there) or pulling the run nearer than its ground-mode depth / max_pull
         ratio[have & ~(1.0 / qc <= max_contact)] = np.nan
-        ratio[src * np.clip(ratio, 1.0 / max_ratio, max_ratio) < min_gain * A] = np.nan
+        cand = src * np.clip(ratio, 1.0 / max_ratio, max_ratio)
+        ratio[cand * max_pull < A] = np.nan
     todo = (~ground | have) & np.isfinite(A)
     if fill:
         fill_along_rows(ratio, A, todo, jump_rel)

@@ -106,7 +106,8 @@ class UprightAlignment(nn.Module):
                  ground_mask: np.ndarray, *, snap_rel: float = 0.1, jump_rel: float = 0.08,
                  shape: str = "network", recede: tuple[float, float] | None = RECEDE,
                  max_ratio: float = 4.0, near_rel: float = 0.02, span: int = 3,
-                 fill: bool = True, min_gain: float = 0.0, contact_range: float | None = None,
+                 fill: bool = True, max_pull: float = float("inf"),
+                 contact_range: float | None = None,
                  max_points: int = 20000):
         super().__init__()
         if shape not in SHAPES:
@@ -142,10 +143,10 @@ class UprightAlignment(nn.Module):
         self.register_buffer("has_above", torch.tensor(t["has_above"]))
         self.register_buffer("q_below", torch.tensor(t["q_below"], dtype=f64))
         cols = np.tile(np.arange(width), height)
-        self.register_buffer("left", torch.tensor(np.where(cols > 0, np.arange(N) - 1, np.arange(N)),
-                                                  dtype=i64))
-        self.register_buffer("right", torch.tensor(np.where(cols < width - 1, np.arange(N) + 1,
-                                                            np.arange(N)), dtype=i64))
+        ar = np.arange(N)
+        self.register_buffer("left", torch.tensor(np.where(cols > 0, ar - 1, ar), dtype=i64))
+        self.register_buffer("right", torch.tensor(np.where(cols < width - 1, ar + 1, ar),
+                                                   dtype=i64))
         r = ray_grid(K, width, height).reshape(-1, 3)
         rn = r @ n
         self.register_buffer("rays", torch.tensor(r, dtype=f64))
@@ -158,7 +159,7 @@ class UprightAlignment(nn.Module):
         self.shape, self.jump_rel, self.near_rel = shape, float(jump_rel), float(near_rel)
         self.recede = None if recede is None else (float(recede[0]), float(recede[1]))
         self.max_ratio = float(max_ratio)
-        self.fill, self.min_gain = bool(fill), float(min_gain)
+        self.fill, self.max_pull = bool(fill), float(max_pull)
         qg = q[np.asarray(ground_mask, bool) & (q > 0)]      # align_upright's contact limit
         self.max_contact = (float(contact_range / qg.min()) if contact_range is not None
                             and qg.size else float("inf"))
@@ -250,9 +251,9 @@ class UprightAlignment(nn.Module):
         ratio = torch.where(have & (ratio > 0), ratio, nan)
         if self.max_contact < float("inf"):
             ratio = torch.where(have & ~(1.0 / qc <= self.max_contact), nan, ratio)
-        if self.min_gain > 0:
+        if self.max_pull < float("inf"):
             cand = src * torch.clamp(ratio, 1.0 / self.max_ratio, self.max_ratio)
-            ratio = torch.where(cand < self.min_gain * A, nan, ratio)
+            ratio = torch.where(cand * self.max_pull < A, nan, ratio)
         ratio = ratio.reshape(h, w)
         todo = (~ground | have).reshape(h, w)
         if self.fill:
