@@ -46,13 +46,14 @@ def _rel(a, b):
 
 
 @pytest.mark.parametrize("kw", [{}, {"shape": "vertical"}, {"recede": None},
-                                {"fill": False, "max_pull": 2.0, "contact_range": 1.2},
+                                {"fill": False, "max_pull": 2.0, "contact_range": 1.2,
+                                 "recede_push": 1.5},
                                 {"fill": True, "max_pull": 1.5, "contact_range": None}])
 def test_torch_upright_matches_numpy(frame, kw):
     Z, K, n, G, reg = frame
     ref = align_depth(Z, K, n, 1.0, G, mode="upright", **kw).depth
     ground = align_depth(Z, K, n, 1.0, G, mode="ground").depth
-    assert np.mean(_rel(ref, ground) > 1e-3) > 0.15          # upright did change the frame
+    assert np.mean(_rel(ref, ground) > 1e-3) > 0.1           # upright did change the frame
     out = UprightAlignment(K, 320, 160, n, 1.0, G, **kw)(torch.from_numpy(Z)).numpy()
     assert out.dtype == np.float32 and out.shape == Z.shape
     assert _rel(out, ref).max() < 1e-5, _rel(out, ref).max()

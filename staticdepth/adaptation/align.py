@@ -58,7 +58,8 @@ def upright_options(align) -> dict:
     recede = (align.recede_min, align.recede_max) if align.recede_max > 0 else None
     return {"shape": align.shape, "jump_rel": align.jump_rel, "recede": recede,
             "fill": align.fill, "contact_range": align.contact_range,
-            "max_pull": np.inf if align.max_pull is None else align.max_pull}
+            "max_pull": np.inf if align.max_pull is None else align.max_pull,
+            "recede_push": np.inf if align.recede_push is None else align.recede_push}
 
 
 def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,

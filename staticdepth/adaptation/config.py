@@ -67,6 +67,8 @@ class AlignConfig:
     #                                  / max_pull keeps the ground mode (null: no limit)
     contact_range: float | None = 2.0    # upright: contacts beyond this x the farthest ground
     #                                  mask depth keep the ground mode (null: no limit)
+    recede_push: float | None = 2.0  # upright: a receding pixel takes the plane only if that is
+    #                                  at most this x its ground-mode depth (null: no limit)
 
     def __post_init__(self):
         from staticdepth.geometry.alignment import ALIGN_MODES
@@ -87,6 +89,9 @@ class AlignConfig:
         if self.max_pull is not None and not (math.isfinite(self.max_pull)
                                                 and self.max_pull >= 1):
             raise InputError(f"align.max_pull must be >= 1 or null, got {self.max_pull}")
+        if self.recede_push is not None and not (math.isfinite(self.recede_push)
+                                                 and self.recede_push >= 1):
+            raise InputError(f"align.recede_push must be >= 1 or null, got {self.recede_push}")
         if self.contact_range is not None and not (math.isfinite(self.contact_range)
                                                    and self.contact_range > 0):
             raise InputError(f"align.contact_range must be > 0 or null, got {self.contact_range}")

@@ -186,8 +186,8 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   max_ratio: float = 4.0, near_rel: float = 0.02,
                   recede: tuple[float, float] | None = RECEDE, span: int = 3,
                   not_ground: np.ndarray | None = None, native: np.ndarray | None = None,
-                  fill: bool = True, max_pull: float = np.inf, max_contact: float = np.inf
-                  ) -> tuple[np.ndarray, np.ndarray]:
+                  fill: bool = True, max_pull: float = np.inf, max_contact: float = np.inf,
+                  recede_push: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
     ``q``: the plane's inverse depth ``n_g . r / d_g`` per pixel; ``not_ground``: pixels never
@@ -216,6 +216,8 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
         k_any = np.where(np.isfinite(k), k, k_up)     # a step below: measured from above
         with np.errstate(invalid="ignore"):
             planar = (k_any >= recede[0]) & (k_any <= recede[1]) & ~ground
+            # the plane at most recede_push x farther than the pixel's ground-mode depth
+            planar &= q * (recede_push * A) >= 1.0
         if not_ground is not None:
             planar &= ~not_ground
         ground = (ground & ~flat) | planar

@@ -107,7 +107,7 @@ class UprightAlignment(nn.Module):
                  shape: str = "network", recede: tuple[float, float] | None = RECEDE,
                  max_ratio: float = 4.0, near_rel: float = 0.02, span: int = 3,
                  fill: bool = True, max_pull: float = float("inf"),
-                 contact_range: float | None = None,
+                 contact_range: float | None = None, recede_push: float = float("inf"),
                  max_points: int = 20000):
         super().__init__()
         if shape not in SHAPES:
@@ -160,6 +160,7 @@ class UprightAlignment(nn.Module):
         self.recede = None if recede is None else (float(recede[0]), float(recede[1]))
         self.max_ratio = float(max_ratio)
         self.fill, self.max_pull = bool(fill), float(max_pull)
+        self.recede_push = float(recede_push)
         qg = q[np.asarray(ground_mask, bool) & (q > 0)]      # align_upright's contact limit
         self.max_contact = (float(contact_range / qg.min()) if contact_range is not None
                             and qg.size else float("inf"))
@@ -205,6 +206,8 @@ class UprightAlignment(nn.Module):
             flat = (k < lo) & ~(k_up >= lo)
             k_any = torch.where(torch.isnan(k), k_up, k)
             planar = (k_any >= lo) & (k_any <= hi) & ~ground
+            if self.recede_push < float("inf"):
+                planar = planar & (q * (self.recede_push * A) >= 1.0)
             ground = (ground & ~flat) | planar
         # the march up the rows: contacts, links to the pixel below, chain ends
         below = self._take(ground.to(torch.int64), self.nxt) > 0
