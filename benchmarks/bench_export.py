@@ -34,6 +34,9 @@ def main() -> None:
     ap.add_argument("--train-epochs", type=int, default=4)
     args = ap.parse_args()
     import torch
+    from dataclasses import asdict
+
+    from staticdepth.adaptation.config import AlignConfig
 
     from staticdepth.dataset.h5 import SequenceReader
     from staticdepth.dataset.synth_io import render_to_file
@@ -73,7 +76,8 @@ def main() -> None:
         with open(summary, "w") as f:
             json.dump({"plane": {"normal": m.normal.tolist()}, "camera_height_m": m.height_m,
                        "scale": {"ft-align": m.height_m},
-                       "config": {"detector": {"name": "gt"}, "align": {"mode": mode}}}, f)
+                       "config": {"detector": {"name": "gt"},
+                                  "align": {**asdict(AlignConfig()), "mode": mode}}}, f)
         out = os.path.join(tmp, f"{mode}.onnx")
         info = export_model(spec, summary, seq, out, check_frames=3, log=lambda s: None)
         c = deployment_constants(summary, seq, log=lambda s: None)
