@@ -19,8 +19,11 @@ correction. The upright-world prior the method uses for agents extends to them:
    (network depth there): the network's shape is kept inside, the scale is fixed at the base. With
    ``shape="vertical"`` the pixel takes the depth of the vertical line through the contact instead.
 Runs without a contact (cut by the image's bottom, standing on something that is not ground, or
-behind a depth step) take the ratio of a continuous neighbour in the same row, else keep the
-``ground`` result. Ratios are clipped to ``[1 / max_ratio, max_ratio]``.
+behind a depth step) keep the ``ground`` result (``fill=True``: they take the ratio of a
+continuous neighbour in the same row first). Ratios are clipped to ``[1 / max_ratio, max_ratio]``.
+Contacts not to trust keep the ``ground`` result too: beyond ``max_contact`` (where no agent
+walked, the plane's depth is uncertain) or pulling the run nearer than its ``ground`` depth /
+``max_pull``; a receding pixel takes the plane only within ``recede_push`` x its ``ground`` depth.
 
 A pure function of (depth, K, plane, ground mask[, agent mask]); ``geometry/alignment.py``
 dispatches ``mode="upright"`` here. Sequential over rows (the march) and columns (the fill).

@@ -16,8 +16,9 @@ The numpy version's sequential scans become fixed-size index gathers:
   the earliest step (ScatterElements: the contacts reaching it at one step share the rest of the
   walk, so their writes are equal);
 - the fill along rows (``fill_along_rows``): left then right links, pointer doubling over W.
-The arithmetic runs in float64, as the numpy version's does, so that its threshold decisions
-(recession, depth steps) come out the same.
+The trust rules (``fill``, ``max_pull``, ``contact_range``, ``recede_push``) are those of the
+numpy version. The arithmetic runs in float64, as the numpy version's does, so that its threshold
+decisions (recession, depth steps) come out the same.
 """
 from __future__ import annotations
 
@@ -126,7 +127,6 @@ class UprightAlignment(nn.Module):
         self.register_buffer("ar", torch.arange(N, dtype=i64))
         self.register_buffer("nxt", torch.tensor(t["nxt"], dtype=i64))
         self.register_buffer("ok_n", torch.tensor(t["ok_n"]))
-        self.register_buffer("qv", torch.tensor(t["qv"], dtype=f64))
         self.register_buffer("contact_ok", torch.tensor(t["ok_n"] & (t["qv"] > 0)))
         self.register_buffer("walk_ok", torch.tensor(t["ok_n"] & (q.ravel()[t["nxt"]] > 0)))
         self.register_buffer("q_nxt", torch.tensor(q.ravel()[t["nxt"]], dtype=f64))
