@@ -43,8 +43,12 @@ class FinetuneConfig:
     grad_weight: float = 0.5
     layers: str = "decoder"       # "head", "decoder" or "all"
     weight_decay: float = 0.0
+    agent_weight: float = 1.0     # loss weight of the agents' pixels (the relabelled ones) against
+    #                               every other pixel's 1 (adapt: the agents of the instance maps)
 
     def __post_init__(self):
+        if not (np.isfinite(self.agent_weight) and self.agent_weight > 0):
+            raise InputError(f"finetune.agent_weight must be > 0, got {self.agent_weight}")
         if self.loss not in LOSSES:
             raise InputError(f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
         if self.epochs < 0 or self.batch_size < 1 or not self.lr > 0:
