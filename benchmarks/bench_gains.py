@@ -67,13 +67,14 @@ def add_mode(seq: str, summary: dict, mode: str = "eq2", suffix: str = "-eq2", *
 def label_error(seq: str) -> dict:
     """The pseudo labels read as a prediction (depth = 1 / label, median scaling per frame over
     every valid pixel, as ``evaluate`` does) against the truth on the adaptation split: agents'
-    AbsRel of the labels, and of the base and ft predictions on the same frames and pixels."""
+    AbsRel of the labels, and of the base and ft predictions on the same frames and pixels (those
+    with a positive label; ``label_nonpositive``: the agents' pixels without)."""
     from staticdepth.adaptation.common import FrameFile
     from staticdepth.dataset.h5 import SequenceReader
     from staticdepth.evaluate import region_masks
     from staticdepth.metrics import apply_protocol, depth_metrics, valid_mask
 
-    out: dict = {"label": [], "base": [], "ft": []}
+    out: dict = {"label": [], "base": [], "ft": [], "label_nonpositive": []}
     with SequenceReader(seq) as r, FrameFile(seq + ".adapt/labels.h5", None) as lab:
         for k, i in enumerate(r.split("adapt")):
             gt = r.depth(i)
@@ -81,12 +82,18 @@ def label_error(seq: str) -> dict:
             vm = valid_mask(gt)
             if m is None or not (m & vm).any():
                 continue
+            pos = lab[k] > 0            # a label <= 0 (beyond the network's horizon) has no depth
+            out["label_nonpositive"].append(1.0 - np.count_nonzero(m & vm & pos)
+                                            / np.count_nonzero(m & vm))
+            m = m & pos
+            if not (m & vm).any():
+                continue
             with np.errstate(divide="ignore"):
                 preds = {"label": 1.0 / np.maximum(lab[k], 1e-6), "base": r.prediction("base", i)}
             if "ft" in r.predictions():
                 preds["ft"] = r.prediction("ft", i)
             for name, pred in preds.items():
-                scaled, _ = apply_protocol(pred, gt, "median", vm)
+                scaled, _ = apply_protocol(pred, gt, "median", vm & (pos if name == "label" else vm))
                 out[name].append(depth_metrics(scaled, gt, mask=m)["abs_rel"])
     return {name: float(np.mean(v)) for name, v in out.items() if v}
 
@@ -233,7 +240,8 @@ def main() -> None:
                   f" ft {got['table'].get('ft', {}).get('agents', np.nan):.3f}; adaptation "
                   f"frames' agents: labels {got['labels_agents'].get('label', np.nan):.3f}, base "
                   f"{got['labels_agents'].get('base', np.nan):.3f}, ft "
-                  f"{got['labels_agents'].get('ft', np.nan):.3f}", flush=True)
+                  f"{got['labels_agents'].get('ft', np.nan):.3f} (label <= 0 on "
+                  f"{got['labels_agents'].get('label_nonpositive', np.nan):.1%})", flush=True)
     print(markdown(results))
     print()
     print("\n".join(checks(results)))
