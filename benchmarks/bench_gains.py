@@ -10,7 +10,7 @@ then the issue's checks.
 Usage:
   python benchmarks/bench_gains.py --models builtin:out/builtin.pt,builtin:out/unet.pt \\
       [--scenes i1,i2,i3] [--frames 90] [--epochs 6] [--detector gt] [--stereo-epochs 0] \\
-      [--label-source plane|prediction] [--work out/bench] [--json out/bench/gains.json] \\
+      [--label-source aligned|plane|prediction] [--work out/bench] [--json out/bench/gains.json] \\
       [--set align.mode=ground] [--extra-modes eq2,ground] [--reuse] [--keep]
 """
 from __future__ import annotations
@@ -202,7 +202,7 @@ def main() -> None:
     ap.add_argument("--min-height-px", type=float, default=12.0)
     ap.add_argument("--stereo-epochs", type=int, default=0)
     ap.add_argument("--stereo-preset", default="default", help="baseline preset (site: CPU)")
-    ap.add_argument("--label-source", default="plane", choices=("plane", "prediction", "aligned"))
+    ap.add_argument("--label-source", default="aligned", choices=("aligned", "plane", "prediction"))
     ap.add_argument("--work", default="out/bench")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="adapt setting (e.g. align.mode=ground)")
