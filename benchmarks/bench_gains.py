@@ -10,8 +10,8 @@ then the issue's checks.
 Usage:
   python benchmarks/bench_gains.py --models builtin:out/builtin.pt,builtin:out/unet.pt \\
       [--scenes i1,i2,i3] [--frames 90] [--epochs 6] [--detector gt] [--stereo-epochs 0] \\
-      [--label-source plane|prediction] [--work out/bench] [--json out/bench/gains.json] \\
-      [--set align.mode=ground] [--extra-modes eq2,ground] [--reuse]
+      [--label-source aligned|plane|prediction] [--work out/bench] [--json out/bench/gains.json] \\
+      [--set align.mode=ground] [--extra-modes eq2,ground] [--reuse] [--keep]
 """
 from __future__ import annotations
 
@@ -64,6 +64,40 @@ def add_mode(seq: str, summary: dict, mode: str = "eq2", suffix: str = "-eq2", *
         add_prediction(seq, name, out, {"stage": "bench_gains", "align_mode": mode})
 
 
+def label_error(seq: str) -> dict:
+    """The pseudo labels read as a prediction (depth = 1 / label, median scaling per frame over
+    every valid pixel, as ``evaluate`` does) against the truth on the adaptation split: agents'
+    AbsRel of the labels, and of the base and ft predictions on the same frames and pixels (those
+    with a positive label; ``label_nonpositive``: the agents' pixels without)."""
+    from staticdepth.adaptation.common import FrameFile
+    from staticdepth.dataset.h5 import SequenceReader
+    from staticdepth.evaluate import region_masks
+    from staticdepth.metrics import apply_protocol, depth_metrics, valid_mask
+
+    out: dict = {"label": [], "base": [], "ft": [], "label_nonpositive": []}
+    with SequenceReader(seq) as r, FrameFile(seq + ".adapt/labels.h5", None) as lab:
+        for k, i in enumerate(r.split("adapt")):
+            gt = r.depth(i)
+            m = region_masks(gt, r.instances(i), r.agents(i), None, None, 80.0).get("agents")
+            vm = valid_mask(gt)
+            if m is None or not (m & vm).any():
+                continue
+            pos = lab[k] > 0            # a label <= 0 (beyond the network's horizon) has no depth
+            out["label_nonpositive"].append(1.0 - np.count_nonzero(m & vm & pos)
+                                            / np.count_nonzero(m & vm))
+            m = m & pos
+            if not (m & vm).any():
+                continue
+            with np.errstate(divide="ignore"):
+                preds = {"label": 1.0 / np.maximum(lab[k], 1e-6), "base": r.prediction("base", i)}
+            if "ft" in r.predictions():
+                preds["ft"] = r.prediction("ft", i)
+            for name, pred in preds.items():
+                scaled, _ = apply_protocol(pred, gt, "median", vm & (pos if name == "label" else vm))
+                out[name].append(depth_metrics(scaled, gt, mask=m)["abs_rel"])
+    return {name: float(np.mean(v)) for name, v in out.items() if v}
+
+
 def run_scene(seq: str, model: str, args) -> dict:
     from staticdepth.adapt import adapt
     from staticdepth.adaptation.config import build_config
@@ -82,7 +116,7 @@ def run_scene(seq: str, model: str, args) -> dict:
     for mode in filter(None, args.extra_modes.split(",")):
         add_mode(seq, summary, mode=mode, suffix="-" + mode)
     if args.stereo_epochs > 0:
-        train_stereo(seq, args.stereo_epochs)
+        train_stereo(seq, args.stereo_epochs, args.stereo_preset)
     res = evaluate_sequence(seq, protocols=None)["results"]
     table = {}
     for name in NAMES:
@@ -92,10 +126,12 @@ def run_scene(seq: str, model: str, args) -> dict:
                            if reg in res[name][prot]}
             if name == "stereo-baseline":
                 table[name]["a1"] = res[name][prot]["all"]["a1"]
-    return {"table": table, "plane": summary["plane"], "finetune": summary["finetune"]}
+    labels = label_error(seq) if os.path.exists(seq + ".adapt/labels.h5") else {}
+    return {"table": table, "plane": summary["plane"], "finetune": summary["finetune"],
+            "labels_agents": labels}
 
 
-def train_stereo(seq: str, epochs: int) -> None:
+def train_stereo(seq: str, epochs: int, preset_name: str = "default") -> None:
     from staticdepth.baseline.config import preset
     from staticdepth.baseline.predict import predict_sequence
     from staticdepth.baseline.scene_fit import fit_to_scene
@@ -103,7 +139,8 @@ def train_stereo(seq: str, epochs: int) -> None:
     from staticdepth.dataset.h5 import SequenceReader
 
     with SequenceReader(seq) as r:
-        conf = fit_to_scene(r, preset("default", {"epochs": epochs, "batch_size": 6}))
+        over = {"epochs": epochs} if preset_name != "default" else {"epochs": epochs, "batch_size": 6}
+        conf = fit_to_scene(r, preset(preset_name, over))
     ckpt = seq + ".baseline.pt"
     train(seq, ckpt, conf, "cpu", overwrite=True)
     predict_sequence(seq, ckpt, "cpu")
@@ -164,7 +201,8 @@ def main() -> None:
     ap.add_argument("--detector", default="gt")
     ap.add_argument("--min-height-px", type=float, default=12.0)
     ap.add_argument("--stereo-epochs", type=int, default=0)
-    ap.add_argument("--label-source", default="plane", choices=("plane", "prediction"))
+    ap.add_argument("--stereo-preset", default="default", help="baseline preset (site: CPU)")
+    ap.add_argument("--label-source", default="aligned", choices=("aligned", "plane", "prediction"))
     ap.add_argument("--work", default="out/bench")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="adapt setting (e.g. align.mode=ground)")
@@ -173,6 +211,9 @@ def main() -> None:
     ap.add_argument("--reuse", action="store_true",
                     help="keep an earlier run's sequence, predictions base/ft and adaptation "
                          "stages (same settings): only the alignment and scale run again")
+    ap.add_argument("--keep", action="store_true",
+                    help="keep an earlier run's sequence and stages: adapt reruns only the stages "
+                         "whose settings changed (e.g. fine-tuning over the same labels)")
     ap.add_argument("--json")
     args = ap.parse_args()
     w, h = (int(x) for x in args.size.split("x"))
@@ -185,14 +226,22 @@ def main() -> None:
             write_scene(src, specs[scene], args.frames, width=w, height=h)
         for k, model in enumerate(args.models.split(",")):
             seq = os.path.join(args.work, f"{scene}-m{k}.h5")
-            if not (args.reuse and os.path.exists(seq + ".adapt.json")):
+            if args.keep and os.path.exists(seq):
+                pass        # adapt's stage hashes decide what runs again
+            elif not (args.reuse and os.path.exists(seq + ".adapt.json")):
                 for stale in (seq + ".adapt", seq + ".pred"):      # an earlier run's stages
                     shutil.rmtree(stale, ignore_errors=True)
                 shutil.copyfile(src, seq)
             results.setdefault(model, {})[scene] = run_scene(seq, model, args)
+            got = results[model][scene]
             print(f"{scene} {model}: " + ", ".join(
-                f"{n} {v['all']:.3f}" for n, v in results[model][scene]["table"].items()),
-                flush=True)
+                f"{n} {v['all']:.3f}" for n, v in got["table"].items()), flush=True)
+            print(f"{scene} {model}: agents base {got['table']['base'].get('agents', np.nan):.3f}"
+                  f" ft {got['table'].get('ft', {}).get('agents', np.nan):.3f}; adaptation "
+                  f"frames' agents: labels {got['labels_agents'].get('label', np.nan):.3f}, base "
+                  f"{got['labels_agents'].get('base', np.nan):.3f}, ft "
+                  f"{got['labels_agents'].get('ft', np.nan):.3f} (label <= 0 on "
+                  f"{got['labels_agents'].get('label_nonpositive', np.nan):.1%})", flush=True)
     print(markdown(results))
     print()
     print("\n".join(checks(results)))

@@ -12,7 +12,8 @@
   it is the one that trains a network from scratch (``staticdepth train-builtin``).
 - :func:`masked_l1`: mean absolute error over the mask, no alignment (the labels live in the
   network's own inverse-depth space, so no alignment is needed).
-Tensors: prediction, target (B, H, W) float; mask (B, H, W) bool/float.
+Tensors: prediction, target (B, H, W) float; mask (B, H, W) bool, or float weights (``ssi`` and
+``l1``: weighted fit and data term; the gradient term and ``ssi_mae`` use the mask > 0).
 """
 from __future__ import annotations
 
@@ -61,9 +62,10 @@ def ssi_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None
     loss = _mse_batch(res, m)
     if grad_weight > 0:
         reg = pred.new_zeros(())
+        mg = (m > 0).to(pred.dtype)     # weights (agent_weight) enter the fit and data term only
         for k in range(scales):
             step = 2 ** k
-            reg = reg + gradient_loss(res[:, ::step, ::step], m[:, ::step, ::step])
+            reg = reg + gradient_loss(res[:, ::step, ::step], mg[:, ::step, ::step])
         loss = loss + grad_weight * reg
     return loss
 

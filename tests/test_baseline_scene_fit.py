@@ -47,3 +47,24 @@ def test_collapsed_predictions_are_refused_with_one_line():
         check_not_collapsed(np.full((2, 16, 32), conf.max_depth), conf)
     with pytest.raises(InputError, match="collapsed"):
         check_not_collapsed(np.full((2, 16, 32), 7.0), conf)
+
+
+def test_site_preset_trains_at_the_sequence_resolution_tiny_stays_small(tmp_path):
+    """``site``: the tiny network at the sequence's own size (disparities 2.5x those at 128 px);
+    ``tiny`` keeps its 128 px cap; both take the rig's depth range."""
+    from test_baseline_scene import BASELINE_M, camera, write_sequence
+
+    from staticdepth.baseline.config import preset
+    from staticdepth.baseline.scene_fit import fit_to_scene
+    from staticdepth.dataset.h5 import SequenceReader
+
+    seq = write_sequence(tmp_path / "s.h5", n_frames=2, adapt_frames=2,
+                         cam=camera(width=320, height=160))
+    with SequenceReader(seq) as r:
+        site, tiny = fit_to_scene(r, preset("site")), fit_to_scene(r, preset("tiny"))
+        fx = r.camera.fx
+    assert (site.width, site.height) == (320, 160) and (tiny.width, tiny.height) == (128, 64)
+    assert site.encoder_width == tiny.encoder_width == 16
+    # the widest disparity stays within a quarter of the network's width at min_depth
+    assert fx * BASELINE_M / site.min_depth <= 0.25 * 320 + 1e-6
+    assert fx * 128 / 320 * BASELINE_M / tiny.min_depth <= 0.25 * 128 + 1e-6

@@ -94,3 +94,36 @@ def test_masked_l1_and_gradient_term():
     res = torch.arange(4.0).repeat(1, 3, 1)
     m = torch.ones(1, 3, 4)
     assert float(gradient_loss(res, m)) == pytest.approx(3 * 3 / 12)
+
+
+def test_weighted_ssi_matches_a_weighted_reference():
+    """Float weights (fine-tuning's agent_weight): a weighted least-squares fit and data term,
+    the gradient term over the weights > 0; integer weights equal repeating the pixels."""
+    rng = np.random.default_rng(3)
+    pred, target = rng.random((2, 16, 16)), rng.random((2, 16, 16))
+    w = np.where(rng.random((2, 16, 16)) > 0.8, 7.0, 1.0)
+    w[:, :2] = 0.0
+    res = np.zeros_like(pred)
+    for b in range(2):
+        sw = np.sqrt(w[b].ravel())
+        A = np.stack([pred[b].ravel(), np.ones(pred[b].size)], 1) * sw[:, None]
+        (s, t), *_ = np.linalg.lstsq(A, target[b].ravel() * sw, rcond=None)
+        res[b] = s * pred[b] + t - target[b]
+    data = (w * res ** 2).sum() / (2 * w.sum())
+    got0 = ssi_loss(torch.from_numpy(pred), torch.from_numpy(target), torch.from_numpy(w),
+                    grad_weight=0.0)
+    assert float(got0) == pytest.approx(data, rel=1e-9)
+    got = ssi_loss(torch.from_numpy(pred), torch.from_numpy(target), torch.from_numpy(w))
+    grad = float(got) - float(got0)
+    ref = _np_ssi(pred, target, w > 0) - _np_ssi(pred, target, w > 0, grad_weight=0.0)
+    assert grad > 0.01
+    # the gradient term uses the weighted fit's residual over the mask w > 0
+    m = (w > 0).astype(np.float64)
+    reg = 0.0
+    for k in range(4):
+        r, mk = res[:, ::2 ** k, ::2 ** k], m[:, ::2 ** k, ::2 ** k]
+        d = mk * r
+        reg += ((np.abs(np.diff(d, axis=2)) * mk[:, :, 1:] * mk[:, :, :-1]).sum()
+                + (np.abs(np.diff(d, axis=1)) * mk[:, 1:] * mk[:, :-1]).sum()) / mk.sum()
+    assert grad == pytest.approx(0.5 * reg, rel=1e-9)
+    assert abs(grad - ref) > 1e-6          # not the unweighted fit's residual

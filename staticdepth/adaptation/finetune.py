@@ -37,11 +37,15 @@ def trainable_layers(model, layers: str) -> str:
 
 
 class AdaptationFrames(torch.utils.data.Dataset):
-    """Item ``(k, flip)``: frame ``split[k]``'s image (H, W, 3) uint8, label and loss mask."""
+    """Item ``(k, flip)``: frame ``split[k]``'s image (H, W, 3) uint8, label and loss weights
+    (0 where the label is not finite; ``agent_weight`` on the agents' pixels - those of the rows
+    of ``classes`` in the instance maps of ``detector`` - and 1 elsewhere)."""
 
-    def __init__(self, ws: Workspace):
+    def __init__(self, ws: Workspace, detector: str = "gt", agent_weight: float = 1.0,
+                 classes=()):
         self.ws, self.split = ws, ws.adapt_split
-        self._reader = self._labels = None
+        self.detector, self.agent_weight, self.classes = detector, agent_weight, list(classes)
+        self._reader = self._labels = self._agents = None
 
     def __len__(self) -> int:
         return len(self.split)
@@ -49,19 +53,30 @@ class AdaptationFrames(torch.utils.data.Dataset):
     def __getitem__(self, item: tuple[int, bool]) -> dict[str, np.ndarray]:
         if self._reader is None:                 # opened lazily: once per worker process
             self._reader, self._labels = self.ws.reader(), self.ws.frame_file("labels.h5")
+            if self.agent_weight != 1.0:
+                from staticdepth.adaptation.common import Agents
+
+                self._agents = Agents(self.ws, self.detector)
         k, flip = item
-        image, target = self._reader.left(self.split[k]), self._labels[k]
+        i = self.split[k]
+        image, target = self._reader.left(i), self._labels[k]
+        weight = np.isfinite(target).astype(np.float32)
+        if self._agents is not None:
+            rows = self._agents.rows(i)
+            ids = rows["instance_id"][np.isin(rows["class_id"], self.classes)]
+            inst = np.asarray(self._agents.instances(i))
+            weight[np.isin(inst, ids) & (inst > 0)] *= np.float32(self.agent_weight)
         if flip:
-            image, target = image[:, ::-1], target[:, ::-1]
+            image, target, weight = image[:, ::-1], target[:, ::-1], weight[:, ::-1]
         target = np.ascontiguousarray(target, dtype=np.float32)
         return {"image": np.ascontiguousarray(image), "target": target,
-                "mask": np.isfinite(target)}
+                "mask": np.ascontiguousarray(weight)}
 
     def close(self) -> None:
-        for h in (self._reader, self._labels):
+        for h in (self._reader, self._labels, self._agents):
             if h is not None:
                 h.close()
-        self._reader = self._labels = None
+        self._reader = self._labels = self._agents = None
 
 
 def _batches(n: int, conf, epoch: int) -> list[list[tuple[int, bool]]]:
@@ -103,7 +118,7 @@ def run(conf: AdaptConfig, ws: Workspace, model, config_hash: str,
     device = model.device
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(device)
-    data = AdaptationFrames(ws)
+    data = AdaptationFrames(ws, conf.detector.name, fc.agent_weight, conf.pseudo_labels.classes)
     try:
         for epoch in range(start, fc.epochs):
             t0 = time.perf_counter()

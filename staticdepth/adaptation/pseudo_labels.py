@@ -23,7 +23,8 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
     ``pseudo_labels.source = "plane"`` reads each agent's label from the agents' ``plane`` (mapped
     into the network's space by a fit over the ground region of ``feet``); ``"aligned"`` labels
     every pixel with the frame's alignment (``align.mode``, agents at their contact) mapped back
-    into the network's space the same way."""
+    into the network's space the same way (a frame where that map does not exist - the network's
+    ground does not recede against the plane - gets the paper's labels, as with "plane")."""
     pl = conf.pseudo_labels
     if pl.source == "plane":
         from staticdepth.adaptation.align import ground_region
@@ -49,7 +50,10 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
             inst = agents.instances(i)
             A = aligned_frame(conf, ws.K, plane.normal, ground, inst, agents.rows(i),
                               depth_from_inverse(inv))
-            return aligned_pseudo_label(inv, A, plane_inv, ground & (inst == 0))
+            label, m = aligned_pseudo_label(inv, A, plane_inv, ground & (inst == 0))
+            if not m.any():     # the network's ground does not recede: its own contact values
+                return pseudo_label(inv, inst, agents.rows(i), pl)
+            return label, m
     else:
         def label_frame(i, inv):
             return pseudo_label(inv, agents.instances(i), agents.rows(i), pl)

@@ -22,7 +22,8 @@ def register(sub) -> None:
                                "--set epochs=8")
     t.add_argument("sequence", help="sequence file (.h5) with left and right images")
     t.add_argument("--preset", default="default", choices=sorted(PRESETS),
-                   help="network size and training schedule (tiny: a quick smoke run)")
+                   help="network size and training schedule (tiny: a quick smoke run; site: the "
+                        "tiny network at the sequence's resolution, for a CPU)")
     t.add_argument("--scene-fit", choices=("range", "all", "none"), default="all",
                    help="fit the depth range (range) and the network size (all) to the rig's "
                         "baseline and the scene's depths (default all; none: the preset as is)")

@@ -88,6 +88,6 @@ def check_not_collapsed(depth: np.ndarray, conf: BaselineConfig, where: str = ""
         lim = (f"{at_min:.0%} of the pixels at min_depth {conf.min_depth:g} m" if at_min >= at_max
                else f"{at_max:.0%} at max_depth {conf.max_depth:g} m")
         raise InputError(f"the stereo baseline collapsed ({lim}, spread {spread:.1e}): not a "
-                         f"result; retrain with --preset scene or a depth range from the "
-                         f"rig and the scene (--set min_depth=...){where}")
+                         f"result; retrain with --scene-fit all (a depth range from the "
+                         f"rig and the scene) or --set min_depth=...{where}")
     return stats
