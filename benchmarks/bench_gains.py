@@ -92,7 +92,8 @@ def run_scene(seq: str, model: str, args) -> dict:
                            if reg in res[name][prot]}
             if name == "stereo-baseline":
                 table[name]["a1"] = res[name][prot]["all"]["a1"]
-    return {"table": table, "plane": summary["plane"], "finetune": summary["finetune"]}
+    return {"table": table, "plane": summary["plane"], "finetune": summary["finetune"],
+            "metric_refused": summary.get("metric_refused")}
 
 
 def train_stereo(seq: str, epochs: int) -> None:
@@ -131,9 +132,12 @@ def checks(results: dict) -> list[str]:
         lines.append(f"{model}: ft better than base on agents: "
                      f"{'PASS' if all(a < b for a, b in ag) else 'FAIL'} "
                      f"({', '.join(f'{a:.3f}/{b:.3f}' for a, b in ag)})")
-        mr = [t[s]["ft-align-metric"]["all"] / t[s]["ft-align"]["all"] for s in t]
-        lines.append(f"{model}: metric within 1.2x of median scaling: "
-                     f"{'PASS' if max(mr) <= 1.2 else 'FAIL'} ({', '.join(f'{r:.2f}' for r in mr)})")
+        mr = [t[s]["ft-align-metric"]["all"] / t[s]["ft-align"]["all"] if "ft-align-metric" in t[s]
+              else float("nan") for s in t]       # NaN: adapt refused the metric depth
+        verdict = ("FAIL" if np.nanmax(mr + [0]) > 1.2 else
+                   "REFUSED" if np.isnan(mr).any() else "PASS")
+        lines.append(f"{model}: metric within 1.2x of median scaling: {verdict} ("
+                     + ", ".join("refused" if np.isnan(r) else f"{r:.2f}" for r in mr) + ")")
         st = [t[s]["stereo-baseline"]["a1"] for s in t if "stereo-baseline" in t[s]]
         if st:
             lines.append(f"{model}: stereo baseline a1 >= 0.8: {'PASS' if min(st) >= 0.8 else 'FAIL'}"

@@ -71,6 +71,8 @@ def scene_report(path: str, detector_opts: dict, sets: dict, oracle: tuple = ())
     from staticdepth.adaptation.config import build_config
     from staticdepth.detectors import make_detector
     from staticdepth.geometry.agent_plane import fit_agent_plane
+    from staticdepth.geometry.projection import rays_from_pixels
+    from staticdepth.geometry.scale import plane_depth_rel_std
 
     conf = build_config({"tracking.min_height_px": 10, **sets})
     with SequenceReader(path) as r:
@@ -107,8 +109,12 @@ def scene_report(path: str, detector_opts: dict, sets: dict, oracle: tuple = ())
         obs = tracking.observations_from_instances(pairs, conf.tracking)
         try:
             p = fit_agent_plane(K, obs, conf.plane)
+            # the plane depth's error over the feet (true, and as the bootstrap predicts it)
+            rays = rays_from_pixels(K, obs["foot_u"], obs["foot_v"])
+            true_rel = float(np.median(np.abs(rays @ truth.normal / (rays @ p.normal) - 1)))
+            rel = plane_depth_rel_std(K, p.normal, p.normal_std_deg, obs["foot_u"], obs["foot_v"])
             out[name] = (angle_deg(p.normal, truth.normal), int(np.count_nonzero(p.inliers)),
-                         len(p.inliers), float(p.normal_std_deg), len(obs))
+                         len(p.inliers), float(p.normal_std_deg), len(obs), true_rel, rel)
         except Exception as e:  # noqa: BLE001 - a refused fit is a result here
             out[name] = (float("nan"), 0, 0, float("nan"), len(obs), str(e))
     return out
@@ -156,7 +162,8 @@ def main() -> None:
             v = rep[name]
             print(f"{scene} plane from {name}: normal error {v[0]:.2f} deg, inlier tracks "
                   f"{v[1]}/{v[2]}, bootstrap std {v[3]:.2f} deg, {v[4]} observations"
-                  + (f" ({v[5]})" if len(v) > 5 else ""), flush=True)
+                  + (f"; feet depth error {100 * v[5]:.1f}%, predicted {100 * v[6]:.1f}%"
+                     if len(v) == 7 else f" ({v[5]})"), flush=True)
 
 
 if __name__ == "__main__":
