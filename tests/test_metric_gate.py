@@ -57,7 +57,7 @@ def test_adapt_refuses_the_metric_maps_with_a_reason(tmp_path):
                                                    dec_channels=(16, 8, 8, 4)),
                                       input_height=64, input_width=128))
     seq = tmp_path / "c1.h5"
-    render_to_file(seq, preset_name="c1", n_frames=40, adapt_frames=30, seed=1,
+    render_to_file(seq, preset_name="c1", n_frames=24, adapt_frames=20, seed=1,
                    overrides={"width": 256, "height": 128})
     settings = {"model": f"builtin:{model}", "detector.name": "gt", "finetune.epochs": 0,
                 "tracking.min_height_px": 8}
