@@ -5,7 +5,8 @@ On the independent scenes of ``tests/indep_scenes.py`` (exact instance maps and 
 same mask -> foot/top extraction as the ground-plane stage, tracking.detections_from_instances)
 against the ground-truth instance it overlaps most, sorts the errors by cause, then fits the
 ground plane (adapt's tracking and plane defaults) from the motion detections and from the
-ground-truth instances and prints the normal's error against the true mounting. Columns:
+ground-truth instances (with the plane settings ``adapt`` uses for each detector: people only for
+motion, every class for gt) and prints the normal's error against the true mounting. Columns:
 median and 90th percentile of |motion - truth| (px) of the foot row, top row and foot column;
 how many the tracker drops for their score (the detector's merge test) and how many have the
 wrong class (motion labels upright regions person, others car).
@@ -26,6 +27,7 @@ import math
 import os
 import sys
 from collections import defaultdict
+from dataclasses import replace
 
 import numpy as np
 
@@ -69,6 +71,7 @@ def scene_report(path: str, detector_opts: dict, sets: dict, oracle: tuple = ())
     from dataset.h5 import SequenceReader
     from staticdepth import tracking
     from staticdepth.adaptation.config import build_config
+    from staticdepth.adaptation.ground_plane import plane_config
     from staticdepth.detectors import make_detector
     from staticdepth.geometry.agent_plane import fit_agent_plane
     from staticdepth.geometry.projection import rays_from_pixels
@@ -107,8 +110,9 @@ def scene_report(path: str, detector_opts: dict, sets: dict, oracle: tuple = ())
     out = {"causes": {c: np.asarray(errs[c], float).reshape(-1, 5) for c in CAUSES}}
     for name, pairs in (("motion", [det[i] for i in split]), ("gt", [gt[i] for i in split])):
         obs = tracking.observations_from_instances(pairs, conf.tracking)
-        try:
-            p = fit_agent_plane(K, obs, conf.plane)
+        try:       # the plane settings adapt uses with that detector
+            p = fit_agent_plane(K, obs, plane_config(replace(
+                conf, detector=replace(conf.detector, name=name))))
             # the plane depth's error over the feet (true, and as the bootstrap predicts it)
             rays = rays_from_pixels(K, obs["foot_u"], obs["foot_v"])
             true_rel = float(np.median(np.abs(rays @ truth.normal / (rays @ p.normal) - 1)))
