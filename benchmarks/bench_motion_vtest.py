@@ -36,12 +36,16 @@ def main() -> None:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--detectors", default="motion,yolox")
     ap.add_argument("--step", type=int, default=4)
+    ap.add_argument("--motion", action="append", default=[], metavar="KEY=INT",
+                    help="motion detector option (e.g. low_threshold=20)")
     args = ap.parse_args()
     frames, model = vtest_frames(shared_data_dir(), args.step)
     H, W = frames[0].shape[:2]
     K = np.array([[F_PX, 0, (W - 1) / 2], [0, F_PX, (H - 1) / 2], [0, 0, 1.0]])
     for name in args.detectors.split(","):
-        det = make_detector(name, **({"model": str(model)} if name == "yolox" else {}))
+        opts = ({"model": str(model)} if name == "yolox" else
+                {k: int(v) for k, v in (kv.split("=", 1) for kv in args.motion)})
+        det = make_detector(name, **opts)
         planes = []
         for k, part in enumerate((frames[:len(frames) // 2], frames[len(frames) // 2:])):
             pairs = list(det.detect_sequence(part))
