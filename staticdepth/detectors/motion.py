@@ -43,13 +43,16 @@ def median_background(images: Sequence[np.ndarray], max_frames: int = 50) -> np.
 
 
 def clean_foreground(strong: np.ndarray, weak: np.ndarray | None = None, open_px: int = 3,
-                     close_px: int = 5) -> np.ndarray:
+                     close_px: int = 5, reconstruct: bool = True) -> np.ndarray:
     """Seeds = ``strong`` opened by ``open_px``; the connected regions of ``weak | seeds``
-    (8-connected) holding a seed, closed by ``close_px``. ``weak`` None: ``strong``."""
+    (8-connected) holding a seed, closed by ``close_px``. ``weak`` None: ``strong``;
+    ``reconstruct`` False: the seeds alone, closed (a plain opening and closing)."""
     strong = np.asarray(strong, np.uint8)
     seeds = strong
     if open_px > 1:
         seeds = cv2.morphologyEx(strong, cv2.MORPH_OPEN, np.ones((open_px, open_px), np.uint8))
+    if not reconstruct:
+        weak = seeds
     region = (strong if weak is None else np.asarray(weak, np.uint8)) | seeds
     n, labels = cv2.connectedComponents(region, connectivity=8)
     keep = np.zeros(n, bool)
@@ -62,13 +65,14 @@ def clean_foreground(strong: np.ndarray, weak: np.ndarray | None = None, open_px
 
 
 def foreground_mask(image: np.ndarray, background: np.ndarray, threshold: int = 30,
-                    open_px: int = 3, close_px: int = 5, low_threshold: int | None = 12
-                    ) -> np.ndarray:
+                    open_px: int = 3, close_px: int = 5, low_threshold: int | None = 12,
+                    reconstruct: bool = True) -> np.ndarray:
     """The hysteresis foreground of one frame (see the module doc; ``low_threshold`` None:
-    ``threshold``, no hysteresis)."""
+    ``threshold``, no hysteresis; ``reconstruct`` False: opened and closed only, as YOLOX's
+    masks use it)."""
     diff = np.abs(image.astype(np.int16) - background.astype(np.int16)).max(axis=2)
     low = threshold if low_threshold is None else min(low_threshold, threshold)
-    return clean_foreground(diff > threshold, diff > low, open_px, close_px)
+    return clean_foreground(diff > threshold, diff > low, open_px, close_px, reconstruct)
 
 
 @dataclass
