@@ -65,7 +65,7 @@ def clean_foreground(strong: np.ndarray, weak: np.ndarray | None = None, open_px
 
 
 def foreground_mask(image: np.ndarray, background: np.ndarray, threshold: int = 30,
-                    open_px: int = 3, close_px: int = 5, low_threshold: int | None = 12,
+                    open_px: int = 3, close_px: int = 5, low_threshold: int | None = 20,
                     reconstruct: bool = True) -> np.ndarray:
     """The hysteresis foreground of one frame (see the module doc; ``low_threshold`` None:
     ``threshold``, no hysteresis; ``reconstruct`` False: opened and closed only, as YOLOX's
@@ -79,7 +79,7 @@ def foreground_mask(image: np.ndarray, background: np.ndarray, threshold: int = 
 class MotionDetector(Detector):
     method: str = "median"      # "median" background or "mog2"
     threshold: int = 30         # grey-level difference that seeds motion
-    low_threshold: int | None = 12   # difference that extends a seeded region (None: threshold)
+    low_threshold: int | None = 20   # difference that extends a seeded region (None: threshold)
     min_area: int | None = None  # px; smaller components are noise (None: 3e-4 of the image, >= 12)
     open_px: int = 3
     close_px: int = 3
