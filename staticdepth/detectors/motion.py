@@ -85,7 +85,7 @@ class MotionDetector(Detector):
     close_px: int = 3
     lookahead: int = 30         # frames searched forward for a region splitting (merge test)
     merged_score: float = 0.2   # score of a region holding several agents (0 < it < 1)
-    aspect_band: tuple[float, float] = (0.6, 1.4)   # upright regions whose width/height is
+    aspect_band: tuple[float, float] = (0.5, 1.5)   # upright regions whose width/height is
     #                                  outside this band x the median of those seen are doubtful
     name: str = "motion"
 
