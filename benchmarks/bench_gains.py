@@ -128,7 +128,7 @@ def run_scene(seq: str, model: str, args) -> dict:
                 table[name]["a1"] = res[name][prot]["all"]["a1"]
     labels = label_error(seq) if os.path.exists(seq + ".adapt/labels.h5") else {}
     return {"table": table, "plane": summary["plane"], "finetune": summary["finetune"],
-            "labels_agents": labels}
+            "labels_agents": labels, "metric_refused": summary.get("metric_refused")}
 
 
 def train_stereo(seq: str, epochs: int, preset_name: str = "default") -> None:
@@ -168,9 +168,12 @@ def checks(results: dict) -> list[str]:
         lines.append(f"{model}: ft better than base on agents: "
                      f"{'PASS' if all(a < b for a, b in ag) else 'FAIL'} "
                      f"({', '.join(f'{a:.3f}/{b:.3f}' for a, b in ag)})")
-        mr = [t[s]["ft-align-metric"]["all"] / t[s]["ft-align"]["all"] for s in t]
-        lines.append(f"{model}: metric within 1.2x of median scaling: "
-                     f"{'PASS' if max(mr) <= 1.2 else 'FAIL'} ({', '.join(f'{r:.2f}' for r in mr)})")
+        mr = [t[s]["ft-align-metric"]["all"] / t[s]["ft-align"]["all"] if "ft-align-metric" in t[s]
+              else float("nan") for s in t]       # NaN: adapt refused the metric depth
+        verdict = ("FAIL" if np.nanmax(mr + [0]) > 1.2 else
+                   "REFUSED" if np.isnan(mr).any() else "PASS")
+        lines.append(f"{model}: metric within 1.2x of median scaling: {verdict} ("
+                     + ", ".join("refused" if np.isnan(r) else f"{r:.2f}" for r in mr) + ")")
         st = [t[s]["stereo-baseline"]["a1"] for s in t if "stereo-baseline" in t[s]]
         if st:
             lines.append(f"{model}: stereo baseline a1 >= 0.8: {'PASS' if min(st) >= 0.8 else 'FAIL'}"

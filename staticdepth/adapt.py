@@ -80,7 +80,12 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
         align.run(conf, ws, ag, plane, feet, h["align"])
         lap("align")
         plane = scale.with_camera_height(conf, ws, plane)
-        scales, anchor_scales = scale.run(conf, ws, ag, plane, h["scale"])
+        refuse, metric_note = scale.check(conf, ws, plane, feet)
+        scales, anchor_scales = {}, {}
+        if metric_note:
+            log(f"warning: {metric_note}")
+        if not refuse:
+            scales, anchor_scales = scale.run(conf, ws, ag, plane, h["scale"])
         lap("scale")
 
     W, H, K, Hc = ws.width, ws.height, ws.K, plane.camera_height_m
@@ -93,8 +98,9 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
                "scale": scales, "anchor_scale": anchor_scales, "finetune": history,
                "timings_s": timings, "stage_frames": {s: ws.frames.get(s, 0) for s in STAGES},
                "skipped_stages": ws.skipped,
-               "predictions": ["base", "ft", "align", "ft-align", "align-metric",
-                               "ft-align-metric"],
+               "predictions": ["base", "ft", "align", "ft-align"]
+               + ([] if refuse else ["align-metric", "ft-align-metric"]),
+               "metric_refused": metric_note if refuse else None, "metric_note": metric_note,
                # the paper's Table 2: depth of the bottom-centre anchor pixel from the agents'
                # plane and the camera height, and the parallel-camera baseline f H_c / (v_a - c_y)
                "anchor_pixel": [u_a, v_a],
@@ -241,6 +247,8 @@ def run(args) -> int:
     print(f"plane: pitch {summary['plane']['pitch_deg']:.2f} deg, roll "
           f"{summary['plane']['roll_deg']:.2f} deg; camera height {summary['camera_height_m']:.2f}"
           + (f" +- {sd:.2f}" if sd is not None else "") + f" m ({summary['camera_height_source']})")
+    if summary.get("metric_note"):
+        print(summary["metric_note"])
     print(f"predictions written to {seq}.pred/: {', '.join(summary['predictions'])}")
     print(f"summary: {summary['summary_path']}")
     return 0

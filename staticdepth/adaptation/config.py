@@ -107,6 +107,9 @@ class ScaleConfig:
     metric_scale: str = "plane"            # plane: x H_c; anchor: METHOD.md 5's anchor pixel
     sequence_height: bool = True           # false: ignore the sequence's stored height (the
                                            # agents give it, as on a site without one)
+    max_rel_error: float = 0.15            # refuse the metric outputs when the plane's and the
+                                           # height's uncertainty give a larger relative depth
+                                           # error over the agents' feet (inf: never refuse)
 
     def __post_init__(self):
         if self.metric_scale not in ("plane", "anchor"):
@@ -114,6 +117,8 @@ class ScaleConfig:
         h = self.camera_height_m
         if h is not None and not (math.isfinite(h) and h > 0):
             raise InputError(f"camera height must be a positive number of metres, got {h}")
+        if not self.max_rel_error > 0:
+            raise InputError(f"scale.max_rel_error must be > 0, got {self.max_rel_error}")
         a = self.agent_height_m
         if a is not None and not (math.isfinite(a) and a > 0):
             raise InputError(f"agent height must be positive, got {self.agent_height_m}")

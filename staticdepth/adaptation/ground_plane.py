@@ -41,6 +41,16 @@ def _load(ws: Workspace, config_hash: str) -> tuple[AgentPlane, np.ndarray] | No
     return plane, np.asarray(d["feet"], dtype=np.float64).reshape(-1, 2)
 
 
+def plane_config(conf: AdaptConfig):
+    """The plane settings; with the motion detector, ``classes="auto"`` means people only: its
+    classes are shape guesses (upright = person), and a car taken for a person or a person for a
+    car gets the wrong body model (independent scenes, benchmarks/bench_motion_plane.py: i4
+    2.8 deg off with every class, 0.5 with people)."""
+    if conf.detector.name == "motion" and conf.plane.classes == "auto":
+        return replace(conf.plane, classes=(0,))
+    return conf.plane
+
+
 def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str
         ) -> tuple[AgentPlane, np.ndarray]:
     """(plane without a camera height, foot points (M, 2) of the adaptation split)."""
@@ -59,7 +69,7 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str
     if len(obs) < 3:
         raise InputError(f"only {len(obs)} usable agent observations in the adaptation split: "
                          "the ground plane needs tracked agents (check the detector)")
-    plane = fit_agent_plane(ws.K, obs, conf.plane)
+    plane = fit_agent_plane(ws.K, obs, plane_config(conf))
     # The ground region covered by the agents' feet: every agent of the adaptation split (the
     # plane fit keeps only clean person tracks; the region should not shrink with that filter).
     feet = [np.stack([r["foot_u"], r["foot_v"]], 1) for r in

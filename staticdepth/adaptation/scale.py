@@ -7,6 +7,11 @@ The aligned maps are in units of the camera height, so ``metric_scale = plane`` 
 by H_c; ``anchor`` uses the temporal median of the per-frame anchor-pixel scales instead (frames
 whose anchor an agent covers are skipped, unless every frame's is). Both scales are reported.
 One pass over the frames measures the anchors, a second writes the metric maps.
+Gate: when the plane normal's and the camera height's uncertainty make the metric depth's relative
+error over the agents' feet larger than ``scale.max_rel_error``
+(:func:`staticdepth.geometry.scale.metric_check`), no metric map is written and the reason is
+returned (a wrong metric depth is worse than none); a plane without an uncertainty (fewer than 3
+inlier tracks) is only flagged.
 """
 from __future__ import annotations
 
@@ -17,7 +22,7 @@ from staticdepth.adaptation.common import Agents, Workspace
 from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.geometry.agent_plane import AgentPlane
 from staticdepth.geometry.agent_plane_gate import with_camera_height_from_agents
-from staticdepth.geometry.scale import scale_from_anchor, temporal_scale
+from staticdepth.geometry.scale import metric_check, scale_from_anchor, temporal_scale
 from staticdepth.progress import progress
 
 
@@ -47,6 +52,14 @@ def anchor_scales(ws: Workspace, agents: Agents, plane: AgentPlane) -> dict[str,
             ws.count("scale")
     return {name: temporal_scale(per[name] if np.isfinite(per[name]).any() else per_any[name])
             for name in ALIGNED}
+
+
+def check(conf: AdaptConfig, ws: Workspace, plane: AgentPlane, feet: np.ndarray
+          ) -> tuple[bool, str | None]:
+    """(refuse the metric maps, why or a warning); see the module doc."""
+    given = plane.camera_height_source in ("given", "sequence")
+    return metric_check(ws.K, plane.normal, plane.normal_std_deg, feet, plane.camera_height_m,
+                        None if given else plane.camera_height_std_m, conf.scale.max_rel_error)
 
 
 def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, config_hash: str

@@ -4,8 +4,10 @@ Pre-processing as YOLOX's demo: letterbox to ``input_size`` (top-left aligned, s
 min(S/H, S/W), pad 114), BGR 0-255 float32. Decoding: per anchor (cx, cy) = (raw + grid) x
 stride, (w, h) = exp(raw) x stride on the stride 8/16/32 grids; score = objectness x class
 probability (both already sigmoid in the export); class-wise NMS (``cv2.dnn.NMSBoxes``).
-Masks: the foreground (median background of the sequence) inside the box when it fills at least
-``min_fill`` of the box, else GrabCut initialised with the box (``mask="grabcut"`` always uses
+Masks: the foreground (median background of the sequence, opened and closed: neither the motion
+detector's low threshold nor its reconstruction of thin parts, which on vtest.avi made the people's
+pixel heights in the boxes less consistent, tests/test_detectors_vtest.py) inside the box when it
+fills at least ``min_fill`` of the box, else GrabCut initialised with the box (``mask="grabcut"`` always uses
 GrabCut, ``mask="box"`` the box itself).
 """
 from __future__ import annotations
@@ -155,7 +157,7 @@ class YoloxDetector(Detector):
         bg = median_background(frames) if self.mask == "motion" and len(frames) >= 5 else None
         for i, im in enumerate(frames):
             boxes, scores, cls = self.boxes(im)
-            fg = None if bg is None else foreground_mask(im, bg)
+            fg = None if bg is None else foreground_mask(im, bg, close_px=7, reconstruct=False)
             masks = self.masks(im, boxes, fg)
             # paint far (high) agents first so that nearer ones, lower in the image, win overlaps
             order = np.argsort(boxes[:, 3]) if len(boxes) else np.zeros(0, int)

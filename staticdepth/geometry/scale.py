@@ -96,3 +96,48 @@ def temporal_scale(scales) -> float:
         raise InputError("no frame gave a scale (the anchor was covered or invalid in all)")
     return float(np.median(s))
 
+
+
+def plane_depth_rel_std(K: np.ndarray, normal, normal_std_deg: float, u, v) -> float:
+    """Median over the pixels (u, v) of the relative error of the plane depth ``H_c / (n . r)``
+    when the normal is off by ``normal_std_deg`` in the worst direction: ``sigma sin(a) / cos(a)``
+    with ``cos(a) = n . r / |r|`` (a small rotation of n changes n . r by at most
+    sigma |n x r|). Grazing rays (far ground) make it large; NaN std gives NaN; pixels above the
+    horizon are ignored (inf when every one is)."""
+    if not np.isfinite(normal_std_deg):
+        return float("nan")
+    r = rays_from_pixels(K, np.asarray(u, np.float64), np.asarray(v, np.float64))
+    r = r / np.linalg.norm(r, axis=-1, keepdims=True)
+    c = r @ np.asarray(normal, dtype=np.float64)
+    c = c[c > 1e-9]
+    if len(c) == 0:
+        return float("inf")
+    return float(np.median(np.radians(normal_std_deg) * np.sqrt(1 - c * c) / c))
+
+
+def metric_check(K: np.ndarray, normal, normal_std_deg: float, feet: np.ndarray,
+                 camera_height_m: float, camera_height_std_m: float | None,
+                 max_rel_std: float) -> tuple[bool, str | None]:
+    """(refuse, message): whether a metric depth from this plane must not be written, and why;
+    (False, None) when it can be trusted.
+
+    The metric depth's relative error is taken as the plane depth's over the agents' feet
+    (:func:`plane_depth_rel_std`, the ground the alignment is fitted on) combined with the camera
+    height's relative std (None or NaN: a given height, 0); above ``max_rel_std`` it is refused.
+    A plane without an uncertainty (fewer than 3 inlier tracks: no bootstrap) is not refused but
+    flagged (False, "metric depth unverified: ...")."""
+    feet = np.asarray(feet, dtype=np.float64).reshape(-1, 2)
+    if len(feet) == 0 or not np.isfinite(normal_std_deg):
+        return False, ("metric depth unverified: the ground plane has no uncertainty (fewer than "
+                       "3 inlier agent tracks); more adaptation frames or agents are needed")
+    rel_n = plane_depth_rel_std(K, normal, normal_std_deg, feet[:, 0], feet[:, 1])
+    sd = camera_height_std_m
+    rel_h = sd / camera_height_m if sd is not None and np.isfinite(sd) else 0.0
+    rel = float(np.hypot(rel_n, rel_h))
+    if rel <= max_rel_std:
+        return False, None
+    return True, (f"metric depth refused: its relative error would be about {100 * rel:.0f}% "
+                  f"(plane normal +-{normal_std_deg:.2f} deg -> {100 * rel_n:.0f}% over the "
+                  f"agents' feet, camera height {100 * rel_h:.0f}%) > {100 * max_rel_std:.0f}%; "
+                  f"about {(rel / max_rel_std) ** 2:.1f}x the adaptation frames would bring it "
+                  "under (or give --set scale.max_rel_error)")
