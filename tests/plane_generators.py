@@ -15,12 +15,13 @@ model per generator, each a cloud of surface points in the agent's own frame (up
 People's heights: 90% adults N(1.72, 0.08) m, 10% children U(1.0, 1.45) m. A detection is the
 projection of the body's points: as a mask, its lowest point (foot) and highest point (top), each
 with the median column of the points within half a pixel of that row (a mask's extreme row is a
-run of pixels; a person's foot is the mean of both halves' lowest points, as
-``staticdepth.tracking.walker_foot`` takes it from a mask), 1 px Gaussian noise on all four; as a box, the extreme rows and columns each
-jittered by U(-2, 2) px, the foot column the box centre and no top column. Outliers (``outliers`` = share of
-observations): sitting people (whole tracks, 55-70% of the height), detections cut by the image
-top (the top row moved down by 15-50% of the height) and partly occluded feet (the foot row moved
-up by 15-40%).
+run of pixels; a person's foot is both feet's mean where the bottom profile of the union of its
+pieces' convex hulls shows two feet apart, as ``staticdepth.tracking.walker_foot`` takes it from
+a mask; ``feet`` says how many), 1 px Gaussian noise on all four; as a box, the extreme rows and
+columns each jittered by U(-2, 2) px, the foot column the box centre and no top column. Outliers
+(``outliers`` = share of observations): sitting people (whole tracks, 55-70% of the height),
+detections cut by the image top (the top row moved down by 15-50% of the height) and partly
+occluded feet (the foot row moved up by 15-40%).
 """
 from __future__ import annotations
 
@@ -109,8 +110,12 @@ def parts(kind: str, height: float, frame: int, phase: float, dims=None) -> list
 
 
 def body(kind: str, height: float, frame: int, phase: float, dims=None) -> np.ndarray:
-    """Surface points (M, 3) in the agent frame (forward, side, up), feet on z = 0."""
-    return np.concatenate(parts(kind, height, frame, phase, dims))
+    """Surface points (M, 3) in the agent frame (forward, side, up), feet on z = 0 (each once:
+    the tapered body's frustums share their rings)."""
+    pieces = parts(kind, height, frame, phase, dims)
+    if kind == "tapered":
+        return np.concatenate([pieces[0][:len(pieces[0]) // 2]] + [p[len(p) // 2:] for p in pieces])
+    return np.concatenate(pieces)
 
 
 def _bottom_profile(pieces) -> tuple[np.ndarray, np.ndarray]:
@@ -153,22 +158,23 @@ def _project(K, P):
     return q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
 
 
-def _walker_foot(cols, low, hgt) -> tuple[float, float, int]:
+def _walker_foot(u, v, cols, low) -> tuple[float, float, int]:
     """A person's foot point from its mask's bottom profile, as ``staticdepth.tracking.
     walker_foot`` takes it: the mean of both feet's lowest points when the profile has a second
     peak within ``FOOT_BAND`` of the height that a dip of ``FOOT_DIP`` (at least 1 px) separates
-    from the lowest one, else the lowest point (a point's column: the median of the profile's
-    columns within half a pixel of its row, on its side of the dip)."""
+    from the lowest one, else the lowest point (of the points (u, v) on its side of the dip: the
+    lowest, its column the median of those within half a pixel of its row)."""
+    hgt = v.max() - v.min()
     k1 = int(np.argmax(low))
     gap = np.array([low[j] - low[min(j, k1):max(j, k1) + 1].min() for j in range(len(cols))])
     ok = (gap >= max(1.0, FOOT_DIP * hgt)) & (low >= low[k1] - FOOT_BAND * hgt)
-    sides = [np.ones(len(cols), bool)]
+    sides = [np.ones(len(u), bool)]
     if ok.any():
         k2 = int(np.flatnonzero(ok)[np.argmax(low[ok])])
         lo, hi = min(k1, k2), max(k1, k2)
         cut = cols[lo + int(np.argmin(low[lo:hi + 1]))]
-        sides = [cols < cut, cols > cut]
-    pts = [(np.median(cols[p & (low >= low[p].max() - 0.5)]), low[p].max()) for p in sides]
+        sides = [u < cut - 0.5, u > cut + 0.5]
+    pts = [(np.median(u[p & (v >= v[p].max() - 0.5)]), v[p].max()) for p in sides]
     return (*np.mean(pts, axis=0), len(pts))
 
 
@@ -214,7 +220,8 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
             side = np.cross(up, fwd)
             pieces = [pos + P[:, :1] * fwd + P[:, 1:2] * side + P[:, 2:3] * up
                       for P in parts(bkind, hgt, i, phase, dims)]
-            X = np.concatenate(pieces)
+            X = pos + (P := body(bkind, hgt, i, phase, dims))[:, :1] * fwd + P[:, 1:2] * side \
+                + P[:, 2:3] * up
             if X[:, 2].min() < 0.3:
                 break
             u, v = _project(K, X)
@@ -223,8 +230,7 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
             if detection == "mask":      # a mask's extreme row: the median column of its run
                 e = rng.normal(0, noise_px, 4)
                 ub, vb, feet = (np.median(u[v >= v.max() - 0.5]), v.max(), 0) if cls != PERSON \
-                    else _walker_foot(*_bottom_profile([_project(K, p) for p in pieces]),
-                                      v.max() - v.min())
+                    else _walker_foot(u, v, *_bottom_profile([_project(K, p) for p in pieces]))
                 ut = np.median(u[v <= v.min() + 0.5])
                 out.append((track, i, cls, ub + e[0], vb + e[1], v.min() + e[2], ut + e[3], feet))
             else:

@@ -79,7 +79,8 @@ def test_generator_foot_matches_tracking_on_the_rasterised_walker():
             top = min(v.min() for _, v in pieces)
             bottom = max(v.max() for _, v in pieces)
             shape = (int(bottom) + 5, 320)
-            gen = G._walker_foot(*G._bottom_profile(pieces), bottom - top)
+            u, v = (np.concatenate(x) for x in zip(*pieces))
+            gen = G._walker_foot(u, v, *G._bottom_profile(pieces))
             trk = walker_foot(*_pixels(_rasterise(pieces, shape)))
             assert abs(gen[0] - trk[0]) <= 1.0 and abs(gen[1] - trk[1]) <= 1.0, (gen, trk)
             assert gen[2] == trk[2]

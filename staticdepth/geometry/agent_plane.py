@@ -90,7 +90,7 @@ class AgentPlaneConfig:
     relative_noise: float = 0.0      # joint: residuals over sqrt(1 + (this * pixel height)^2):
     #                                  gait and bobbing move a body's extremes by a share of it
     foot_track_sd: float = 0.05      # joint: prior sd of a striding track's own foot extent
-    #                                  around its class's (tracks whose masks show two feet; 0 = off)
+    #                                  around its class's (masks showing two feet; 0 = off)
 
     def __post_init__(self):
         if isinstance(self.classes, str) and self.classes != "auto":
