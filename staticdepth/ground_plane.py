@@ -60,7 +60,7 @@ def read_observations_csv(path: str | os.PathLike) -> np.ndarray:
         if len(r) != len(header):
             raise InputError(f"line {i + 2}: {len(r)} fields, the header has {len(header)}", path)
         for name in ("frame", "track", "foot_u", "foot_v", "height_px", "class_id", "score",
-                     "top_u"):
+                     "top_u", "feet"):
             if name not in cols:
                 continue
             text = r[cols[name]].strip()

@@ -19,7 +19,8 @@ import numpy as np
 
 from staticdepth.errors import InputError
 
-COLUMNS = ("frame", "track", "class_id", "foot_u", "foot_v", "height_px", "score", "top_u")
+COLUMNS = ("frame", "track", "class_id", "foot_u", "foot_v", "height_px", "score", "top_u",
+           "feet")
 SPLITS = ("adapt", "eval", "all")
 
 
@@ -31,7 +32,7 @@ def observations_csv(obs: np.ndarray) -> str:
         vals = []
         for c in COLUMNS:
             v = r[c]
-            vals.append(str(int(v)) if c in ("frame", "track", "class_id")
+            vals.append(str(int(v)) if c in ("frame", "track", "class_id", "feet")
                         else ("" if not np.isfinite(v) else f"{float(v):.3f}"))
         buf.write(",".join(vals) + "\n")
     return buf.getvalue()

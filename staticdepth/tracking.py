@@ -2,7 +2,8 @@
 
 A detection is one agent instance in one frame (a rider and its bicycle or motorcycle are merged
 into one agent of the two-wheeler's class first, :func:`merge_riders`): its foot point (bottom
-centre of the mask: the lowest row, the median column of that row), its top point (the highest row, the median column of
+centre of the mask: the lowest row, the median column of that row; for people the mean of both
+feet's lowest points, :func:`walker_foot`), its top point (the highest row, the median column of
 that row; the column is NaN when only a box or an agent row without it is known), box and score.
 Detections are linked across frames by the Hungarian assignment
 (``scipy.optimize.linear_sum_assignment``) on box IoU, or on foot-point distance relative to the
@@ -31,7 +32,8 @@ line while its own height s_j stays fixed). :meth:`TrackingConfig.for_model` pic
 ground-plane model.
 
 Output: :data:`OBS_DTYPE` rows (frame, track, class_id, foot_u, foot_v, height_px, top_v, score,
-top_u), foot and top rows moved ``edge_px`` outwards, the input of
+top_u, feet: 2 where a walker's foot point is its two feet's mean, 1 one foot, 0 not a person
+mask), foot and top rows moved ``edge_px`` outwards, the input of
 :func:`staticdepth.geometry.agent_plane.fit_agent_plane`.
 """
 from __future__ import annotations
@@ -47,13 +49,14 @@ from staticdepth.errors import InputError
 
 OBS_DTYPE = np.dtype([("frame", np.int32), ("track", np.int32), ("class_id", np.int16),
                       ("foot_u", np.float32), ("foot_v", np.float32), ("height_px", np.float32),
-                      ("top_v", np.float32), ("score", np.float32), ("top_u", np.float32)])
+                      ("top_v", np.float32), ("score", np.float32), ("top_u", np.float32),
+                      ("feet", np.uint8)])
 
 DET_DTYPE = np.dtype([("frame", np.int32), ("instance_id", np.int32), ("class_id", np.int16),
                       ("track", np.int32), ("foot_u", np.float32), ("foot_v", np.float32),
                       ("top_v", np.float32), ("left", np.float32), ("right", np.float32),
                       ("score", np.float32), ("border", np.bool_), ("top_u", np.float32),
-                      ("occluded", np.bool_)])
+                      ("occluded", np.bool_), ("feet", np.uint8)])
 
 
 @dataclass(frozen=True)
@@ -112,8 +115,10 @@ def detections_from_instances(instance_map: np.ndarray, rows: np.ndarray | None 
     for k, (a, b) in enumerate(zip(start, ends)):
         v_low, v_top = vs[a], vs[b - 1]
         low_cols, top_cols = us[a:b][vs[a:b] == v_low], us[a:b][vs[a:b] == v_top]
-        out["foot_u"][k] = np.median(low_cols)
-        out["foot_v"][k] = v_low
+        if info[k, 0] in WALKER_CLASSES:
+            out["foot_u"][k], out["foot_v"][k], out["feet"][k] = walker_foot(us[a:b], vs[a:b])
+        else:
+            out["foot_u"][k], out["foot_v"][k] = np.median(low_cols), v_low
         out["top_v"][k] = v_top
         out["top_u"][k] = np.median(top_cols)
         out["left"][k], out["right"][k] = us[a:b].min(), us[a:b].max()
@@ -127,6 +132,50 @@ def detections_from_instances(instance_map: np.ndarray, rows: np.ndarray | None 
 
 
 TWO_WHEELERS = (1, 3)     # COCO bicycle, motorcycle
+WALKER_CLASSES = (0, -1)  # COCO person, unknown class: the foot point of :func:`walker_foot`
+FOOT_BAND = 0.25          # a second foot is searched within this share of the height ...
+FOOT_DIP = 0.03           # ... and must be a separate peak: the bottom profile dips by this share
+
+
+def walker_foot(us: np.ndarray, vs: np.ndarray) -> tuple[float, float, int]:
+    """Foot point (column, row) of a walker from its mask pixels ``(us, vs)`` and the number of
+    feet it averages: the mean of its two feet's lowest points, or its lowest point when it shows
+    one foot.
+
+    The bottom profile (per column, the lowest row) has a peak per foot: the second foot is the
+    lowest profile point within :data:`FOOT_BAND` of the height above the lowest row that is
+    separated from the lowest one by a dip of :data:`FOOT_DIP` of the height (at least 1 px). The
+    columns split at the dip; each part's lowest point is its lowest row and that row's median
+    column there. A walker's lowest pixel is its nearer foot, up to +-0.3 m from its axis along
+    the stride; the feet sit symmetrically about the axis, so their mean is the axis' foot moved
+    towards the camera by a foot's size: the foot disk the ground-plane model assumes. A convex
+    bottom (feet together, a wide body) has one peak: its lowest point.
+    """
+    us, vs = np.asarray(us, np.float64), np.asarray(vs, np.float64)
+    height = vs.max() - vs.min()
+    cols, inv = np.unique(np.round(us), return_inverse=True)
+    low = np.full(len(cols), -np.inf)
+    np.maximum.at(low, inv, vs)
+    k1 = int(np.argmax(low))
+    # the profile's highest point (smallest row) between each column and the lowest one
+    between = np.empty_like(low)
+    between[:k1 + 1] = np.minimum.accumulate(low[k1::-1])[::-1]
+    between[k1:] = np.minimum.accumulate(low[k1:])
+    ok = ((low - between >= max(1.0, FOOT_DIP * height))
+          & (low >= low[k1] - FOOT_BAND * height))
+    if not ok.any():
+        parts = [np.ones(len(us), bool)]
+    else:
+        k2 = int(np.flatnonzero(ok)[np.argmax(low[ok])])
+        a, b = sorted((k1, k2))
+        cut = cols[a + int(np.argmin(low[a:b + 1]))]
+        parts = [us < cut, us > cut]
+    pts = []
+    for part in parts:
+        vm = vs[part].max()
+        pts.append((float(np.median(us[part & (vs >= vm - 0.5)])), float(vm)))
+    u, v = np.mean(pts, axis=0)
+    return float(u), float(v), len(pts)
 
 
 def merge_riders(instance_map: np.ndarray, rows, contact_px: int = 2) -> np.ndarray:
@@ -312,7 +361,7 @@ def observations(dets: np.ndarray, conf: TrackingConfig = TrackingConfig()) -> n
         keep[sel] = True
     d, h = d[keep], h[keep]
     out = np.zeros(len(d), OBS_DTYPE)
-    for f in ("frame", "track", "class_id", "foot_u", "score", "top_u"):
+    for f in ("frame", "track", "class_id", "foot_u", "score", "top_u", "feet"):
         out[f] = d[f]
     out["foot_v"] = d["foot_v"] + conf.edge_px
     out["top_v"] = d["top_v"] - conf.edge_px

@@ -15,11 +15,13 @@ model per generator, each a cloud of surface points in the agent's own frame (up
 People's heights: 90% adults N(1.72, 0.08) m, 10% children U(1.0, 1.45) m. A detection is the
 projection of the body's points: as a mask, its lowest point (foot) and highest point (top), each
 with the median column of the points within half a pixel of that row (a mask's extreme row is a
-run of pixels), 1 px Gaussian noise on all four; as a box, the extreme rows and columns each
-jittered by U(-2, 2) px, the foot column the box centre and no top column. Outliers (``outliers`` = share of
-observations): sitting people (whole tracks, 55-70% of the height), detections cut by the image
-top (the top row moved down by 15-50% of the height) and partly occluded feet (the foot row moved
-up by 15-40%).
+run of pixels; a person's foot is both feet's mean where the bottom profile of the union of its
+pieces' convex hulls shows two feet apart, as ``staticdepth.tracking.walker_foot`` takes it from
+a mask; ``feet`` says how many), 1 px Gaussian noise on all four; as a box, the extreme rows and
+columns each jittered by U(-2, 2) px, the foot column the box centre and no top column. Outliers
+(``outliers`` = share of observations): sitting people (whole tracks, 55-70% of the height),
+detections cut by the image top (the top row moved down by 15-50% of the height) and partly
+occluded feet (the foot row moved up by 15-40%).
 """
 from __future__ import annotations
 
@@ -27,13 +29,14 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
 
 W, H = 960, 540
 OBS = [("frame", "i4"), ("track", "i4"), ("class_id", "i2"), ("foot_u", "f8"), ("foot_v", "f8"),
-       ("height_px", "f8"), ("top_v", "f8"), ("top_u", "f8"), ("score", "f4")]
+       ("height_px", "f8"), ("top_v", "f8"), ("top_u", "f8"), ("score", "f4"), ("feet", "u1")]
 GENERATORS = ("thin", "tapered", "cylinder", "ellipsoid", "vehicles")
 PERSON, BICYCLE, CAR, BUS = 0, 1, 2, 5
-FOOT_BAND = 0.0   # share of the height above the lowest row whose columns give the foot column
+FOOT_BAND, FOOT_DIP = 0.25, 0.03   # a walker's second foot, as staticdepth.tracking takes it
 
 
 @dataclass
@@ -73,41 +76,106 @@ def _ellipsoid(c, ax, k=12):
     return c + p * ax
 
 
-def body(kind: str, height: float, frame: int, phase: float, dims=None) -> np.ndarray:
-    """Surface points (M, 3) in the agent frame (forward, side, up), feet on z = 0."""
+def parts(kind: str, height: float, frame: int, phase: float, dims=None) -> list[np.ndarray]:
+    """The body as convex pieces, surface points (M, 3) each in the agent frame (forward, side,
+    up), feet on z = 0; a mask is the union of their projections' convex hulls."""
     Hh = height
     if kind == "thin":
-        return np.array([[0, 0, 0.0], [0, 0, Hh]])
-    if kind == "tapered":
+        return [np.array([[0, 0, 0.0], [0, 0, Hh]])]
+    if kind == "tapered":            # frustums between consecutive rings
         z = np.linspace(0, 1, 21)
         r = 0.04 + 0.18 * np.sin(math.pi * np.minimum(z / 0.8, 1.0)) ** 0.6
         r = np.where(z > 0.8, 0.05 + (0.11 - 0.05) * np.sin(math.pi * (1 - z) / 0.4), r)
-        return _rings(r, z * Hh)
+        return [_rings(r[i:i + 2], z[i:i + 2] * Hh) for i in range(len(z) - 1)]
     if kind == "cylinder":
-        return _rings(np.full(11, 0.3), np.linspace(0, Hh, 11))
+        return [_rings(np.full(11, 0.3), np.linspace(0, Hh, 11))]
     if kind == "ellipsoid":
         hip, swing = 0.5 * Hh, math.radians(20) * math.sin(phase + 1.3 * frame)
         drop = hip * (1 - math.cos(swing))                   # both feet on the ground: body bobs
         torso = _ellipsoid(np.array([0, 0, 0.72 * Hh - drop]), np.array([0.14, 0.22, 0.23 * Hh]))
         head = _ellipsoid(np.array([0, 0, 0.935 * Hh - drop]), np.array([0.09, 0.08, 0.065 * Hh]))
-        parts = [torso, head]
+        out = [torso, head]
         ring = _rings([0.06], [0.0], 8)
         for sgn, side in ((1, 0.1), (-1, -0.1)):
             t = np.linspace(0, 1, 9)[:, None]
             foot = np.array([sgn * hip * math.sin(swing), side, 0.0])
             leg = np.array([0, side, hip - drop]) * (1 - t) + foot * t
-            parts.append((leg[:, None, :] + ring[None]).reshape(-1, 3))
-        return np.concatenate(parts)
+            out.append((leg[:, None, :] + ring[None]).reshape(-1, 3))
+        return out
     if kind == "box":
         length, width = dims
-        return np.array([[sx * length / 2, sy * width / 2, z] for sx in (-1, 1) for sy in (-1, 1)
-                         for z in (0.0, Hh)])
+        return [np.array([[sx * length / 2, sy * width / 2, z] for sx in (-1, 1)
+                          for sy in (-1, 1) for z in (0.0, Hh)])]
     raise ValueError(kind)
+
+
+def body(kind: str, height: float, frame: int, phase: float, dims=None) -> np.ndarray:
+    """Surface points (M, 3) in the agent frame (forward, side, up), feet on z = 0 (each once:
+    the tapered body's frustums share their rings)."""
+    pieces = parts(kind, height, frame, phase, dims)
+    if kind == "tapered":
+        return np.concatenate([pieces[0][:len(pieces[0]) // 2]] + [p[len(p) // 2:] for p in pieces])
+    return np.concatenate(pieces)
+
+
+def _bottom_profile(pieces) -> tuple[np.ndarray, np.ndarray]:
+    """(columns, lowest row per column) of the union of the convex hulls of projected pieces
+    [(u, v), ...], sampled at whole-pixel columns as a mask is (a piece narrower than a pixel, or
+    degenerate, by its points; one above the band the feet are searched in by its lowest row)."""
+    cols, lows = [], []
+    top = min(v.min() for _, v in pieces)
+    bottom = max(v.max() for _, v in pieces)
+    for u, v in pieces:
+        c = np.arange(math.ceil(u.min()), math.floor(u.max()) + 1)
+        if v.max() < bottom - FOOT_BAND * (bottom - top) - 1:
+            cols.append(c.astype(np.float64))     # above the band the feet are searched in:
+            lows.append(np.full(len(c), v.max()))  # its lowest point bounds its columns
+            continue
+        try:
+            hull = ConvexHull(np.stack([u, v], 1)).vertices if len(c) and len(u) > 2 else None
+        except QhullError:
+            hull = None
+        if hull is None:
+            cols.append(u)
+            lows.append(v)
+            continue
+        pu, pv = u[hull], v[hull]
+        qu, qv = np.roll(pu, -1), np.roll(pv, -1)
+        du = np.where(qu == pu, np.nan, qu - pu)
+        t = (c[None] - pu[:, None]) / du[:, None]
+        vv = np.where((t >= 0) & (t <= 1), pv[:, None] + t * (qv - pv)[:, None], -np.inf)
+        cols.append(c.astype(np.float64))
+        lows.append(vv.max(0))
+    cols, lows = np.concatenate(cols), np.concatenate(lows)
+    uniq, inv = np.unique(cols, return_inverse=True)
+    low = np.full(len(uniq), -np.inf)
+    np.maximum.at(low, inv, lows)
+    return uniq, low
 
 
 def _project(K, P):
     q = P @ K.T
     return q[:, 0] / q[:, 2], q[:, 1] / q[:, 2]
+
+
+def _walker_foot(u, v, cols, low) -> tuple[float, float, int]:
+    """A person's foot point from its mask's bottom profile, as ``staticdepth.tracking.
+    walker_foot`` takes it: the mean of both feet's lowest points when the profile has a second
+    peak within ``FOOT_BAND`` of the height that a dip of ``FOOT_DIP`` (at least 1 px) separates
+    from the lowest one, else the lowest point (of the points (u, v) on its side of the dip: the
+    lowest, its column the median of those within half a pixel of its row)."""
+    hgt = v.max() - v.min()
+    k1 = int(np.argmax(low))
+    gap = np.array([low[j] - low[min(j, k1):max(j, k1) + 1].min() for j in range(len(cols))])
+    ok = (gap >= max(1.0, FOOT_DIP * hgt)) & (low >= low[k1] - FOOT_BAND * hgt)
+    sides = [np.ones(len(u), bool)]
+    if ok.any():
+        k2 = int(np.flatnonzero(ok)[np.argmax(low[ok])])
+        lo, hi = min(k1, k2), max(k1, k2)
+        cut = cols[lo + int(np.argmin(low[lo:hi + 1]))]
+        sides = [u < cut - 0.5, u > cut + 0.5]
+    pts = [(np.median(u[p & (v >= v[p].max() - 0.5)]), v[p].max()) for p in sides]
+    return (*np.mean(pts, axis=0), len(pts))
 
 
 def _agent_spec(kind: str, rng):
@@ -150,8 +218,10 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
             fwd = math.cos(heading) * e1 + math.sin(heading) * e2
             pos = pos + speed * fwd
             side = np.cross(up, fwd)
-            P = body(bkind, hgt, i, phase, dims)
-            X = pos + P[:, :1] * fwd + P[:, 1:2] * side + P[:, 2:3] * up
+            pieces = [pos + P[:, :1] * fwd + P[:, 1:2] * side + P[:, 2:3] * up
+                      for P in parts(bkind, hgt, i, phase, dims)]
+            X = pos + (P := body(bkind, hgt, i, phase, dims))[:, :1] * fwd + P[:, 1:2] * side \
+                + P[:, 2:3] * up
             if X[:, 2].min() < 0.3:
                 break
             u, v = _project(K, X)
@@ -159,20 +229,23 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
                 continue
             if detection == "mask":      # a mask's extreme row: the median column of its run
                 e = rng.normal(0, noise_px, 4)
-                band = max(0.5, FOOT_BAND * (v.max() - v.min()))
-                ub, ut = np.median(u[v >= v.max() - band]), np.median(u[v <= v.min() + 0.5])
-                out.append((track, i, cls, ub + e[0], v.max() + e[1], v.min() + e[2], ut + e[3]))
+                ub, vb, feet = (np.median(u[v >= v.max() - 0.5]), v.max(), 0) if cls != PERSON \
+                    else _walker_foot(u, v, *_bottom_profile([_project(K, p) for p in pieces]))
+                ut = np.median(u[v <= v.min() + 0.5])
+                out.append((track, i, cls, ub + e[0], vb + e[1], v.min() + e[2], ut + e[3], feet))
             else:
                 j = rng.uniform(-2, 2, 4)
                 lo, hi = u.min() + j[0], u.max() + j[1]
-                out.append((track, i, cls, (lo + hi) / 2, v.max() + j[2], v.min() + j[3], np.nan))
+                out.append((track, i, cls, (lo + hi) / 2, v.max() + j[2], v.min() + j[3], np.nan,
+                            0))
         if len(out) >= 3:
             rows += out
             heights[track] = hgt
             track += 1
     a = np.array(rows, dtype=np.float64)
     obs = np.zeros(len(a), OBS)
-    for k, name in enumerate(("track", "frame", "class_id", "foot_u", "foot_v", "top_v", "top_u")):
+    for k, name in enumerate(("track", "frame", "class_id", "foot_u", "foot_v", "top_v", "top_u",
+                              "feet")):
         obs[name] = a[:, k]
     obs["score"] = 1.0
     if outliers > 0:

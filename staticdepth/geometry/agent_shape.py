@@ -155,7 +155,7 @@ def top_points(n: np.ndarray, rays: np.ndarray, s: np.ndarray, group: np.ndarray
         p = params[g]
         if grp.outline == "disk":
             A = F[m].copy()
-            if p[0] > 0:
+            if np.any(np.asarray(p[0]) > 0):
                 for _ in range(3):
                     A = A + (F[m] - _rim(A, basis, p[0] * s[m], lowest=True))
             T[m] = _rim(A - s[m, None] * n, basis, p[1] * s[m], lowest=False)
