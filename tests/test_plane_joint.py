@@ -42,8 +42,9 @@ def _fit(fits, kind, seed, **kw):
 # 11.5 m, 66 px people); these bounds guard the measured level on the seeds used here
 CLEAN = {"thin": (0.5, 1.0), "tapered": (0.5, 1.0), "cylinder": (0.5, 1.0),
          "ellipsoid": (0.5, 3.0), "vehicles": (0.5, 1.0)}
-# max error with 20% outliers: the goal is 2 degrees; the ellipsoid misses it (see README)
-OUTLIERS = {"tapered": 2.0, "vehicles": 2.0, "ellipsoid": 6.0}
+# max error with 20% outliers: the goal, 2 degrees (8 cameras: ellipsoid 0.35 / 0.60, 5.37 before
+# the walker foot point)
+OUTLIERS = {"tapered": 2.0, "vehicles": 2.0, "ellipsoid": 2.0}
 
 
 def test_only_striding_walkers_show_two_feet():
