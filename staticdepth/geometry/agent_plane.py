@@ -279,7 +279,8 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     Raises InputError for a table without those columns, without rows of ``conf.classes``,
     fewer than 3 usable observations or tracks, collinear feet (all tracks together) or a
     (near-)nadir camera: the people's head-foot axes' vanishing point (where top columns are
-    known) or, for ``joint`` and ``exact``, the fitted normal above ``conf.max_pitch_deg``.
+    known) or, for ``joint`` and ``exact``, the fitted normal above ``conf.max_pitch_deg`` or a
+    fit that puts over 5% of the inlier feet above its horizon.
     """
     K = np.asarray(K, dtype=np.float64)
     obs = _prepare(K, np.asarray(observations), conf.model, conf.fit_classes)
@@ -306,7 +307,6 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
                           boot.get("d_over_h_std", float("nan")),
                           extra={"classes": obs.cls, "extents": extents,
                                  "column_weight": boot.get("column_weight", 0.0),
-                                 "median_abs_res_px": float(np.median(np.abs(res[inl[obs.idx]]))),
                                  "inlier_px": boot.get("inlier_px", conf.inlier_px)})
     else:
         n, s, inl, res = fit_robust(K, obs, conf, rng)
