@@ -279,7 +279,8 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     Raises InputError for a table without those columns, without rows of ``conf.classes``,
     fewer than 3 usable observations or tracks, collinear feet (all tracks together) or a
     (near-)nadir camera: the people's head-foot axes' vanishing point (where top columns are
-    known) or, for ``joint`` and ``exact``, the fitted normal above ``conf.max_pitch_deg``.
+    known) or, for ``joint`` and ``exact``, the fitted normal above ``conf.max_pitch_deg`` or a
+    fit that puts over 5% of the inlier feet above its horizon.
     """
     K = np.asarray(K, dtype=np.float64)
     obs = _prepare(K, np.asarray(observations), conf.model, conf.fit_classes)
@@ -298,6 +299,7 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     elif conf.model == "joint":
         n, s, inl, res, extents, boot = fit_joint(K, obs, conf, rng)
         _check_nadir(n, conf)
+        _check_feet_below_horizon(obs.rays[inl[obs.idx]] @ n)
         d_over_h = 1.0 / float(np.median(s[inl]))
         rms = float(np.sqrt(np.mean(res[inl[obs.idx]] ** 2)))
         return AgentPlane(n, horizon_line(K, n), d_over_h, obs.ids.copy(), s, inl, rms,
@@ -310,6 +312,7 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
         n, s, inl, res = fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))
         _check_nadir(n, conf)
+        _check_feet_below_horizon(obs.rays[inl[obs.idx]] @ n)
     if conf.model in LINEAR_MODELS and (math.hypot(n[0], n[1]) < 1e-6 or pitch_roll_from_normal(
             n)[0] >= conf.pitch_bounds_deg[1] - 0.5):
         raise InputError("the camera looks straight down (nadir): pixel heights cannot fix the "
@@ -330,6 +333,17 @@ def _check_nadir(n: np.ndarray, conf: AgentPlaneConfig, what: str = "the fit") -
         raise InputError(f"near-nadir camera (or a failed fit): {what} puts the pitch at "
                          f"{pitch:.0f} deg, above max_pitch_deg {conf.max_pitch_deg:g}; seen from "
                          "above, the agents' head-foot axes cannot fix the ground plane's tilt")
+
+
+def _check_feet_below_horizon(depression: np.ndarray, share: float = 0.05) -> None:
+    """Refuse a plane that puts more than ``share`` of the inlier feet on or above its horizon
+    (``depression``: foot rays dotted with the normal; a standing agent's foot is on the ground,
+    below the horizon). Near-nadir box fits do this: a thin-walker camera at 90 degrees was fitted
+    at 2 degrees, 88 off, with a third of the feet above the horizon (measured)."""
+    above = float(np.mean(depression <= 0)) if len(depression) else 0.0
+    if above > share:
+        raise InputError(f"no ground plane fits the agents (near-nadir camera?): the fit puts "
+                         f"{100 * above:.0f}% of the inlier feet above its horizon")
 
 
 def camera_height_from_prior(plane: AgentPlane, agent_height_m: float = 1.7) -> float:
