@@ -140,6 +140,22 @@ def refine_contacts(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.nda
         qc.ravel()[pix], idx.ravel()[pix] = new_q[k], base[k]
 
 
+def walk_up(du: np.ndarray, n: int, span: int):
+    """Walk ``span`` rows up the image's vertical from every pixel of rows ``[0, n)``: per step
+    ``j`` = 1..span, the (n, W) rows and columns reached and whether the walk is still inside the
+    image (cumulative; the same array is updated in place). ``du`` is :func:`down_step`'s column
+    step per row."""
+    w = du.shape[1]
+    vs = np.arange(n)[:, None]
+    u = np.broadcast_to(np.arange(w, dtype=np.float64)[None, :], (n, w)).copy()
+    inside = np.ones((n, w), bool)
+    for j in range(1, span + 1):
+        u = u + np.nan_to_num(du[vs + j - 1, np.clip(np.rint(u), 0, w - 1).astype(np.int64)])
+        ui = np.rint(u).astype(np.int64)
+        inside &= (ui >= 0) & (ui < w)
+        yield vs + j, np.clip(ui, 0, w - 1), inside
+
+
 def recession(A: np.ndarray, q: np.ndarray, du: np.ndarray, span: int,
               jump_rel: float) -> np.ndarray:
     """(H, W) how fast the depth grows up the image's vertical relative to the plane's: the ratio
@@ -152,19 +168,15 @@ def recession(A: np.ndarray, q: np.ndarray, du: np.ndarray, span: int,
     if span >= h:
         return out
     n = h - span
-    vs = np.arange(n)[:, None]
-    u = np.broadcast_to(np.arange(w, dtype=np.float64)[None, :], (n, w)).copy()
     ok = np.ones((n, w), bool)
+    inside = ok
     a_prev, q_prev = A[:n], q[:n]
     with np.errstate(invalid="ignore", divide="ignore"):
-        for j in range(1, span + 1):
-            u = u + np.nan_to_num(du[vs + j - 1, np.clip(np.rint(u), 0, w - 1).astype(np.int64)])
-            ui = np.rint(u).astype(np.int64)
-            ok &= (ui >= 0) & (ui < w)
-            ui = np.clip(ui, 0, w - 1)
-            a_j, q_j = A[vs + j, ui], q[vs + j, ui]
+        for rows, ui, inside in walk_up(du, n, span):
+            a_j, q_j = A[rows, ui], q[rows, ui]
             ok &= (q_j > 0) & (np.log(a_prev / a_j) <= np.log1p(jump_rel) + np.log(q_j / q_prev))
             a_prev, q_prev = a_j, q_j
+        ok &= inside
         g_net = np.log(A[:n] / a_prev)
         g_pl = np.log(q_prev / q[:n])
         out[:n] = np.where(ok & (q[:n] > 0) & (g_pl > 1e-6), g_net / g_pl, np.nan)

@@ -29,7 +29,7 @@ import torch
 from torch import nn
 
 from staticdepth.geometry.alignment_torch import GroundAlignment, masked_median
-from staticdepth.geometry.alignment_upright import RECEDE, SHAPES, down_step
+from staticdepth.geometry.alignment_upright import RECEDE, SHAPES, down_step, walk_up
 from staticdepth.geometry.projection import ray_grid
 
 
@@ -62,23 +62,19 @@ def _tables(K, n, w, h, q, span, jump_rel):
     qv = 0.5 * (qf + qf[nxt])
     # the recession: span rows up from each pixel of rows [0, h - span)
     m = max(h - span, 0)
-    vs = np.arange(m)[:, None]
-    u = np.broadcast_to(cols.astype(np.float64)[None, :], (m, w)).copy()
     okr = np.ones((m, w), bool)
+    inside = okr
     q_prev = q[:m]
     paths, consts = [], []
     with np.errstate(invalid="ignore", divide="ignore"):
-        for j in range(1, span + 1):
-            u = u + np.nan_to_num(du[vs + j - 1, np.clip(np.rint(u), 0, w - 1).astype(np.int64)])
-            ui = np.rint(u).astype(np.int64)
-            okr &= (ui >= 0) & (ui < w)
-            ui = np.clip(ui, 0, w - 1)
-            q_j = q[vs + j, ui]
+        for rows, ui, inside in walk_up(du, m, span):
+            q_j = q[rows, ui]
             c = np.log1p(jump_rel) + np.log(q_j / q_prev)
             okr &= (q_j > 0) & np.isfinite(c)
-            paths.append(((vs + j) * w + ui).ravel())
+            paths.append((rows * w + ui).ravel())
             consts.append(np.nan_to_num(c).ravel())
             q_prev = q_j
+        okr &= inside
         g_pl = np.log(q_prev / q[:m])
         okr &= (q[:m] > 0) & (g_pl > 1e-6)
     vu = np.arange(h)[:, None] - span
