@@ -27,8 +27,11 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 from tests.indep_scenes import SCENES, write_scene  # noqa: E402
 
 REGIONS = ("all", "ground", "agents", "structures", "0-10m", "10-20m", "20-40m", "40-80m")
-NAMES = ("base", "ft", "align-eq2", "align-ground", "align", "ft-align-eq2", "ft-align-ground",
-         "ft-align", "ft-align-metric", "stereo-baseline")
+def prediction_names(extra_modes: list[str]) -> tuple[str, ...]:
+    """The table's rows: adapt's predictions with every extra alignment mode beside them."""
+    return ("base", "ft", *(f"align-{m}" for m in extra_modes), "align",
+            *(f"ft-align-{m}" for m in extra_modes), "ft-align", "ft-align-metric",
+            "stereo-baseline")
 
 
 def add_mode(seq: str, summary: dict, mode: str = "eq2", suffix: str = "-eq2", **kw) -> None:
@@ -113,13 +116,14 @@ def run_scene(seq: str, model: str, args) -> dict:
             if name.split(".lock")[0] not in keep:
                 os.remove(os.path.join(pred_dir, name))
     summary = adapt(seq, build_config(sets), summary_path=seq + ".adapt.json", log=lambda s: None)
-    for mode in filter(None, args.extra_modes.split(",")):
+    extra = [m for m in args.extra_modes.split(",") if m]
+    for mode in extra:
         add_mode(seq, summary, mode=mode, suffix="-" + mode)
     if args.stereo_epochs > 0:
         train_stereo(seq, args.stereo_epochs, args.stereo_preset)
     res = evaluate_sequence(seq, protocols=None)["results"]
     table = {}
-    for name in NAMES:
+    for name in prediction_names(extra):
         if name in res:
             prot = next(iter(res[name]))
             table[name] = {reg: res[name][prot][reg]["abs_rel"] for reg in REGIONS
