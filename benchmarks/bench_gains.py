@@ -34,16 +34,20 @@ def prediction_names(extra_modes: list[str]) -> tuple[str, ...]:
             "stereo-baseline")
 
 
-def add_mode(seq: str, summary: dict, mode: str = "eq2", suffix: str = "-eq2", **kw) -> None:
+def add_mode(seq: str, summary: dict, mode: str = "eq2", suffix: str = "-eq2") -> None:
     """Another alignment mode (default the paper's Eq. 2) of the stored base and ft predictions,
-    as adapt would do it with ``align.mode=mode`` (same plane, ground mask and agents at their
-    contact); written as ``align<suffix>`` and ``ft-align<suffix>``."""
-    from staticdepth.dataset.h5 import SequenceReader, add_prediction
-    from staticdepth.geometry.alignment import agents_at_contact, align_depth, ground_mask_from_feet
-    from staticdepth.config import setting_from
-    from staticdepth.pseudo_labels import PseudoLabelConfig
+    aligned by adapt's own ``aligned_frame`` with the run's settings and ``align.mode=mode`` (same
+    plane, ground mask and agents at their contact); written as ``align<suffix>`` and
+    ``ft-align<suffix>``."""
+    from dataclasses import replace
 
-    conf = summary["config"]
+    from staticdepth.adaptation.align import aligned_frame
+    from staticdepth.adaptation.config import build_config
+    from staticdepth.dataset.h5 import SequenceReader, add_prediction
+    from staticdepth.geometry.alignment import ground_mask_from_feet
+
+    conf = build_config(summary["config"])
+    conf = replace(conf, align=replace(conf.align, mode=mode))
     n_g = np.asarray(summary["plane"]["normal"])
     with SequenceReader(seq) as r:
         K, W, H, n = r.camera.K, r.width, r.height, len(r)
@@ -52,18 +56,12 @@ def add_mode(seq: str, summary: dict, mode: str = "eq2", suffix: str = "-eq2", *
         ad = r.split("adapt")
         feet = np.concatenate([np.stack([x["foot_u"], x["foot_v"]], 1) for x in
                                (rows[i][rows[i]["foot_v"] >= 0] for i in ad) if len(x)])
-        erode = setting_from(conf, "align.erode_px")
+        erode = conf.align.erode_px
         ground = ground_mask_from_feet(feet, W, H, W / 80.0 if erode is None else erode)
         maps = {src: np.stack([r.prediction(src, i) for i in range(n)]) for src in ("base", "ft")}
-    pl = PseudoLabelConfig(contact=setting_from(conf, "pseudo_labels.contact", "lowest"))
     for name, src in (("align" + suffix, "base"), ("ft-align" + suffix, "ft")):
-        out = []
-        for i in range(n):
-            m = inst[i] > 0
-            a = align_depth(maps[src][i], K, n_g, 1.0, ground,
-                            agent_mask=m if np.count_nonzero(ground & ~m) >= 50 else None,
-                            mode=mode, **kw).depth
-            out.append(agents_at_contact(a, K, n_g, 1.0, inst[i], rows[i], pl)[0])
+        out = [aligned_frame(conf, K, n_g, ground, inst[i], rows[i], maps[src][i])
+               for i in range(n)]
         add_prediction(seq, name, out, {"stage": "bench_gains", "align_mode": mode})
 
 
