@@ -298,8 +298,7 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
         res = K[1, 1] * (obs.rays @ n) / d_over_h - obs.h
     elif conf.model == "joint":
         n, s, inl, res, extents, boot = fit_joint(K, obs, conf, rng)
-        _check_nadir(n, conf)
-        _check_feet_below_horizon(obs.rays[inl[obs.idx]] @ n)
+        _check_fitted_plane(n, conf, obs, inl)
         d_over_h = 1.0 / float(np.median(s[inl]))
         rms = float(np.sqrt(np.mean(res[inl[obs.idx]] ** 2)))
         return AgentPlane(n, horizon_line(K, n), d_over_h, obs.ids.copy(), s, inl, rms,
@@ -311,8 +310,7 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     else:
         n, s, inl, res = fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))
-        _check_nadir(n, conf)
-        _check_feet_below_horizon(obs.rays[inl[obs.idx]] @ n)
+        _check_fitted_plane(n, conf, obs, inl)
     if conf.model in LINEAR_MODELS and (math.hypot(n[0], n[1]) < 1e-6 or pitch_roll_from_normal(
             n)[0] >= conf.pitch_bounds_deg[1] - 0.5):
         raise InputError("the camera looks straight down (nadir): pixel heights cannot fix the "
@@ -333,6 +331,14 @@ def _check_nadir(n: np.ndarray, conf: AgentPlaneConfig, what: str = "the fit") -
         raise InputError(f"near-nadir camera (or a failed fit): {what} puts the pitch at "
                          f"{pitch:.0f} deg, above max_pitch_deg {conf.max_pitch_deg:g}; seen from "
                          "above, the agents' head-foot axes cannot fix the ground plane's tilt")
+
+
+def _check_fitted_plane(n: np.ndarray, conf: AgentPlaneConfig, obs: AgentObservations,
+                        inliers: np.ndarray) -> None:
+    """The near-nadir checks of a fitted (``joint``/``exact``) plane: its pitch, and its inlier
+    tracks' feet below its horizon."""
+    _check_nadir(n, conf)
+    _check_feet_below_horizon(obs.rays[inliers[obs.idx]] @ n)
 
 
 def _check_feet_below_horizon(depression: np.ndarray, share: float = 0.05) -> None:
