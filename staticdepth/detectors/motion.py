@@ -16,7 +16,10 @@ labelled person, others car. A region that holds several agents whose silhouette
 median of the upright regions seen so far (two people side by side are wider, one behind the other
 taller, a car seen end-on from above wider than a person) gets the score ``merged_score`` (below
 the tracker's ``min_score``, so the ground plane does not use it: its foot is one agent's and its
-top another's, or its class is a guess).
+top another's, or its class is a guess). That median is exact and counted in a histogram of the
+distinct ratios (:class:`RunningMedian`): memory and time per frame do not grow over thousands of
+frames (keeping every ratio and taking their median for each frame did, quadratically). It lives
+in one call of :meth:`MotionDetector.detect_sequence`: nothing carries over to the next sequence.
 """
 from __future__ import annotations
 
@@ -73,6 +76,46 @@ def foreground_mask(image: np.ndarray, background: np.ndarray, threshold: int = 
     diff = np.abs(image.astype(np.int16) - background.astype(np.int16)).max(axis=2)
     low = threshold if low_threshold is None else min(low_threshold, threshold)
     return clean_foreground(diff > threshold, diff > low, open_px, close_px, reconstruct)
+
+
+class RunningMedian:
+    """Exact running median from a histogram whose bins are the distinct values added.
+
+    Memory and the cost of :meth:`add` and :meth:`median` grow with the number of distinct
+    values, not with how many were added: the aspect ratios w / h of integer pixel boxes with
+    h <= the image height take at most H^2 / 2 values, and a scene's few agent sizes far fewer
+    (tens to a few thousand), so a sequence of thousands of frames costs the same per frame as a
+    short one. :meth:`median` equals ``np.median`` of every value added (the mean of the two
+    middle values for an even count).
+    """
+
+    def __init__(self):
+        self.values = np.zeros(0, np.float64)     # distinct values, sorted
+        self.counts = np.zeros(0, np.int64)
+        self.n = 0
+
+    def add(self, values: np.ndarray) -> None:
+        v = np.asarray(values, np.float64).ravel()
+        v = v[np.isfinite(v)]
+        if len(v) == 0:
+            return
+        u, c = np.unique(v, return_counts=True)
+        k = np.searchsorted(self.values, u)
+        old = k < len(self.values)
+        old[old] = self.values[k[old]] == u[old]
+        self.counts[k[old]] += c[old]
+        if not old.all():
+            self.values = np.insert(self.values, k[~old], u[~old])
+            self.counts = np.insert(self.counts, k[~old], c[~old])
+        self.n += len(v)
+
+    def median(self) -> float:
+        """The median of every value added (NaN when none)."""
+        if self.n == 0:
+            return float("nan")
+        k = np.searchsorted(np.cumsum(self.counts), [(self.n - 1) // 2, self.n // 2],
+                            side="right")       # bins of the two middle order statistics
+        return float((self.values[k[0]] + self.values[k[1]]) / 2)
 
 
 @dataclass
@@ -137,11 +180,11 @@ class MotionDetector(Detector):
                         ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         buf: deque = deque()      # (labels, classes, areas, heights, widths, forward counts)
         links: deque = deque()        # overlap matrices between consecutive buffered frames
-        self._aspects: list[np.ndarray] = []   # width / height of the upright regions seen
+        aspects = self.aspect_statistic()     # width / height of the upright regions seen
         done = 0
         for fg in self.foregrounds(images):
             labels, cls, area, height, width = self.regions(fg)
-            self._aspects.append((width / height)[width < height])
+            aspects.add((width / height)[width < height])
             if buf:
                 p = buf[-1]
                 links.append(overlap_matrix(p[0], labels, len(p[1]), len(cls)))
@@ -150,20 +193,24 @@ class MotionDetector(Detector):
                 fwd = np.ones(len(cls))
             buf.append((labels, cls, area, height, width, fwd))
             if len(buf) > self.lookahead:
-                yield self._emit(done, buf, links)
+                yield self._emit(done, buf, links, aspects.median())
                 done += 1
         while buf:
-            yield self._emit(done, buf, links)
+            yield self._emit(done, buf, links, aspects.median())
             done += 1
 
-    def _emit(self, frame: int, buf: deque, links: deque) -> tuple[np.ndarray, np.ndarray]:
+    def aspect_statistic(self) -> RunningMedian:
+        """A fresh running median of the upright regions' width / height (one per sequence)."""
+        return RunningMedian()
+
+    def _emit(self, frame: int, buf: deque, links: deque, med: float
+              ) -> tuple[np.ndarray, np.ndarray]:
         """The oldest buffered frame's agents, scored by the merge and shape tests; pops it."""
         bwd = backward_counts(list(links), [b[2] for b in buf], [b[3] for b in buf])
         labels, cls, _, height, width, fwd = buf.popleft()
         if links:
             links.popleft()
-        aspects = np.concatenate(self._aspects)
-        med = float(np.median(aspects)) if len(aspects) else 0.0
+        med = med if np.isfinite(med) else 0.0     # no upright region seen: none is odd
         ar = width / height
         odd = (ar < 1) & ((ar < self.aspect_band[0] * med) | (ar > self.aspect_band[1] * med))
         several = (np.maximum(fwd, bwd) >= 1.5) | odd
