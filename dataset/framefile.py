@@ -242,6 +242,24 @@ def is_complete(path: str | os.PathLike, identity: str, config_hash: str | None 
         return False
 
 
+def frames_left(path: str | os.PathLike, identity: str, config_hash: str, n: int) -> int:
+    """Frames a :class:`FrameFileWriter` of ``path`` with this identity and hash would still
+    write: 0 when the file is complete, ``n - n_written`` when it would resume a partial file,
+    else ``n`` (a complete file of other settings stays until the new one replaces it)."""
+    path = os.fspath(path)
+    if is_complete(path, identity, config_hash):
+        return 0
+    try:
+        with h5py.File(path + PARTIAL, "r") as f:
+            a = f.attrs
+            if (a.get("config_hash") == config_hash and a.get("sequence_id") == identity
+                    and int(a.get("n_frames", -1)) == n):
+                return n - min(max(int(a.get("n_written", 0)), 0), n)
+    except (OSError, ValueError):
+        pass
+    return n
+
+
 class FrameFile:
     """Read a complete frame file written by :class:`FrameFileWriter` (lazily, frame by frame)."""
 

@@ -45,6 +45,7 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
     model, detector, layers = checks.prepare(conf, ws, device=device, summary_path=summary_path,
                                              save_model=save_model)
     h = stage_hashes(conf, model_identity(conf.model))
+    checks.disk_space(conf, ws, h, model)
     timings: dict[str, float] = {}
     clock = [time.perf_counter()]
 

@@ -232,6 +232,88 @@ def test_dotted_settings_and_fail_fast(tmp_path, clip, tiny, capsys):
     assert "  min_height_px: 8.0\n" in capsys.readouterr().out
 
 
+def _disk_usage_with_free(free):
+    real = shutil.disk_usage
+
+    def fake(path):
+        u = real(path)
+        return type(u)(u.total, u.total - free, free)
+    return fake
+
+
+def _tree_bytes(*folders):
+    return sum(os.path.getsize(os.path.join(d, f)) for folder in folders
+               for d, _, fs in os.walk(folder) for f in fs)
+
+
+def test_disk_space_is_checked_before_any_prediction(tmp_path, clip, tiny, capsys, monkeypatch,
+                                                     one_thread):
+    from staticdepth.adaptation import checks
+    from staticdepth.adaptation.common import Workspace
+    from staticdepth.adaptation.config import build_config, model_identity, stage_hashes
+    from staticdepth.models import load_model
+
+    seq = str(tmp_path / "s.h5")
+    shutil.copy(clip, seq)
+    settings = {"model": f"builtin:{tiny}", "detector.name": "gt", "finetune.epochs": 1,
+                "tracking.min_height_px": 3, "plane.bootstrap": 0}
+
+    def need(extra=None):
+        conf = build_config({**settings, **(extra or {})})
+        model = load_model(conf.model)
+        return checks.output_bytes(conf, Workspace(seq, log=lambda m: None),
+                                   stage_hashes(conf, model_identity(conf.model)), model), model
+
+    (total, maps), model = need()
+    # 40 frames x (6 predictions + the base inverse depth) + 24 labels, float32 at 128x64, and
+    # the checkpoint: the weights and Adam's two moments
+    assert maps == 40 * 7 + 24
+    raw = maps * 128 * 64 * 4 + 3 * 4 * sum(p.numel() for p in model.net.parameters())
+    assert raw <= total <= raw + maps * 4 + 9 * 2**20
+    argv = ["adapt", seq, "--model", f"builtin:{tiny}", *FAST, "--epochs", "1"]
+    monkeypatch.setattr(shutil, "disk_usage", _disk_usage_with_free(total - 1))
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "not enough free disk space" in err and f"{maps} maps of 128x64" in err
+    assert err.count("\n") == 1 and str(tmp_path) in err
+    assert not os.path.exists(seq + ".pred") and not os.path.exists(seq + ".adapt")
+    monkeypatch.setattr(shutil, "disk_usage", _disk_usage_with_free(total))
+    assert main(argv) == 0
+    capsys.readouterr()
+    # the estimate bounds what was written (the maps are compressed), and nothing is left to do
+    assert _tree_bytes(seq + ".pred", seq + ".adapt") <= total
+    assert need()[0] == (0, 0)
+    # a late setting: only the two metric maps are written again
+    assert need({"scale.metric_scale": "anchor"})[0][1] == 2 * 40
+
+
+def _unwritable_folder(tmp_path):
+    """A folder where this process cannot create a file: a 0o500 folder, or for root (whom
+    permissions do not stop) /sys when it refuses a file."""
+    if os.geteuid() != 0:
+        os.mkdir(tmp_path / "locked", 0o500)
+        return str(tmp_path / "locked")
+    try:
+        os.close(os.open("/sys/staticdepth-probe", os.O_WRONLY | os.O_CREAT | os.O_EXCL))
+        os.remove("/sys/staticdepth-probe")
+    except OSError:
+        return "/sys"
+    pytest.skip("running as root and /sys accepts files: no folder to test an unwritable output")
+
+
+def test_unwritable_outputs_fail_before_any_prediction(tmp_path, clip, tiny, capsys):
+    seq = str(tmp_path / "s.h5")
+    shutil.copy(clip, seq)
+    locked = _unwritable_folder(tmp_path)
+    argv = ["adapt", seq, "--model", f"builtin:{tiny}", *FAST]
+    for extra, what in ((["--summary", os.path.join(locked, "s.json")], "summary"),
+                        (["--save-model", os.path.join(locked, "m.pt")], "saved model")):
+        assert main([*argv, *extra]) == 2
+        err = capsys.readouterr().err
+        assert f"cannot write the {what} there" in err and err.count("\n") == 1, err
+    assert not os.path.exists(seq + ".pred") and not os.path.exists(seq + ".adapt")
+
+
 def test_a_network_without_layer_groups_trains_all_parameters():
     from staticdepth.adaptation.finetune import trainable_layers
     from staticdepth.errors import InputError

@@ -3,24 +3,32 @@
 The configuration (built and validated by the dataclasses), the sequence (an adaptation split;
 instances for ``detector gt``), the output paths (the sequence's folder for its prediction store
 and stage files, the summary's and the saved model's folders), the model (it loads; for
-fine-tuning it is a torch model whose layer group exists) and the detector (its weights load).
+fine-tuning it is a torch model whose layer group exists) and the detector (its weights load);
+then, with the stage hashes, that the disk holds the outputs still to write (:func:`disk_space`).
 """
 from __future__ import annotations
 
 import os
+import shutil
 
 from staticdepth.adaptation import agents
 from staticdepth.adaptation.common import Workspace
 from staticdepth.adaptation.config import AdaptConfig, is_builtin
 from staticdepth.errors import InputError
+from staticdepth.fileio import check_writable
 
 
-def writable_folder(path: str, what: str) -> None:
+def writable_folder(path: str, what: str, inside: bool = False) -> None:
+    """A file can be created at ``path`` (``inside``: in the folder ``path`` when it exists): a
+    probe file is created and removed (permissions alone say nothing for root or a read-only
+    mount)."""
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise InputError(f"the folder of the {what} does not exist", path)
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise InputError(f"cannot write the {what} there (permission denied)", folder)
+    try:
+        check_writable(os.path.join(path, "probe") if inside and os.path.isdir(path) else path)
+    except InputError as e:
+        raise InputError(f"cannot write the {what} there ({e.problem})", path) from None
 
 
 def prepare(conf: AdaptConfig, ws: Workspace, *, device=None, summary_path: str,
@@ -31,10 +39,10 @@ def prepare(conf: AdaptConfig, ws: Workspace, *, device=None, summary_path: str,
 
     if len(ws.adapt_split) == 0:
         raise InputError("the sequence has no adaptation split (adapt_frames = 0)", ws.seq)
-    writable_folder(ws.seq, "sequence's predictions")
     for p in (ws.dir, ws.seq + ".pred"):
         if os.path.exists(p) and not os.path.isdir(p):
             raise InputError("exists and is not a folder", p)
+        writable_folder(p, "sequence's predictions and stage files", inside=True)
     writable_folder(summary_path, "summary")
     if save_model:
         if not is_builtin(conf.model):
@@ -55,3 +63,49 @@ def prepare(conf: AdaptConfig, ws: Workspace, *, device=None, summary_path: str,
     if device is not None and isinstance(model, TorchDepthModel):
         model.to(device)
     return model, detector, layers
+
+
+# (output, stage hash it carries, bytes per pixel); "<name>" = the prediction store's file
+PER_FRAME_FILES = (("<base>", "base", 4), ("<ft>", "ft", 4), ("<align>", "align", 4),
+                   ("<ft-align>", "align", 4), ("<align-metric>", "scale", 4),
+                   ("<ft-align-metric>", "scale", 4), ("inverse-base.h5", "base", 4),
+                   ("agents.h5", "agents", 2), ("labels.h5", "pseudo_labels", 4))
+MARGIN_BYTES = 1 << 20          # per file: HDF5 metadata, checksums, rows
+
+
+def output_bytes(conf: AdaptConfig, ws: Workspace, hashes: dict[str, str], model=None
+                 ) -> tuple[int, int]:
+    """(bytes adapt may still write, number of per-frame maps in it): every per-frame file
+    uncompressed (an upper bound: the files are compressed) for the frames not yet written with
+    these settings (complete files are skipped, partial ones resumed), plus the fine-tuning
+    checkpoint (the weights and Adam's two moments) while the fine-tuned prediction is not."""
+    from staticdepth.dataset.framefile import frames_left
+    from staticdepth.dataset.predictions import prediction_path
+
+    total, maps, ft_left = 0, 0, 0
+    px = ws.height * ws.width
+    for name, stage, bpp in PER_FRAME_FILES:
+        if name == "agents.h5" and conf.detector.name == "gt":
+            continue
+        n = len(ws.adapt_split) if name == "labels.h5" else ws.n
+        path = prediction_path(ws.seq, name[1:-1]) if name[0] == "<" else ws.path(name)
+        left = frames_left(path, ws.identity, hashes[stage], n)
+        ft_left += left if name == "<ft>" else 0
+        if left:
+            total += left * (px * bpp + 4) + MARGIN_BYTES
+            maps += left
+    if ft_left and conf.finetune.epochs > 0 and hasattr(model, "net"):
+        total += 3 * sum(p.numel() * p.element_size() for p in model.net.parameters())
+    return total, maps
+
+
+def disk_space(conf: AdaptConfig, ws: Workspace, hashes: dict[str, str], model=None) -> None:
+    """Refuse to start when the sequence's folder (the prediction store and stage files go
+    beside it) has less free space than :func:`output_bytes`."""
+    need, maps = output_bytes(conf, ws, hashes, model)
+    folder = os.path.dirname(os.path.abspath(ws.seq))
+    free = shutil.disk_usage(folder).free
+    if need > free:
+        raise InputError(f"not enough free disk space for adapt's outputs: up to "
+                         f"{need / 2**30:.2f} GiB ({maps} maps of {ws.width}x{ws.height}, "
+                         f"uncompressed), {free / 2**30:.2f} GiB free", folder)
