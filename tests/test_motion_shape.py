@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from motion_scenes import ExactMotion, LongScene, box_sizes
-from staticdepth.detectors.motion import MotionDetector, RunningMedian
+from staticdepth.detectors.motion import MotionDetector, RunningMedian, median_background
 
 
 def same_rows(a: np.ndarray, b: np.ndarray) -> bool:
@@ -82,3 +82,11 @@ def test_no_state_leaks_between_sequences():
     assert all(same_rows(r1, r2) for (_, r1), (_, r2) in zip(again, alone_b))
     with pytest.raises(IndexError):
         a[150]
+
+
+def test_median_background_in_strips_is_the_whole_median():
+    rng = np.random.default_rng(7)
+    frames = [rng.integers(0, 256, (200, 400, 3), dtype=np.uint8) for _ in range(50)]
+    # 50 x 400 x 3 samples a row: strips of 69 rows, the last one shorter
+    want = np.median(np.stack(frames), axis=0).astype(np.uint8)
+    np.testing.assert_array_equal(median_background(frames), want)

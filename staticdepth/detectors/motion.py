@@ -37,12 +37,18 @@ from staticdepth.errors import InputError
 
 
 def median_background(images: Sequence[np.ndarray], max_frames: int = 50) -> np.ndarray:
-    """Per-pixel median of up to ``max_frames`` frames spread evenly over ``images``."""
+    """Per-pixel median of up to ``max_frames`` frames spread evenly over ``images`` (taken in
+    strips of rows: np.median's working copy stays small beside the frames themselves)."""
     n = len(images)
     if n == 0:
         raise InputError("background model: no frame")
     idx = np.unique(np.linspace(0, n - 1, min(n, max_frames)).round().astype(int))
-    return np.median(np.stack([np.asarray(images[i]) for i in idx]), axis=0).astype(np.uint8)
+    stack = np.stack([np.asarray(images[i]) for i in idx])
+    out = np.empty(stack.shape[1:], np.uint8)
+    rows = max(1, (1 << 22) // max(1, stack[:, :1].size))      # about 4 M samples per strip
+    for r in range(0, stack.shape[1], rows):
+        out[r:r + rows] = np.median(stack[:, r:r + rows], axis=0).astype(np.uint8)
+    return out
 
 
 def clean_foreground(strong: np.ndarray, weak: np.ndarray | None = None, open_px: int = 3,
