@@ -222,7 +222,10 @@ def test_dotted_settings_and_fail_fast(tmp_path, clip, tiny, capsys):
              (["--set", "finetune.layers=neck"], "has no layer group 'neck'"),
              (["--detector", "yolox"], "weights were not found"),
              (["--set", "detector.name=yolo"], "unknown detector 'yolo'"),
-             (["--summary", str(tmp_path / "no" / "s.json")], "folder of the summary")]
+             (["--summary", str(tmp_path / "no" / "s.json")], "folder of the summary"),
+             (["--set", "tracking.min_score=1.5"], "tracking.min_score must be in [0, 1]"),
+             (["--set", "tracking.min_height_px=64"], "not below the image height (64 px)"),
+             (["--set", "tracking.min_frames=25"], "the adaptation split's 24 frames")]
     for argv, message in cases:
         rc = main(["adapt", seq, "--model", f"builtin:{tiny}", "--device", "cpu", *argv])
         err = capsys.readouterr().err

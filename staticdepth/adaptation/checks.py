@@ -31,6 +31,21 @@ def writable_folder(path: str, what: str, inside: bool = False) -> None:
         raise InputError(f"cannot write the {what} there ({e.problem})", path) from None
 
 
+def usable_agents(conf: AdaptConfig, ws: Workspace) -> None:
+    """Tracking settings no agent of this sequence can pass (the ground plane would fail only
+    after every frame is predicted)."""
+    t, n_split = conf.tracking, len(ws.adapt_split)
+    if not 0 <= t.min_score <= 1:
+        raise InputError(f"tracking.min_score must be in [0, 1] (detection scores are), got "
+                         f"{t.min_score}")
+    if t.min_height_px >= ws.height:
+        raise InputError(f"tracking.min_height_px = {t.min_height_px} is not below the image "
+                         f"height ({ws.height} px): no agent can be kept", ws.seq)
+    if t.min_frames > n_split:
+        raise InputError(f"tracking.min_frames = {t.min_frames} is more than the adaptation "
+                         f"split's {n_split} frames: no track can be kept", ws.seq)
+
+
 def prepare(conf: AdaptConfig, ws: Workspace, *, device=None, summary_path: str,
             save_model: str | None = None):
     """Check everything; returns (model on its device, detector or None, trained layer group)."""
@@ -39,6 +54,7 @@ def prepare(conf: AdaptConfig, ws: Workspace, *, device=None, summary_path: str,
 
     if len(ws.adapt_split) == 0:
         raise InputError("the sequence has no adaptation split (adapt_frames = 0)", ws.seq)
+    usable_agents(conf, ws)
     for p in (ws.dir, ws.seq + ".pred"):
         if os.path.exists(p) and not os.path.isdir(p):
             raise InputError("exists and is not a folder", p)
