@@ -6,7 +6,8 @@ is written by cycling through a short rendered clip of the synthetic ``c1`` scen
 every length), and ``staticdepth adapt`` runs in a child process with a tiny built-in network
 (input 96x192), ``--detector gt`` (or ``--detector motion``: the background-subtraction detector
 on the frames themselves) and one fine-tuning epoch. Peak RSS comes from the child's own
-``rusage`` (``os.wait4``); stage timings from the summary, in seconds per frame of the sequence
+``rusage`` (``os.wait4``); the outputs' size on disk (prediction store and stage files); stage
+timings from the summary, in seconds per frame of the sequence
 (pseudo_labels, finetune's training and ground_plane work on the adaptation split only, so their
 share falls with the length; base, agents, align and scale should stay flat). Ratios are against the first run of
 the same size (the reference measured in this run); the goal is a 400-frame peak <= 1.3 x the
@@ -65,8 +66,10 @@ def run_one(seq: str, model: str, threads: int, timeout: float, detector: str = 
         err.seek(0)
         raise RuntimeError(f"adapt failed: {err.read()[-2000:]}")
     summary = json.load(open(seq.replace(".h5", ".adapt.json")))
+    disk = sum(os.path.getsize(os.path.join(d, f)) for folder in (seq + ".pred", seq + ".adapt")
+               for d, _, fs in os.walk(folder) for f in fs)
     return {"peak_rss_mb": ru.ru_maxrss / 1024.0, "wall_s": time.perf_counter() - t0,
-            "timings_s": summary["timings_s"], "frames": summary["frames"]}
+            "timings_s": summary["timings_s"], "frames": summary["frames"], "disk_gib": disk / 2**30}
 
 
 def main() -> None:
@@ -95,7 +98,7 @@ def main() -> None:
         clips: dict[tuple[int, int], str] = {}
         ref: dict[tuple[int, int], dict] = {}
         print(f"{'size':>9} {'frames':>6} {'peak MiB':>9} {'x ref':>6} "
-              + " ".join(f"{s[:8]:>8}" for s in STAGES) + f" {'wall s':>7}   (s/frame; "
+              + " ".join(f"{s[:8]:>8}" for s in STAGES) + f" {'wall s':>7} {'out GiB':>7}   (s/frame; "
               f"detector {args.detector})")
         for (w, h), n in runs:
             left = args.time_box - (time.perf_counter() - t_start)
@@ -117,7 +120,8 @@ def main() -> None:
             ratio = res["peak_rss_mb"] / ref[(w, h)]["peak_rss_mb"]
             per = [res["timings_s"].get(s, float("nan")) / n for s in STAGES]
             print(f"{w}x{h:<4} {n:>6} {res['peak_rss_mb']:>9.0f} {ratio:>6.2f} "
-                  + " ".join(f"{p:>8.4f}" for p in per) + f" {res['wall_s']:>7.0f}", flush=True)
+                  + " ".join(f"{p:>8.4f}" for p in per)
+                  + f" {res['wall_s']:>7.0f} {res['disk_gib']:>7.2f}", flush=True)
     print("goal: peak(400) <= 1.3 x peak(100) and <= 3072 MiB at 800x400")
 
 
