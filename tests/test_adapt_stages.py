@@ -290,6 +290,30 @@ def test_disk_space_is_checked_before_any_prediction(tmp_path, clip, tiny, capsy
     assert need({"scale.metric_scale": "anchor"})[0][1] == 2 * 40
 
 
+def test_frames_left_counts_what_a_writer_would_still_write(tmp_path):
+    from staticdepth.dataset.framefile import FrameFileWriter, frames_left
+
+    path = str(tmp_path / "f.h5")
+    assert frames_left(path, "seq", "h1", 10) == 10                 # nothing yet
+    w = FrameFileWriter(path, n=10, shape=(4, 5), dtype=np.float32, identity="seq",
+                        config_hash="h1", chunk=1)
+    with pytest.raises(RuntimeError):          # stopped after 3 frames: the partial file stays
+        with w:
+            for i in range(3):
+                w.write(i, np.full((4, 5), i, np.float32))
+            raise RuntimeError("stop")
+    assert frames_left(path, "seq", "h1", 10) == 7                  # resumed after 3 frames
+    assert frames_left(path, "seq", "h2", 10) == 10                 # other settings: again
+    assert frames_left(path, "other", "h1", 10) == 10               # another sequence
+    with FrameFileWriter(path, n=10, shape=(4, 5), dtype=np.float32, identity="seq",
+                         config_hash="h1") as w:
+        assert w.start == 3
+        for i in range(w.start, 10):
+            w.write(i, np.full((4, 5), i, np.float32))
+    assert frames_left(path, "seq", "h1", 10) == 0
+    assert frames_left(path, "seq", "h2", 10) == 10                 # replaced only when done
+
+
 def _unwritable_folder(tmp_path):
     """A folder where this process cannot create a file: a 0o500 folder, or for root (whom
     permissions do not stop) /sys when it refuses a file."""
