@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -130,9 +131,14 @@ def test_adapt_errors(tmp_path, sequence, tiny_model, capsys):
     with pytest.raises(InputError, match="inference only"):
         adapt(seq, build_config({"model": f"onnx:{onnx}", "detector.name": "gt",
                                  "finetune.epochs": 1}), log=lambda m: None)
-    with pytest.raises(InputError, match="tracked agents"):
+    with pytest.raises(InputError, match="not below the image height"):    # before predicting
         adapt(seq, build_config({"model": f"onnx:{onnx}", "detector.name": "gt",
                                  "finetune.epochs": 0, "tracking.min_height_px": 500}),
+              log=lambda m: None)
+    assert not os.path.exists(seq + ".pred")
+    with pytest.raises(InputError, match="tracked agents"):         # possible, but none is
+        adapt(seq, build_config({"model": f"onnx:{onnx}", "detector.name": "gt",
+                                 "finetune.epochs": 0, "tracking.min_height_px": 127}),
               log=lambda m: None)
     render_to_file(tmp_path / "noadapt.h5", preset_name="c1", n_frames=2, adapt_frames=0,
                    overrides={"width": 64, "height": 32})
