@@ -9,8 +9,9 @@ frames (measured in the same run).
 
 ``--adapt-frames 200,800``: ``staticdepth adapt`` itself (tiny network, ``--detector gt``, the
 default 30 epochs and step budget) on c1 sequences whose adaptation split holds that many frames;
-prints the fine-tuning stage's seconds, the steps and epochs it ran, and what 30 full epochs would
-cost at the same seconds per step (``--max-steps 0`` measures them instead).
+prints the training seconds (the epochs' records), the steps and epochs it ran, what 30 full epochs
+would cost at the same seconds per step (``--max-steps 0`` measures them instead), the stage's
+lap (training + predicting every frame with the fine-tuned network) and adapt's total.
 
     .venv/bin/python benchmarks/bench_finetune.py [--frames 300] [--epochs 30] [--model PATH.pt]
     .venv/bin/python benchmarks/bench_finetune.py --adapt-frames 200,800 --size 192x96
@@ -98,8 +99,8 @@ def adapt_budget(args) -> None:
     if args.max_steps is not None:
         sets["finetune.max_steps"] = args.max_steps
     print(f"adapt at {w}x{h}, tiny network, {args.threads} threads, settings {sets}")
-    print(f"{'adapt frames':>12} {'steps':>6} {'epochs':>6} {'finetune s':>10} {'s/step':>7} "
-          f"{'30-epoch steps':>14} {'30-epoch s (est.)':>17} {'adapt s':>8}")
+    print(f"{'adapt frames':>12} {'steps':>6} {'epochs':>6} {'train s':>8} {'s/step':>7} "
+          f"{'30-epoch steps':>14} {'30-epoch s (est.)':>17} {'stage s':>8} {'adapt s':>8}")
     with tempfile.TemporaryDirectory() as tmp:
         torch.manual_seed(0)
         model = os.path.join(tmp, "tiny.pt")
@@ -115,10 +116,11 @@ def adapt_budget(args) -> None:
             s = adapt(seq, conf, device="cpu", log=lambda m: None)
             total = time.perf_counter() - t0
             steps = sum(r["steps"] for r in s["finetune"])
-            sec = s["timings_s"]["finetune"]
+            sec = sum(r["seconds"] for r in s["finetune"])
             full = sum(epoch_steps(n, dataclasses.replace(conf.finetune, epochs=30, max_steps=0)))
-            print(f"{n:>12} {steps:>6} {len(s['finetune']):>6} {sec:>10.1f} {sec / steps:>7.3f} "
-                  f"{full:>14} {full * sec / steps:>17.0f} {total:>8.1f}", flush=True)
+            print(f"{n:>12} {steps:>6} {len(s['finetune']):>6} {sec:>8.1f} {sec / steps:>7.3f} "
+                  f"{full:>14} {full * sec / steps:>17.0f} {s['timings_s']['finetune']:>8.1f} "
+                  f"{total:>8.1f}", flush=True)
 
 
 if __name__ == "__main__":
