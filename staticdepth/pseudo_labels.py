@@ -44,6 +44,12 @@ class PseudoLabelConfig:
     #                                    agents' plane at the contact, mapped into the network's
     #                                    space (plane_pseudo_label)
     label_ground: bool = False         # "plane": the ground pixels take the plane's value too
+    dense_mode: str = ""               # "aligned": an alignment mode (e.g. "upright") whose depth
+    #                                    replaces align.mode's on the static pixels it keeps
+    #                                    stable over the adaptation split ("" = off)
+    dense_spread: float = 0.03         # dense_mode: a pixel is stable when its depth's median
+    #                                    absolute deviation over the split is <= this x its median
+    dense_frames: int = 32             # dense_mode: frames (evenly spaced) measuring the spread
 
     def __post_init__(self):
         if self.contact not in CONTACTS:
@@ -51,6 +57,12 @@ class PseudoLabelConfig:
         if self.source not in LABEL_SOURCES:
             raise InputError(f"pseudo_labels.source must be one of {LABEL_SOURCES}, got "
                              f"{self.source!r}")
+        if self.dense_mode not in ("", "ground", "eq2", "upright"):
+            raise InputError(f"pseudo_labels.dense_mode must be '', ground, eq2 or upright, got "
+                             f"{self.dense_mode!r}")
+        if not (self.dense_spread > 0 and self.dense_frames >= 2):
+            raise InputError(f"need pseudo_labels.dense_spread > 0 and dense_frames >= 2 (got "
+                             f"{self.dense_spread}, {self.dense_frames})")
         if not 1 <= self.bottom_rows <= 50:
             raise InputError(f"bottom_rows must be in 1..50, got {self.bottom_rows}")
 
@@ -162,6 +174,26 @@ def aligned_pseudo_label(inv_depth: np.ndarray, aligned: np.ndarray, plane_inv: 
     with np.errstate(invalid="ignore"):
         mask = np.abs(label - inv) > 1e-3 * np.abs(inv)
     return label, mask
+
+
+def stable_depth(depths: np.ndarray, static: np.ndarray, max_spread: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The per-pixel median of ``depths`` (F, H, W) over the frames where ``static`` (F, H, W) bool
+    holds (no agent there), and the mask of pixels seen static in at least half the frames whose
+    median absolute deviation is at most ``max_spread`` x the median: a fixed camera sees the same
+    structure in every frame, so an alignment that re-anchors it the same way each time is
+    consistent, and one that jumps between contacts is not (NaN median where never static)."""
+    D = np.where(np.asarray(static, bool) & np.isfinite(depths) & (depths > 0), depths, np.nan)
+    seen = np.count_nonzero(np.isfinite(D), axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)     # all-NaN pixels: NaN
+            med = np.nanmedian(D, axis=0)
+            mad = np.nanmedian(np.abs(D - med), axis=0)
+        ok = (seen * 2 >= len(D)) & (mad <= max_spread * med)
+    return med.astype(np.float32), ok
 
 
 def _network_space(inv: np.ndarray, q: np.ndarray, ground: np.ndarray, what: str,

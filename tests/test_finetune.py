@@ -131,3 +131,33 @@ def test_errors():
         bad[:] = 3e38                           # finite, but the float32 sum overflows to inf
         finetune(_model(), images, bad,
                  conf=dataclasses.replace(CONF, loss="l1", epochs=1))
+
+
+def test_step_budget_cuts_the_schedule():
+    from staticdepth.finetune import epoch_steps
+
+    conf = dataclasses.replace(CONF, epochs=3, batch_size=4, max_steps=0)
+    assert epoch_steps(10, conf) == [3, 3, 3]                       # no budget: 3 x ceil(10/4)
+    assert epoch_steps(10, dataclasses.replace(conf, max_steps=7)) == [3, 3, 1]
+    assert epoch_steps(10, dataclasses.replace(conf, max_steps=2)) == [2]
+    assert epoch_steps(10, dataclasses.replace(conf, max_steps=100)) == [3, 3, 3]
+    assert epoch_steps(800, dataclasses.replace(conf, epochs=30, max_steps=200)) == [200]
+    assert epoch_steps(10, dataclasses.replace(conf, epochs=0, max_steps=5)) == []
+    with pytest.raises(InputError, match="max_steps"):
+        FinetuneConfig(max_steps=-1)
+
+
+def test_budgeted_run_is_the_unbudgeted_run_cut_short():
+    """N=6, batch 2: 3 steps an epoch. A budget of 4 steps runs epoch 1 (the same loss as a run of
+    epochs=1) and one step of epoch 2, so it ends between the runs of epochs=1 and epochs=2."""
+    images, targets = _data()
+    cut = _model()
+    hist = finetune(cut, images, targets, conf=dataclasses.replace(CONF, epochs=8, max_steps=4))
+    assert [r["steps"] for r in hist] == [3, 1]
+    one = _model()
+    h1 = finetune(one, images, targets, conf=dataclasses.replace(CONF, epochs=1, max_steps=0))
+    assert h1[0]["steps"] == 3 and h1[0]["loss"] == pytest.approx(hist[0]["loss"], rel=1e-6)
+    two = _model()
+    finetune(two, images, targets, conf=dataclasses.replace(CONF, epochs=2, max_steps=0))
+    a, b, c = _flat(one), _flat(cut), _flat(two)
+    assert not torch.equal(a, b) and not torch.equal(b, c)

@@ -59,3 +59,48 @@ def test_agent_weight_must_be_positive():
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(InputError, match="agent_weight"):
             FinetuneConfig(agent_weight=bad)
+
+
+def test_adapt_finetune_stops_at_the_step_budget(tmp_path):
+    """adapt's fine-tuning loop over 10 adaptation frames, batch 4, 5 epochs, max_steps 7: epochs
+    of 3, 3 and 1 batches (24 frames drawn), the cut epoch's frames from its random order of the
+    whole split; the summary records carry the steps actually run."""
+    import dataclasses
+
+    import torch
+
+    from staticdepth.adaptation.config import build_config
+    from staticdepth.adaptation.finetune import run
+    from staticdepth.finetune import epoch_order
+    from staticdepth.models.tiny import TinyDepthNet, builtin_model
+
+    seq = tmp_path / "c1.h5"
+    render_to_file(seq, preset_name="c1", n_frames=10, adapt_frames=10, seed=1,
+                   overrides={"width": 64, "height": 32})
+    ws = Workspace(seq, log=lambda s: None)
+    labels = np.random.default_rng(0).random((10, 32, 64)).astype(np.float32) + 0.5
+    with ws.frame_writer("labels.h5", n=10, shape=(32, 64), dtype=np.float32,
+                         config_hash="test") as w:
+        for k in range(10):
+            w.write(k, labels[k])
+    conf = build_config({"finetune.epochs": 5, "finetune.max_steps": 7, "finetune.batch_size": 4})
+    torch.manual_seed(0)
+    model = builtin_model(TinyDepthNet(enc_channels=(4, 8, 8, 16, 16), dec_channels=(16, 8, 8, 4)),
+                          input_height=32, input_width=64)
+    seen = []
+    real = AdaptationFrames.__getitem__
+
+    def spy(self, item):
+        seen.append(item[0])
+        return real(self, item)
+
+    AdaptationFrames.__getitem__ = spy
+    try:
+        hist = run(conf, ws, model, "h", "decoder")
+    finally:
+        AdaptationFrames.__getitem__ = real
+    assert [r["steps"] for r in hist] == [3, 3, 1]
+    assert ws.frames["finetune"] == 24 and len(seen) == 24
+    order, _ = epoch_order(10, dataclasses.replace(conf.finetune), 2)
+    assert seen[20:] == [int(k) for k in order[:4]]    # epoch 3: the first batch of its order
+    assert sorted(seen[:10]) == list(range(10))         # a full epoch: every frame once

@@ -117,3 +117,26 @@ def test_config_and_shape_errors():
         PseudoLabelConfig(bottom_rows=0)
     with pytest.raises(InputError, match="differ in size"):
         pseudo_label(np.zeros((4, 4)), np.zeros((5, 5), np.uint16), _frame([], [])[1], PRESETS["paper"])
+
+
+def test_stable_depth_keeps_what_the_alignment_repeats():
+    """Pixel (0, 0): 10 m +- 1% in every frame -> stable, median 10; (0, 1): alternates 5 / 20 m
+    (two contacts) -> not stable; (0, 2): 8 m, but an agent covers it in 3 of 4 frames -> seen
+    static too rarely; (0, 3): an agent in 1 of 4 frames hides an outlier there -> stable at 7."""
+    from staticdepth.pseudo_labels import stable_depth
+
+    F = 4
+    d = np.zeros((F, 1, 4), np.float32)
+    d[:, 0, 0] = [10.0, 10.1, 9.9, 10.0]
+    d[:, 0, 1] = [5.0, 20.0, 5.0, 20.0]
+    d[:, 0, 2] = 8.0
+    d[:, 0, 3] = [7.0, 7.0, 30.0, 7.0]
+    static = np.ones(d.shape, bool)
+    static[:3, 0, 2] = False
+    static[2, 0, 3] = False
+    med, ok = stable_depth(d, static, 0.03)
+    assert ok.tolist() == [[True, False, False, True]]
+    assert med[0, 0] == pytest.approx(10.0) and med[0, 3] == pytest.approx(7.0)
+    assert med[0, 1] == pytest.approx(12.5)        # the median of 5, 5, 20, 20
+    _, loose = stable_depth(d, static, 2.0)
+    assert loose[0, 1] and not loose[0, 2]

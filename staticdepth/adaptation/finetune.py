@@ -24,7 +24,7 @@ from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.errors import InputError
 from staticdepth.fileio import atomic_torch_save
 from staticdepth.finetune import (CHECKPOINT_FORMAT, _load_trainable_state, _peak_memory_mb,
-                                  _trainable_state, epoch_order, train_step)
+                                  _trainable_state, epoch_order, epoch_steps, train_step)
 from staticdepth.progress import progress
 
 
@@ -79,10 +79,11 @@ class AdaptationFrames(torch.utils.data.Dataset):
         self._reader = self._labels = self._agents = None
 
 
-def _batches(n: int, conf, epoch: int) -> list[list[tuple[int, bool]]]:
+def _batches(n: int, conf, epoch: int, steps: int) -> list[list[tuple[int, bool]]]:
+    """The first ``steps`` batches of epoch ``epoch``'s order (a permutation of all ``n`` frames)."""
     order, flips = epoch_order(n, conf, epoch)
     return [[(int(k), bool(flips[k])) for k in order[s:s + conf.batch_size]]
-            for s in range(0, n, conf.batch_size)]
+            for s in range(0, n, conf.batch_size)][:steps]
 
 
 def _load(path: str) -> dict[str, Any] | None:
@@ -96,7 +97,8 @@ def _load(path: str) -> dict[str, Any] | None:
 
 def run(conf: AdaptConfig, ws: Workspace, model, config_hash: str,
         layers: str) -> list[dict[str, float]]:
-    """Fine-tune ``model`` in place; returns one record per epoch (loss, seconds, peak memory)."""
+    """Fine-tune ``model`` in place; returns one record per epoch run (steps, loss, seconds, peak
+    memory): ``finetune.epochs`` over the adaptation split, cut at ``finetune.max_steps``."""
     fc = conf.finetune
     ckpt_path = ws.path("finetune.ckpt")
     os.makedirs(ws.dir, exist_ok=True)
@@ -111,35 +113,37 @@ def run(conf: AdaptConfig, ws: Workspace, model, config_hash: str,
         _load_trainable_state(model, ck["state"])
         optimizer.load_state_dict(ck["optimizer"])
         history, start = list(ck["history"]), int(ck["epoch"])
-    if start >= fc.epochs:
+    data = AdaptationFrames(ws, conf.detector.name, fc.agent_weight, conf.pseudo_labels.classes)
+    plan = epoch_steps(len(data), fc)
+    if start >= len(plan):
         ws.skip("finetune")
     torch.manual_seed(fc.seed)
     model.net.eval()
     device = model.device
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(device)
-    data = AdaptationFrames(ws, conf.detector.name, fc.agent_weight, conf.pseudo_labels.classes)
     try:
-        for epoch in range(start, fc.epochs):
+        for epoch in range(start, len(plan)):
             t0 = time.perf_counter()
-            loader = torch.utils.data.DataLoader(data, batch_sampler=_batches(len(data), fc, epoch),
-                                                 num_workers=0)
+            loader = torch.utils.data.DataLoader(
+                data, batch_sampler=_batches(len(data), fc, epoch, plan[epoch]), num_workers=0)
             losses = []
-            bar = progress(loader, total=len(loader), desc=f"fine-tune {epoch + 1}/{fc.epochs}",
+            bar = progress(loader, total=len(loader), desc=f"fine-tune {epoch + 1}/{len(plan)}",
                            unit="batch")
             for batch in bar:
                 batch = {"image": batch["image"].to(device).permute(0, 3, 1, 2).float() / 255,
                          "target": batch["target"].to(device), "mask": batch["mask"].to(device)}
                 losses.append(train_step(model, batch, fc, optimizer))
                 ws.count("finetune", len(batch["image"]))
-            rec = {"epoch": epoch + 1, "loss": float(np.mean(losses)),
+            rec = {"epoch": epoch + 1, "steps": len(losses), "loss": float(np.mean(losses)),
                    "seconds": time.perf_counter() - t0, "peak_memory_mb": _peak_memory_mb(device)}
             history.append(rec)
             atomic_torch_save(ckpt_path, {"format": CHECKPOINT_FORMAT, "key": key,
                                           "epoch": epoch + 1, "state": _trainable_state(model),
                                           "optimizer": optimizer.state_dict(),
                                           "history": history})
-            ws.log(f"  epoch {rec['epoch']}: loss {rec['loss']:.5f} ({rec['seconds']:.1f} s, "
+            ws.log(f"  epoch {rec['epoch']}/{len(plan)}: {rec['steps']} steps, loss "
+                   f"{rec['loss']:.5f} ({rec['seconds']:.1f} s, "
                    f"peak {rec['peak_memory_mb']:.0f} MiB)")
     finally:
         data.close()

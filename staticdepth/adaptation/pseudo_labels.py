@@ -45,11 +45,14 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
         plane_inv = (ray_grid(ws.K, ws.width, ws.height) @ np.asarray(plane.normal)
                      ).astype(np.float32)
         ground = ground_region(conf, ws, feet)
+        dense = _dense(conf, ws, agents, plane, ground) if pl.dense_mode else None
 
         def label_frame(i, inv):
             inst = agents.instances(i)
             A = aligned_frame(conf, ws.K, plane.normal, ground, inst, agents.rows(i),
                               depth_from_inverse(inv))
+            if dense is not None:       # stable pixels of the dense mode, off the frame's agents
+                A = np.where(dense[1] & (inst == 0), dense[0], A)
             label, m = aligned_pseudo_label(inv, A, plane_inv, ground & (inst == 0))
             if not m.any():     # the network's ground does not recede: its own contact values
                 return pseudo_label(inv, inst, agents.rows(i), pl)
@@ -72,3 +75,29 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
                 ws.count("pseudo_labels")
     with ws.frame_file("labels.h5") as f:
         return int(f._f["rows"]["agent_pixels"].sum())
+
+
+def _dense(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, ground: np.ndarray):
+    """``pseudo_labels.dense_mode``'s alignment of the base prediction on ``dense_frames`` frames
+    spread evenly over the adaptation split: (its per-pixel median depth, the mask of pixels it
+    keeps stable within ``dense_spread``) - :func:`staticdepth.pseudo_labels.stable_depth`."""
+    from dataclasses import replace
+
+    from staticdepth.adaptation.align import aligned_frame
+    from staticdepth.geometry.alignment import depth_from_inverse
+    from staticdepth.pseudo_labels import stable_depth
+
+    pl = conf.pseudo_labels
+    dconf = replace(conf, align=replace(conf.align, mode=pl.dense_mode))
+    split = ws.adapt_split
+    picks = np.unique(np.linspace(0, len(split) - 1, min(pl.dense_frames, len(split))).round()
+                      .astype(int))
+    depths, static = [], []
+    with ws.frame_file("inverse-base.h5") as inv:
+        for k in progress(picks, desc="stable labels"):
+            i = split[k]
+            inst = agents.instances(i)
+            depths.append(aligned_frame(dconf, ws.K, plane.normal, ground, inst, agents.rows(i),
+                                        depth_from_inverse(inv[i])))
+            static.append(inst == 0)
+    return stable_depth(np.stack(depths), np.stack(static), pl.dense_spread)
