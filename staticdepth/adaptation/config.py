@@ -69,6 +69,9 @@ class AlignConfig:
     #                                  mask depth keep the ground mode (null: no limit)
     recede_push: float | None = 2.0  # upright: a receding pixel takes the plane only if that is
     #                                  at most this x its ground-mode depth (null: no limit)
+    walked_ratio: float | None = None    # upright: inside the walked region (the ground mask)
+    #                                  a pixel farther than this x its contact's plane depth
+    #                                  is ground, not a structure (null: off)
 
     def __post_init__(self):
         from staticdepth.geometry.alignment import ALIGN_MODES
@@ -92,6 +95,9 @@ class AlignConfig:
         if self.recede_push is not None and not (math.isfinite(self.recede_push)
                                                  and self.recede_push >= 1):
             raise InputError(f"align.recede_push must be >= 1 or null, got {self.recede_push}")
+        if self.walked_ratio is not None and not (math.isfinite(self.walked_ratio)
+                                                  and self.walked_ratio >= 1):
+            raise InputError(f"align.walked_ratio must be >= 1 or null, got {self.walked_ratio}")
         if self.contact_range is not None and not (math.isfinite(self.contact_range)
                                                    and self.contact_range > 0):
             raise InputError(f"align.contact_range must be > 0 or null, got {self.contact_range}")
