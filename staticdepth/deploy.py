@@ -21,7 +21,8 @@ Keys read from the adapt summary: ``plane.normal`` (or ``planes.agents.normal``)
 ``camera_height_m``, ``scale.ft-align`` (else the camera height), ``config.eps``,
 ``config.erode_px``, ``config.detector``, ``config.detector_model``, ``config.align.mode`` (an
 older summary without it: ``eq2``), ``config.align.snap_rel``, the upright mode's
-``config.align.shape/jump_rel/recede_min/recede_max/fill/max_pull/contact_range/recede_push``, and
+``config.align.shape/jump_rel/recede_min/recede_max/fill/max_pull/contact_range/recede_push/
+walked_ratio``, and
 ``ground_polygon`` when present
 (the ground region's vertices in pixels; otherwise the feet hull is rebuilt from the sequence's
 agents or by running the summary's detector again).
@@ -95,7 +96,8 @@ def upright_settings(cfg: dict) -> dict[str, Any]:
         fill=bool(setting_from(cfg, "align.fill", True)),       # older summaries: no limits
         max_pull=setting_from(cfg, "align.max_pull", None),
         recede_push=setting_from(cfg, "align.recede_push", None),
-        contact_range=setting_from(cfg, "align.contact_range", None)))
+        contact_range=setting_from(cfg, "align.contact_range", None),
+        walked_ratio=setting_from(cfg, "align.walked_ratio", None)))
 
 
 def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:

@@ -149,3 +149,31 @@ def test_untrusted_contacts_keep_the_ground_mode():
         from staticdepth.adaptation.config import build_config
 
         build_config({"align.max_pull": 0.5})
+
+
+def test_ground_the_network_did_not_recede_inside_the_walked_region_takes_the_plane():
+    """align.walked_ratio: a network that fails on the view keeps its ground flat from 7 m to
+    11 m (it does not recede: traced like a wall down to its contact at 7 m, up to 36% too near).
+    Inside the walked region (the ground mask) a traced pixel whose plane depth is more than
+    walked_ratio x its contact's is ground: beyond 1.2 x 7 m = 8.4 m it takes the plane. The wall
+    at 12 m (outside the walked region) then finds its contact on that ground."""
+    K, n, Z, ground, wall = scene(pitch_deg=30.0, cam_height=5.0)
+    pred = Z.copy()
+    flat = ground & (Z > 7) & (Z < 11)
+    pred[flat] = 7.0
+    walked = ground & (Z < 11)
+    off = align_depth(pred, K, n, 5.0, walked, mode="upright").depth
+    on = align_depth(pred, K, n, 5.0, walked, mode="upright", walked_ratio=1.2).depth
+    far = flat & (Z > 9)      # the contact is placed between rows: 7-7.5 m
+    assert _absrel(off, Z, far) > 0.15
+    assert _absrel(on, Z, far) < 1e-3
+    assert _absrel(on, Z, flat) < 0.5 * _absrel(off, Z, flat)
+    # the wall at 12 m stands on that ground: without the rule its run has no contact and
+    # keeps the ground mode (whose fit the flat band broke), with it the wall is re-anchored
+    assert _absrel(off, Z, wall) > 0.5
+    assert _absrel(on, Z, wall) < 0.02
+    assert _absrel(on, Z, ground & (Z < 7)) < 1e-3
+    with pytest.raises(InputError, match="walked_ratio"):
+        from staticdepth.adaptation.config import build_config
+
+        build_config({"align.walked_ratio": 0.5})

@@ -41,6 +41,20 @@ def frame():
     return (1 / inv).astype(np.float32), K, n, G, reg
 
 
+@pytest.fixture(scope="module")
+def flat_frame(frame):
+    """The frame with its ground 8-14 m flat (it does not recede: a network that fails on the
+    view, as the U-Net of bench_gains), so that the walked-region rule has ground to take."""
+    Z, K, n, G, reg = frame
+    from tests.indep_scenes import SCENES, Scene
+
+    gt = Scene(SCENES[0], 320, 160).render(3)["depth"]
+    Zf = Z.copy()
+    band = reg["ground"] & (gt >= 8) & (gt < 14)
+    Zf[band] = np.median(Z[reg["ground"] & (np.abs(gt - 8) < 0.3)])
+    return Zf, K, n, G, reg
+
+
 def _rel(a, b):
     return np.abs(a - b) / b
 
@@ -79,6 +93,18 @@ def test_upright_exports_to_onnx(frame, tmp_path):
         got = sess.run(None, {"z": Zf})[0]
         assert _rel(got, ref).max() < 1e-4 and np.abs(got - ref).max() < 5e-3, (
             _rel(got, ref).max(), np.abs(got - ref).max())
+
+
+@pytest.mark.parametrize("kw", [{"walked_ratio": 1.3},
+                                {"walked_ratio": 1.1, "max_pull": 2.0, "contact_range": 2.0,
+                                 "recede_push": 2.0, "fill": False}])
+def test_torch_upright_walked_rule_matches_numpy(flat_frame, kw):
+    Z, K, n, G, reg = flat_frame
+    ref = align_depth(Z, K, n, 1.0, G, mode="upright", **kw).depth
+    off = align_depth(Z, K, n, 1.0, G, mode="upright", **{**kw, "walked_ratio": np.inf}).depth
+    assert np.mean(_rel(ref, off)[G] > 1e-3) > 0.1        # the rule did change the walked region
+    out = UprightAlignment(K, 320, 160, n, 1.0, G, **kw)(torch.from_numpy(Z)).numpy()
+    assert _rel(out, ref).max() < 1e-5, _rel(out, ref).max()
 
 
 def test_pointer_doubling_reaches_each_chains_end():

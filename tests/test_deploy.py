@@ -104,7 +104,7 @@ def test_export_of_an_adapted_camera(adapted_camera, mode, capsys):
 
     d, seq, summary = adapted_camera
     s = json.loads(summary.read_text())
-    assert s["config"]["align"]["mode"] == "ground"            # adapt's default
+    assert s["config"]["align"]["mode"] == "upright"           # adapt's default
     s["config"]["align"]["mode"] = mode
     summ = d / f"{mode}.adapt.json"
     summ.write_text(json.dumps(s))
@@ -128,11 +128,12 @@ def test_export_of_an_adapted_camera(adapted_camera, mode, capsys):
             a = align_depth(Z, c["K"], c["normal"], 1.0, c["ground"], mode=mode, **c["upright"])
             fits.add(tuple(np.round(a.plane_normal, 5)))
             err_onnx.append(evaluate(got, gt, "metric")["abs_rel"])
-            if mode == "ground":
+            if mode == "upright":                   # adapt's own output
                 stored = r.prediction("ft-align-metric", i)
                 m = r.instances(i) > 0
                 mine = align_depth(Z, c["K"], c["normal"], 1.0, c["ground"], agent_mask=m,
-                                   mode=mode, snap_rel=c["snap_rel"]).depth * np.float32(c["scale"])
+                                   mode=mode, snap_rel=c["snap_rel"], **c["upright"]
+                                   ).depth * np.float32(c["scale"])
                 assert np.median(np.abs(mine - stored) / stored) < 1e-5
                 err_adapt.append(evaluate(stored, gt, "metric")["abs_rel"])
                 vs_adapt.append(np.median(np.abs(got - stored) / stored))

@@ -59,7 +59,8 @@ def upright_options(align) -> dict:
     return {"shape": align.shape, "jump_rel": align.jump_rel, "recede": recede,
             "fill": align.fill, "contact_range": align.contact_range,
             "max_pull": np.inf if align.max_pull is None else align.max_pull,
-            "recede_push": np.inf if align.recede_push is None else align.recede_push}
+            "recede_push": np.inf if align.recede_push is None else align.recede_push,
+            "walked_ratio": np.inf if align.walked_ratio is None else align.walked_ratio}
 
 
 def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,

@@ -50,12 +50,12 @@ class AlignConfig:
     erode_px: float | None = None    # ground mask: the feet's hull eroded by this (None: W/80)
     agents_at_contact: bool = True   # agents take the plane depth at their contact pixel
     #                                  (False: the paper's Eq. 2 for every pixel)
-    mode: str = "ground"             # ground: align what the plane explains (the ground, pixels
-    #                                  near it, agents), scale and shift the rest in inverse
-    #                                  depth (alignment.align_ground); eq2: the paper's Eq. 2
+    mode: str = "upright"            # upright: ground, then structures re-anchored at their
+    #                                  contact with it (geometry/alignment_upright.py); ground:
+    #                                  align what the plane explains (the ground, pixels near
+    #                                  it, agents), scale and shift the rest in inverse depth
+    #                                  (alignment.align_ground); eq2: the paper's Eq. 2
     snap_rel: float = 0.1            # ground: pixels this close to the plane (relative) take it
-    #                                  upright: ground, then structures re-anchored at their
-    #                                  contact with it (geometry/alignment_upright.py)
     shape: str = "network"           # upright: network (its shape, scaled at the contact) or
     #                                  vertical (the vertical line through the contact)
     jump_rel: float = 0.08           # upright: a relative depth step this large ends a structure
@@ -69,6 +69,9 @@ class AlignConfig:
     #                                  mask depth keep the ground mode (null: no limit)
     recede_push: float | None = 2.0  # upright: a receding pixel takes the plane only if that is
     #                                  at most this x its ground-mode depth (null: no limit)
+    walked_ratio: float | None = 1.2     # upright: inside the walked region (the ground mask)
+    #                                  a pixel farther than this x its contact's plane depth
+    #                                  is ground, not a structure (null: off)
 
     def __post_init__(self):
         from staticdepth.geometry.alignment import ALIGN_MODES
@@ -92,6 +95,9 @@ class AlignConfig:
         if self.recede_push is not None and not (math.isfinite(self.recede_push)
                                                  and self.recede_push >= 1):
             raise InputError(f"align.recede_push must be >= 1 or null, got {self.recede_push}")
+        if self.walked_ratio is not None and not (math.isfinite(self.walked_ratio)
+                                                  and self.walked_ratio >= 1):
+            raise InputError(f"align.walked_ratio must be >= 1 or null, got {self.walked_ratio}")
         if self.contact_range is not None and not (math.isfinite(self.contact_range)
                                                    and self.contact_range > 0):
             raise InputError(f"align.contact_range must be > 0 or null, got {self.contact_range}")

@@ -142,7 +142,7 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
                 snap_rel: float = 0.1, jump_rel: float = 0.08,
                 shape: str = "network", recede: tuple[float, float] | None = (0.1, 8.0),
                 fill: bool = True, max_pull: float = np.inf, contact_range: float | None = None,
-                recede_push: float = np.inf) -> Alignment:
+                recede_push: float = np.inf, walked_ratio: float = np.inf) -> Alignment:
     """Align a relative depth map (H, W) to the agents' ground plane ``n_g . P = d_g``.
 
     ground_mask: (H, W) bool where the ground is expected; ``agent_mask`` pixels are removed from
@@ -184,7 +184,8 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
     if mode == "upright":
         return align_upright(Z, K, n_g, d_g, G, snap_rel=snap_rel, jump_rel=jump_rel, shape=shape,
                              agent_mask=agent_mask, recede=recede, fill=fill, max_pull=max_pull,
-                             contact_range=contact_range, recede_push=recede_push)
+                             contact_range=contact_range, recede_push=recede_push,
+                             walked_ratio=walked_ratio)
     n_p, d_p = fit_predicted_plane(Z, K, G)
     a, b, c = n_p
     s2 = a * a + b * b
@@ -267,7 +268,7 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
                   agent_mask: np.ndarray | None = None, max_points: int = 20000,
                   recede: tuple[float, float] | None = (0.1, 8.0), fill: bool = True,
                   max_pull: float = np.inf, contact_range: float | None = None,
-                  recede_push: float = np.inf) -> Alignment:
+                  recede_push: float = np.inf, walked_ratio: float = np.inf) -> Alignment:
     """The ``ground`` mode, then every structure above the ground re-anchored at its contact with
     it (geometry/alignment_upright.py). The frame's agents (``agent_mask``) are never ground.
     ``n_fallback`` counts the pixels that were not re-anchored (neither ground nor traced to it).
@@ -289,7 +290,8 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
     new, moved = upright_depth(raw, K, n_g, d_g, snap, q, jump_rel=jump_rel, shape=shape,
                                recede=recede, native=Z * np.float32(unit), fill=fill,
                                max_pull=max_pull, max_contact=max_contact,
-                               recede_push=recede_push,
+                               recede_push=recede_push, walked=np.asarray(ground_mask, bool),
+                               walked_ratio=walked_ratio,
                                not_ground=None if agent_mask is None else np.asarray(agent_mask, bool))
     valid = np.isfinite(g.depth)
     out = np.where(moved, new, g.depth)

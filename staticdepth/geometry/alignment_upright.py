@@ -24,6 +24,10 @@ continuous neighbour in the same row first). Ratios are clipped to ``[1 / max_ra
 Contacts not to trust keep the ``ground`` result too: beyond ``max_contact`` (where no agent
 walked, the plane's depth is uncertain) or pulling the run nearer than its ``ground`` depth /
 ``max_pull``; a receding pixel takes the plane only within ``recede_push`` x its ``ground`` depth.
+Inside the walked region (``walked``: the ground mask, where the agents' feet were), a traced pixel
+whose plane depth exceeds ``walked_ratio`` x its contact's is ground the network did not let recede
+(a structure standing there would be taller than ``1 - 1 / walked_ratio`` camera heights): it takes
+the plane, and the contacts are traced again over it.
 
 A pure function of (depth, K, plane, ground mask[, agent mask]); ``geometry/alignment.py``
 dispatches ``mode="upright"`` here. Sequential over rows (the march) and columns (the fill).
@@ -202,12 +206,14 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   recede: tuple[float, float] | None = RECEDE, span: int = 3,
                   not_ground: np.ndarray | None = None, native: np.ndarray | None = None,
                   fill: bool = True, max_pull: float = np.inf, max_contact: float = np.inf,
-                  recede_push: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+                  recede_push: float = np.inf, walked: np.ndarray | None = None,
+                  walked_ratio: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
     ``q``: the plane's inverse depth ``n_g . r / d_g`` per pixel; ``not_ground``: pixels never
-    ground (the frame's agents); ``native``: the depth whose shape a run keeps (default ``A``).
-    Returns the new map and the (H, W) bool mask of re-anchored pixels."""
+    ground (the frame's agents); ``native``: the depth whose shape a run keeps (default ``A``);
+    ``walked``: (H, W) bool the walked region of ``walked_ratio``. Returns the new map and the
+    (H, W) bool mask of re-anchored pixels."""
     if shape not in SHAPES:
         raise InputError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
     if not (np.isfinite(jump_rel) and jump_rel > 0):
@@ -239,6 +245,19 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     qc, idx = contact_ratios(A, ground, q, du, jump_rel)
     refine_contacts(A, ground, q, du, qc, idx, jump_rel, near_rel, max(2, h // 16))
     have = idx >= 0
+    if walked is not None and np.isfinite(walked_ratio):
+        # inside the walked region, a pixel that would stand more than walked_ratio x its
+        # contact's plane depth away is no structure there: ground the network did not recede
+        with np.errstate(invalid="ignore"):
+            wg = walked & have & ~ground & (q > 0) & (q * walked_ratio < qc)
+        if not_ground is not None:
+            wg &= ~not_ground
+        if wg.any():
+            planar |= wg
+            ground = ground | wg
+            qc, idx = contact_ratios(A, ground, q, du, jump_rel)
+            refine_contacts(A, ground, q, du, qc, idx, jump_rel, near_rel, max(2, h // 16))
+            have = idx >= 0
     src = A if native is None else np.asarray(native, dtype=np.float64)
     ratio = np.full((h, w), np.nan)
     if shape == "network":

@@ -16,9 +16,10 @@ The numpy version's sequential scans become fixed-size index gathers:
   the earliest step (ScatterElements: the contacts reaching it at one step share the rest of the
   walk, so their writes are equal);
 - the fill along rows (``fill_along_rows``): left then right links, pointer doubling over W.
-The trust rules (``fill``, ``max_pull``, ``contact_range``, ``recede_push``) are those of the
-numpy version. The arithmetic runs in float64, as the numpy version's does, so that its threshold
-decisions (recession, depth steps) come out the same.
+The trust rules (``fill``, ``max_pull``, ``contact_range``, ``recede_push``, ``walked_ratio``)
+are those of the numpy version (the walked region is the ground mask). The arithmetic runs in
+float64, as the numpy version's does, so that its threshold decisions (recession, depth steps)
+come out the same.
 """
 from __future__ import annotations
 
@@ -105,7 +106,7 @@ class UprightAlignment(nn.Module):
                  max_ratio: float = 4.0, near_rel: float = 0.02, span: int = 3,
                  fill: bool = True, max_pull: float = float("inf"),
                  contact_range: float | None = None, recede_push: float = float("inf"),
-                 max_points: int = 20000):
+                 walked_ratio: float = float("inf"), max_points: int = 20000):
         super().__init__()
         if shape not in SHAPES:
             raise ValueError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
@@ -161,6 +162,8 @@ class UprightAlignment(nn.Module):
         self.max_contact = (float(contact_range / qg.min()) if contact_range is not None
                             and qg.size else float("inf"))
         self.max_walk = max(2, height // 16)
+        self.walked_ratio = float(walked_ratio)
+        self.register_buffer("walked", torch.tensor(np.asarray(ground_mask, bool).ravel()))
 
     def _cont(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         return torch.abs(a - b) <= self.jump_rel * torch.minimum(a, b)
@@ -205,6 +208,43 @@ class UprightAlignment(nn.Module):
             if self.recede_push < float("inf"):
                 planar = planar & (q * (self.recede_push * A) >= 1.0)
             ground = (ground & ~flat) | planar
+        have, foot, qc = self._contacts(A, ground)
+        if self.walked_ratio < float("inf"):
+            # inside the walked region, a pixel more than walked_ratio x its contact's plane
+            # depth away is ground the network did not recede (numpy: upright_depth)
+            wg = self.walked & have & ~ground & (q > 0) & (q * self.walked_ratio < qc)
+            planar = planar | wg
+            ground = ground | wg
+            have, foot, qc = self._contacts(A, ground)
+        # the run's ratio at every pixel with a contact
+        if self.shape == "network":
+            ratio = (1.0 / qc) / self._take(src, foot)
+        else:
+            F = self._take(self.rays, foot) / qc[:, None]
+            lam = ((self.rays * F).sum(1) - self.rn * (F @ self.n)) / self.rden
+            ratio = lam / src
+        ratio = torch.where(have & (ratio > 0), ratio, nan)
+        if self.max_contact < float("inf"):
+            ratio = torch.where(have & ~(1.0 / qc <= self.max_contact), nan, ratio)
+        if self.max_pull < float("inf"):
+            cand = src * torch.clamp(ratio, 1.0 / self.max_ratio, self.max_ratio)
+            ratio = torch.where(cand * self.max_pull < A, nan, ratio)
+        ratio = ratio.reshape(h, w)
+        todo = (~ground | have).reshape(h, w)
+        if self.fill:
+            ratio = self._fill(ratio, A.reshape(h, w), todo)
+        moved = (todo & torch.isfinite(ratio)).reshape(-1)
+        ratio = torch.clamp(torch.where(moved, ratio.reshape(-1), torch.ones_like(A)),
+                            1.0 / self.max_ratio, self.max_ratio)
+        out = torch.where(moved, src * ratio, A)
+        out = torch.where(planar & ~moved, 1.0 / q, out)
+        out = out.to(torch.float32).reshape(h, w)
+        return torch.where((moved | planar).reshape(h, w), out, g_out)
+
+    def _contacts(self, A: torch.Tensor, ground: torch.Tensor):
+        """contact_ratios + refine_contacts: (pixels with a contact, each one's walked contact
+        pixel, the contact's plane inverse depth)."""
+        h, N, q = self.h, self.N, self.q64
         # the march up the rows: contacts, links to the pixel below, chain ends
         below = self._take(ground.to(torch.int64), self.nxt) > 0
         a_b = self._take(A, self.nxt)
@@ -239,31 +279,7 @@ class UprightAlignment(nn.Module):
                         torch.full_like(r0, 0.5))
         x = torch.clamp(torch.where(torch.isnan(x), torch.full_like(x, 0.5), x), 0.0, 1.0)
         new_q = (q + x * (self.q_below - q)) * (A + x * (A - a_up)) / A
-        qc = self._take(new_q, foot)
-        # the run's ratio at every pixel with a contact
-        if self.shape == "network":
-            ratio = (1.0 / qc) / self._take(src, foot)
-        else:
-            F = self._take(self.rays, foot) / qc[:, None]
-            lam = ((self.rays * F).sum(1) - self.rn * (F @ self.n)) / self.rden
-            ratio = lam / src
-        ratio = torch.where(have & (ratio > 0), ratio, nan)
-        if self.max_contact < float("inf"):
-            ratio = torch.where(have & ~(1.0 / qc <= self.max_contact), nan, ratio)
-        if self.max_pull < float("inf"):
-            cand = src * torch.clamp(ratio, 1.0 / self.max_ratio, self.max_ratio)
-            ratio = torch.where(cand * self.max_pull < A, nan, ratio)
-        ratio = ratio.reshape(h, w)
-        todo = (~ground | have).reshape(h, w)
-        if self.fill:
-            ratio = self._fill(ratio, A.reshape(h, w), todo)
-        moved = (todo & torch.isfinite(ratio)).reshape(-1)
-        ratio = torch.clamp(torch.where(moved, ratio.reshape(-1), torch.ones_like(A)),
-                            1.0 / self.max_ratio, self.max_ratio)
-        out = torch.where(moved, src * ratio, A)
-        out = torch.where(planar & ~moved, 1.0 / q, out)
-        out = out.to(torch.float32).reshape(h, w)
-        return torch.where((moved | planar).reshape(h, w), out, g_out)
+        return have, foot, self._take(new_q, foot)
 
     def _fill(self, ratio: torch.Tensor, A: torch.Tensor, todo: torch.Tensor) -> torch.Tensor:
         """fill_along_rows: a pixel to fill links to its left (then right) neighbour; every
