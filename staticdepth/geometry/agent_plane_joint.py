@@ -73,7 +73,11 @@ class _Problem:
             self.slices[g] = slice(k, k + m)
             k += m
         self.n_shape = k - 2
-        self.has_u = np.isfinite(obs.top_u)
+        # a box's highest mask row is often an edge (its median column between two corners):
+        # only the disk outlines' top columns are used
+        box_obs = np.array([GROUPS[g].outline == "box" for g in range(len(GROUPS))])[self.group]
+        self.top_u = np.where(box_obs, np.nan, obs.top_u)
+        self.has_u = np.isfinite(self.top_u)
         self.k_s = k + 1                  # index of s_1 (k: log of 1 / camera height in metres)
         mh = np.array([GROUPS[g].typical_height for g in self.track_group])
         self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
@@ -126,7 +130,7 @@ class _Problem:
         u, v = self.top(n, theta, s)
         e = np.abs(np.nan_to_num(v - self.obs.top_v, nan=_BIG))
         if col_w > 0:
-            e = np.maximum(e, col_w * np.nan_to_num(np.abs(u - self.obs.top_u), nan=0.0))
+            e = np.maximum(e, col_w * np.nan_to_num(np.abs(u - self.top_u), nan=0.0))
         return e / self.sigma
 
     def residuals(self, x: np.ndarray, prior_w: float, height_w: float,
@@ -137,7 +141,7 @@ class _Problem:
         u, v = self.top(n, theta, s, dev)
         r = np.nan_to_num((v - self.obs.top_v) / self.sigma, nan=_BIG)
         if col_w > 0:
-            r = np.r_[r, col_w * np.nan_to_num((u - self.obs.top_u)[self.has_u]
+            r = np.r_[r, col_w * np.nan_to_num((u - self.top_u)[self.has_u]
                                                / self.sigma[self.has_u], nan=_BIG)]
         sd = np.concatenate([GROUPS[g].prior_sd for g in self.present] or [np.zeros(0)])
         # heights: log s_j = log H_class - log d + eps, robust (children, outliers)
@@ -344,7 +348,7 @@ def _column_weight(conf, prob: _Problem, n, theta, s, keep):
     if conf.fit_column_weight <= 0:
         return conf
     u, v = prob.top(n, theta, s)
-    ru, rv = (u - prob.obs.top_u)[keep], (v - prob.obs.top_v)[keep]
+    ru, rv = (u - prob.top_u)[keep], (v - prob.obs.top_v)[keep]
     ru = ru[np.isfinite(ru)]
     if len(ru) < 5:
         return conf
