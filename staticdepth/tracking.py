@@ -33,7 +33,8 @@ ground-plane model.
 
 Output: :data:`OBS_DTYPE` rows (frame, track, class_id, foot_u, foot_v, height_px, top_v, score,
 top_u, feet: 2 where a walker's foot point is its two feet's mean, 1 one foot, 0 not a person
-mask), foot and top rows moved ``edge_px`` outwards, the input of
+mask; left, right: the silhouette's extreme columns, the box's sides for a box detection, NaN
+when unknown), foot and top rows and the side columns moved ``edge_px`` outwards, the input of
 :func:`staticdepth.geometry.agent_plane.fit_agent_plane`.
 """
 from __future__ import annotations
@@ -50,7 +51,7 @@ from staticdepth.errors import InputError
 OBS_DTYPE = np.dtype([("frame", np.int32), ("track", np.int32), ("class_id", np.int16),
                       ("foot_u", np.float32), ("foot_v", np.float32), ("height_px", np.float32),
                       ("top_v", np.float32), ("score", np.float32), ("top_u", np.float32),
-                      ("feet", np.uint8)])
+                      ("feet", np.uint8), ("left", np.float32), ("right", np.float32)])
 
 DET_DTYPE = np.dtype([("frame", np.int32), ("instance_id", np.int32), ("class_id", np.int16),
                       ("track", np.int32), ("foot_u", np.float32), ("foot_v", np.float32),
@@ -366,6 +367,8 @@ def observations(dets: np.ndarray, conf: TrackingConfig = TrackingConfig()) -> n
     out["foot_v"] = d["foot_v"] + conf.edge_px
     out["top_v"] = d["top_v"] - conf.edge_px
     out["height_px"] = out["foot_v"] - out["top_v"]
+    out["left"] = d["left"] - conf.edge_px
+    out["right"] = d["right"] + conf.edge_px
     return np.sort(out, order=["track", "frame"])
 
 

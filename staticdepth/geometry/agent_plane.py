@@ -264,8 +264,10 @@ def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact",
         top_u = np.asarray(obs["top_u"], dtype=np.float64)
     if "feet" in obs.dtype.names:
         feet = np.asarray(obs["feet"], dtype=np.int64)
+    sides = [np.asarray(obs[c], dtype=np.float64) if c in obs.dtype.names else None
+             for c in ("left", "right")]
     return AgentObservations(rays_from_pixels(K, u, v), v - h, h, u, v, idx, ids, cls, top_u,
-                             feet)
+                             feet, *sides)
 
 
 def fit_agent_plane(K: np.ndarray, observations: np.ndarray,

@@ -41,10 +41,11 @@ from scipy.sparse import lil_matrix
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
-from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
-                                              track_headings)
+from staticdepth.geometry.agent_shape import (GROUPS, box_columns, group_of_class,
+                                              predict_top, track_headings)
 from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
 from staticdepth.geometry.plane import angle_between_deg
+from staticdepth.geometry.projection import rays_from_pixels
 
 
 MIN_SHAPE_TRACKS = 3
@@ -78,6 +79,9 @@ class _Problem:
         box_obs = np.array([GROUPS[g].outline == "box" for g in range(len(GROUPS))])[self.group]
         self.top_u = np.where(box_obs, np.nan, obs.top_u)
         self.has_u = np.isfinite(self.top_u)
+        # a box outline's extreme columns (a box detection's sides, a mask's extreme columns)
+        self.sides = box_obs & np.isfinite(obs.left) & np.isfinite(obs.right)
+        self.side_idx = np.flatnonzero(self.sides)
         self.k_s = k + 1                  # index of s_1 (k: log of 1 / camera height in metres)
         mh = np.array([GROUPS[g].typical_height for g in self.track_group])
         self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
@@ -118,9 +122,42 @@ class _Problem:
             F = self.obs.rays / nr[:, None]
         return track_headings(n, F, self.obs.idx, self.J)[self.obs.idx]
 
+    def anchored(self, n, theta, s, dev=None, iters: int = 3):
+        """(foot rays (N, 3), predicted left and right columns of the observations with sides).
+
+        A box's lowest mask row is an edge as often as a corner, so its foot column says little;
+        where the sides are known, the box's lowest corner keeps the foot row and slides along it
+        until the box's projection is centred between the observed sides (Newton steps of slope
+        1: the projection moves with its anchor). The sides' residuals then measure the box's
+        width in the image."""
+        k = self.side_idx
+        if not len(k):
+            return self.obs.rays, None, None
+        params, heading = self.params(theta, dev), self.headings(n)[k]
+        mid = 0.5 * (self.obs.left[k] + self.obs.right[k])
+        u, sk, grp = self.obs.u[k].copy(), s[self.obs.idx[k]], self.group[k]
+        for it in range(iters + 1):
+            rays = rays_from_pixels(self.K, u, self.obs.v[k])
+            left, right = box_columns(self.K, n, rays, sk, grp, params, heading)
+            if it < iters:
+                u = u - np.nan_to_num(0.5 * (left + right) - mid)
+        out = self.obs.rays.copy()
+        out[k] = rays
+        return out, left, right
+
     def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, dev=None):
-        return predict_top(self.K, n, self.obs.rays, s[self.obs.idx], self.group,
-                           self.params(theta, dev), self.headings(n))
+        return predict_top(self.K, n, self.anchored(n, theta, s, dev)[0], s[self.obs.idx],
+                           self.group, self.params(theta, dev), self.headings(n))
+
+    def side_residuals(self, n, theta, s, dev=None) -> np.ndarray:
+        """Predicted minus observed left and right columns of the box observations with sides
+        (2 x len(side_idx),) over the noise model."""
+        if not len(self.side_idx):
+            return np.zeros(0)
+        k = self.side_idx
+        _, left, right = self.anchored(n, theta, s, dev)
+        return np.nan_to_num(np.r_[(left - self.obs.left[k]) / self.sigma[k],
+                                   (right - self.obs.right[k]) / self.sigma[k]], nan=_BIG)
 
     def top_rows(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
         return self.top(n, theta, s)[1]
@@ -143,6 +180,7 @@ class _Problem:
         if col_w > 0:
             r = np.r_[r, col_w * np.nan_to_num((u - self.top_u)[self.has_u]
                                                / self.sigma[self.has_u], nan=_BIG)]
+        r = np.r_[r, self.side_residuals(n, theta, s, dev)]
         sd = np.concatenate([GROUPS[g].prior_sd for g in self.present] or [np.zeros(0)])
         # heights: log s_j = log H_class - log d + eps, robust (children, outliers)
         z = (np.log(s) - self.log_h - lam) / self.log_sd
@@ -152,7 +190,8 @@ class _Problem:
         return out if dev is None else np.r_[out, dev / self.dev_sd]
 
     def sparsity(self, col_w: float, with_dev: bool = False):
-        ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else []].astype(int)
+        ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else [],
+                   self.side_idx, self.side_idx].astype(int)
         R = len(ob)
         nd = self.J if with_dev else 0
         S = lil_matrix((R + self.n_shape + self.J + nd, self.k_s + self.J + nd), dtype=np.int8)
