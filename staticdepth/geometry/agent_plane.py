@@ -308,7 +308,8 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
                           boot.get("d_over_h_std", float("nan")),
                           extra={"classes": obs.cls, "extents": extents,
                                  "column_weight": boot.get("column_weight", 0.0),
-                                 "inlier_px": boot.get("inlier_px", conf.inlier_px)})
+                                 "inlier_px": boot.get("inlier_px", conf.inlier_px),
+                                 "class_misfit_deg": boot.get("class_misfit_deg", float("nan"))})
     else:
         n, s, inl, res = fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))

@@ -26,8 +26,8 @@ lowest point by +-0.3 m along its heading: several pixels).
 Robust pipeline: RANSAC over tracks (3 tracks, extents at their prior means, every other track's
 ``s_j`` solved with the normal fixed, observations within ``inlier_px`` counted), a soft-L1 fit of
 all unknowns on the inlier tracks from the RANSAC and the affine (Eq. 1) normals, the residual
-scales, then a fit on the inlier observations; the bootstrap over inlier tracks refits from that
-solution.
+scales, then a fit on the inlier observations; its uncertainty
+(:mod:`staticdepth.geometry.agent_plane_boot`) refits from that solution.
 """
 from __future__ import annotations
 
@@ -44,7 +44,6 @@ from staticdepth.geometry.agent_plane_linear import plane_affine
 from staticdepth.geometry.agent_shape import (GROUPS, box_columns, group_of_class,
                                               predict_top, track_headings)
 from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
-from staticdepth.geometry.plane import angle_between_deg
 from staticdepth.geometry.projection import rays_from_pixels
 
 
@@ -365,7 +364,9 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
         inl = np.ones(J, bool)
     extents = {GROUPS[g].name: [float(v) for v in theta_all[sl.start - 2:sl.stop - 2]]
                for g, sl in prob.slices.items()}
-    boot = _bootstrap(K, prob, conf, n, theta_all, inl, rng) if conf.bootstrap > 0 else {}
+    from staticdepth.geometry.agent_plane_boot import joint_uncertainty
+
+    boot = joint_uncertainty(K, prob, conf, n, theta_all, inl, rng) if conf.bootstrap > 0 else {}
     boot["column_weight"] = conf.fit_column_weight
     boot["inlier_px"] = thr
     return n, s, inl, res, extents, boot
@@ -405,22 +406,3 @@ def _expand(full: _Problem, sub: _Problem, theta: np.ndarray) -> np.ndarray:
             ss = sub.slices[g]
             out[sl.start - 2:sl.stop - 2] = theta[ss.start - 2:ss.stop - 2]
     return out
-
-
-def _bootstrap(K, prob: _Problem, conf, n, theta, inl, rng) -> dict:
-    """Resample the inlier tracks, refit from the solution (least squares, inlier observations
-    of the full fit): RMS angle to the solution's normal (deg), std of d/H (typical agent)."""
-    tracks = np.flatnonzero(inl)
-    if len(tracks) < 3:
-        return {}
-    p0, r0 = pitch_roll_from_normal(n)
-    angles, dh = [], []
-    for _ in range(conf.bootstrap):
-        sub = _Problem(K, prob.obs.subset(rng.choice(tracks, len(tracks), replace=True)),
-                       prob.kappa)
-        p, r, _, s, _ = sub.fit(conf, [(p0, r0)], _expand(sub, prob, theta), loss=conf.loss,
-                                max_nfev=40, feet=True)
-        angles.append(angle_between_deg(_normal(p, r), n))
-        dh.append(1.0 / float(np.median(s)))
-    return {"normal_std_deg": float(np.sqrt(np.mean(np.square(angles)))),
-            "d_over_h_std": float(np.std(dh, ddof=1)), "n_tracks": int(len(tracks))}
