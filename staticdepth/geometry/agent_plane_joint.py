@@ -122,41 +122,42 @@ class _Problem:
         return track_headings(n, F, self.obs.idx, self.J)[self.obs.idx]
 
     def anchored(self, n, theta, s, dev=None, iters: int = 3):
-        """(foot rays (N, 3), predicted left and right columns of the observations with sides).
+        """(foot rays (N, 3), predicted left and right columns of the box observations with
+        sides).
 
-        A box's lowest mask row is an edge as often as a corner, so its foot column says little;
-        where the sides are known, the box's lowest corner keeps the foot row and slides along it
-        until the box's projection is centred between the observed sides (Newton steps of slope
-        1: the projection moves with its anchor). The sides' residuals then measure the box's
-        width in the image."""
+        A box's lowest mask row is an edge as often as a corner, and a box detection's foot
+        column is its centre, so the foot column says little where the sides are known: the
+        outline's lowest point keeps the foot row and slides along it until the outline's
+        projection is centred between the observed sides (Newton steps of slope 1: the
+        projection moves with its anchor)."""
+        rays = self.obs.rays.copy()
+        left = right = None
         k = self.side_idx
-        if not len(k):
-            return self.obs.rays, None, None
-        params, heading = self.params(theta, dev), self.headings(n)[k]
-        mid = 0.5 * (self.obs.left[k] + self.obs.right[k])
-        u, sk, grp = self.obs.u[k].copy(), s[self.obs.idx[k]], self.group[k]
-        for it in range(iters + 1):
-            rays = rays_from_pixels(self.K, u, self.obs.v[k])
-            left, right = box_columns(self.K, n, rays, sk, grp, params, heading)
-            if it < iters:
-                u = u - np.nan_to_num(0.5 * (left + right) - mid)
-        out = self.obs.rays.copy()
-        out[k] = rays
-        return out, left, right
+        if len(k):
+            params, heading = self.params(theta, dev), self.headings(n)[k]
+            mid = 0.5 * (self.obs.left[k] + self.obs.right[k])
+            u, sk, grp = self.obs.u[k].copy(), s[self.obs.idx[k]], self.group[k]
+            for it in range(iters + 1):
+                rays[k] = rays_from_pixels(self.K, u, self.obs.v[k])
+                left, right = box_columns(self.K, n, rays[k], sk, grp, params, heading)
+                if it < iters:
+                    u = u - np.nan_to_num(0.5 * (left + right) - mid)
+        return rays, left, right
 
-    def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, dev=None):
-        return predict_top(self.K, n, self.anchored(n, theta, s, dev)[0], s[self.obs.idx],
-                           self.group, self.params(theta, dev), self.headings(n))
+    def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, dev=None, rays=None):
+        rays = self.anchored(n, theta, s, dev)[0] if rays is None else rays
+        return predict_top(self.K, n, rays, s[self.obs.idx], self.group,
+                           self.params(theta, dev), self.headings(n))
 
-    def side_residuals(self, n, theta, s, dev=None) -> np.ndarray:
-        """Predicted minus observed left and right columns of the box observations with sides
-        (2 x len(side_idx),) over the noise model."""
-        if not len(self.side_idx):
-            return np.zeros(0)
+    def column_residuals(self, n, theta, s, dev=None):
+        """(foot rays, residuals over the noise model of the box observations' left and right
+        columns (2 x len(side_idx)))."""
+        rays, left, right = self.anchored(n, theta, s, dev)
+        if left is None:
+            return rays, np.zeros(0)
         k = self.side_idx
-        _, left, right = self.anchored(n, theta, s, dev)
-        return np.nan_to_num(np.r_[(left - self.obs.left[k]) / self.sigma[k],
-                                   (right - self.obs.right[k]) / self.sigma[k]], nan=_BIG)
+        return rays, np.nan_to_num(np.r_[(left - self.obs.left[k]) / self.sigma[k],
+                                         (right - self.obs.right[k]) / self.sigma[k]], nan=_BIG)
 
     def top_rows(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
         return self.top(n, theta, s)[1]
@@ -174,12 +175,13 @@ class _Problem:
         n = _normal(x[0], x[1])
         theta, lam, s = x[2:2 + self.n_shape], x[self.k_s - 1], x[self.k_s:self.k_s + self.J]
         dev = x[self.k_s + self.J:] if len(x) > self.k_s + self.J else None
-        u, v = self.top(n, theta, s, dev)
+        rays, cols = self.column_residuals(n, theta, s, dev)
+        u, v = self.top(n, theta, s, dev, rays)
         r = np.nan_to_num((v - self.obs.top_v) / self.sigma, nan=_BIG)
         if col_w > 0:
             r = np.r_[r, col_w * np.nan_to_num((u - self.top_u)[self.has_u]
                                                / self.sigma[self.has_u], nan=_BIG)]
-        r = np.r_[r, self.side_residuals(n, theta, s, dev)]
+        r = np.r_[r, cols]
         sd = np.concatenate([GROUPS[g].prior_sd for g in self.present] or [np.zeros(0)])
         # heights: log s_j = log H_class - log d + eps, robust (children, outliers)
         z = (np.log(s) - self.log_h - lam) / self.log_sd
