@@ -42,7 +42,7 @@ from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
 from staticdepth.geometry.agent_shape import (GROUPS, box_columns, group_of_class,
-                                              predict_top, track_headings)
+                                              person_columns, predict_top, track_headings)
 from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
 from staticdepth.geometry.projection import rays_from_pixels
 
@@ -81,6 +81,9 @@ class _Problem:
         # a box outline's extreme columns (a box detection's sides, a mask's extreme columns)
         self.sides = box_obs & np.isfinite(obs.left) & np.isfinite(obs.right)
         self.side_idx = np.flatnonzero(self.sides)
+        # people seen as boxes (no top column): their widths, each track's body radius free
+        self.width_idx = np.flatnonzero(~box_obs & ~self.has_u & np.isfinite(obs.left)
+                                        & np.isfinite(obs.right))
         self.k_s = k + 1                  # index of s_1 (k: log of 1 / camera height in metres)
         mh = np.array([GROUPS[g].typical_height for g in self.track_group])
         self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
@@ -144,6 +147,35 @@ class _Problem:
                     u = u - np.nan_to_num(0.5 * (left + right) - mid)
         return rays, left, right
 
+    def width_residuals(self, n, theta, s, dev=None, iters: int = 3) -> np.ndarray:
+        """Predicted minus observed widths (len(width_idx),) of the people seen as boxes, over
+        the noise model (:func:`~staticdepth.geometry.agent_shape.person_columns`), each track's
+        shoulder radius its own (Gauss-Newton per track). A body's width does not foreshorten
+        with the viewing angle, its height does: the width along a track measures the viewing
+        angle that rows alone trade against the foot and head extents."""
+        k = self.width_idx
+        if not len(k):
+            return np.zeros(0)
+        e_f, e_h = self.params(theta, dev)[0]   # people (the disk group): foot, head extents
+        if np.ndim(e_f):                          # per observation of the group (striding)
+            e_f = np.asarray(e_f)[(np.cumsum(self.group == 0) - 1)[k]]
+        j, sk, rays = self.obs.idx[k], s[self.obs.idx[k]], self.obs.rays[k]
+        obs_w = self.obs.right[k] - self.obs.left[k]
+
+        def width(r):
+            lo, hi = person_columns(self.K, n, rays, sk, e_f, e_h, r)
+            return np.nan_to_num(hi - lo, nan=_BIG)
+
+        radius = np.full(self.J, 0.02)
+        for _ in range(iters):
+            w = width(radius[j])
+            dw = (width(radius[j] + 1e-3) - w) / 1e-3
+            num = np.bincount(j, dw * (w - obs_w), minlength=self.J)
+            den = np.bincount(j, dw * dw, minlength=self.J)
+            radius = np.clip(radius - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0),
+                             0.0, 0.2)
+        return (width(radius[j]) - obs_w) / self.sigma[k]
+
     def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, dev=None, rays=None):
         rays = self.anchored(n, theta, s, dev)[0] if rays is None else rays
         return predict_top(self.K, n, rays, s[self.obs.idx], self.group,
@@ -181,7 +213,7 @@ class _Problem:
         if col_w > 0:
             r = np.r_[r, col_w * np.nan_to_num((u - self.top_u)[self.has_u]
                                                / self.sigma[self.has_u], nan=_BIG)]
-        r = np.r_[r, cols]
+        r = np.r_[r, cols, self.width_residuals(n, theta, s, dev)]
         sd = np.concatenate([GROUPS[g].prior_sd for g in self.present] or [np.zeros(0)])
         # heights: log s_j = log H_class - log d + eps, robust (children, outliers)
         z = (np.log(s) - self.log_h - lam) / self.log_sd
@@ -192,7 +224,7 @@ class _Problem:
 
     def sparsity(self, col_w: float, with_dev: bool = False):
         ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else [],
-                   self.side_idx, self.side_idx].astype(int)
+                   self.side_idx, self.side_idx, self.width_idx].astype(int)
         R = len(ob)
         nd = self.J if with_dev else 0
         S = lil_matrix((R + self.n_shape + self.J + nd, self.k_s + self.J + nd), dtype=np.int8)
