@@ -4,7 +4,8 @@ A detection is one agent instance in one frame (a rider and its bicycle or motor
 into one agent of the two-wheeler's class first, :func:`merge_riders`): its foot point (bottom
 centre of the mask: the lowest row, the median column of that row; for people the mean of both
 feet's lowest points, :func:`walker_foot`), its top point (the highest row, the median column of
-that row; the column is NaN when only a box or an agent row without it is known), box and score.
+that row; the column is NaN when only a box or an agent row without it is known, or the mask
+fills its bounding box: a box detection), box and score.
 Detections are linked across frames by the Hungarian assignment
 (``scipy.optimize.linear_sum_assignment``) on box IoU, or on foot-point distance relative to the
 pixel height when there are no boxes; track ids given with the rows (``track_id`` >= 0, e.g. the
@@ -121,8 +122,11 @@ def detections_from_instances(instance_map: np.ndarray, rows: np.ndarray | None 
         else:
             out["foot_u"][k], out["foot_v"][k] = np.median(low_cols), v_low
         out["top_v"][k] = v_top
-        out["top_u"][k] = np.median(top_cols)
         out["left"][k], out["right"][k] = us[a:b].min(), us[a:b].max()
+        # a mask that fills its bounding box is a box detection: its top row's middle is not
+        # the silhouette's highest point (the fit then uses its sides)
+        box = b - a == (out["right"][k] - out["left"][k] + 1) * (v_low - v_top + 1)
+        out["top_u"][k] = np.nan if box else np.median(top_cols)
         out["occluded"][k] = (_touches(m, uniq[k], v_low + 1, v_low + 1 + contact_px, low_cols)
                               or _touches(m, uniq[k], v_top - contact_px, v_top, top_cols))
     out["class_id"], out["score"], out["track"] = info[:, 0], info[:, 1], info[:, 2]

@@ -56,3 +56,16 @@ def test_vehicle_boxes_fit_with_their_sides():
         p = fit_agent_plane(s.K, s.obs, FAST)
         errs.append(angle_between_deg(p.normal, s.normal))
     assert max(errs) < 0.5, errs
+
+
+def test_a_rectangle_mask_is_a_box_detection():
+    """A mask that fills its bounding box (a detector's box drawn as a mask) has no top column,
+    as the generators' box detections; a person-shaped mask keeps its top row's middle."""
+    m = np.zeros((60, 40), np.uint16)
+    m[10:50, 5:21] = 3                        # a 16 x 40 px rectangle
+    m[12:50, 25:33] = 4
+    m[8:12, 28:30] = 4                        # a head on top of a body
+    d = tracking.detections_from_instances(m, np.array([(3, 0, 1.0), (4, 0, 1.0)]))
+    box, person = d[d["instance_id"] == 3][0], d[d["instance_id"] == 4][0]
+    assert np.isnan(box["top_u"]) and (box["left"], box["right"]) == (5, 20)
+    assert person["top_u"] == 28.5 and (person["left"], person["right"]) == (25, 32)
