@@ -125,16 +125,20 @@ class _Problem:
         return track_headings(n, F, self.obs.idx, self.J)[self.obs.idx]
 
     def anchored(self, n, theta, s, dev=None, iters: int = 3):
-        """(foot rays (N, 3), predicted left and right columns of the box observations with
-        sides).
+        """(foot rays (N, 3), residuals over the noise model of the box outlines' left and right
+        columns (2 x len(side_idx)) and of the people-as-boxes' widths (len(width_idx))).
 
         A box's lowest mask row is an edge as often as a corner, and a box detection's foot
         column is its centre, so the foot column says little where the sides are known: the
         outline's lowest point keeps the foot row and slides along it until the outline's
         projection is centred between the observed sides (Newton steps of slope 1: the
-        projection moves with its anchor)."""
+        projection moves with its anchor). People seen as boxes
+        (:func:`~staticdepth.geometry.agent_shape.person_columns`) have a shoulder radius per
+        track (Gauss-Newton per track); a body's width does not foreshorten with the viewing
+        angle, its height does: the width along a track measures the viewing angle that rows
+        alone trade against the foot and head extents."""
         rays = self.obs.rays.copy()
-        left = right = None
+        out = []
         k = self.side_idx
         if len(k):
             params, heading = self.params(theta, dev), self.headings(n)[k]
@@ -145,51 +149,48 @@ class _Problem:
                 left, right = box_columns(self.K, n, rays[k], sk, grp, params, heading)
                 if it < iters:
                     u = u - np.nan_to_num(0.5 * (left + right) - mid)
-        return rays, left, right
-
-    def width_residuals(self, n, theta, s, dev=None, iters: int = 3) -> np.ndarray:
-        """Predicted minus observed widths (len(width_idx),) of the people seen as boxes, over
-        the noise model (:func:`~staticdepth.geometry.agent_shape.person_columns`), each track's
-        shoulder radius its own (Gauss-Newton per track). A body's width does not foreshorten
-        with the viewing angle, its height does: the width along a track measures the viewing
-        angle that rows alone trade against the foot and head extents."""
+            out += [(left - self.obs.left[k]) / self.sigma[k],
+                    (right - self.obs.right[k]) / self.sigma[k]]
         k = self.width_idx
-        if not len(k):
-            return np.zeros(0)
+        if len(k):
+            rays[k], wres = self._people_widths(n, theta, s, dev)
+            out.append(wres)
+        return rays, np.nan_to_num(np.concatenate(out), nan=_BIG) if out else np.zeros(0)
+
+    def _people_widths(self, n, theta, s, dev, iters: int = 1):
+        """(foot rays, width residuals) of the people seen as boxes; see :meth:`anchored`."""
+        k = self.width_idx
         e_f, e_h = self.params(theta, dev)[0]   # people (the disk group): foot, head extents
         if np.ndim(e_f):                          # per observation of the group (striding)
             e_f = np.asarray(e_f)[(np.cumsum(self.group == 0) - 1)[k]]
-        j, sk, rays = self.obs.idx[k], s[self.obs.idx[k]], self.obs.rays[k]
+        j, sk = self.obs.idx[k], s[self.obs.idx[k]]
         obs_w = self.obs.right[k] - self.obs.left[k]
+        mid = 0.5 * (self.obs.left[k] + self.obs.right[k])
+        u, radius = self.obs.u[k].copy(), np.full(self.J, 0.02)
 
-        def width(r):
+        def cols(rays, r):
             lo, hi = person_columns(self.K, n, rays, sk, e_f, e_h, r)
-            return np.nan_to_num(hi - lo, nan=_BIG)
+            return np.nan_to_num(lo, nan=-_BIG), np.nan_to_num(hi, nan=_BIG)
 
-        radius = np.full(self.J, 0.02)
-        for _ in range(iters):
-            w = width(radius[j])
-            dw = (width(radius[j] + 1e-3) - w) / 1e-3
-            num = np.bincount(j, dw * (w - obs_w), minlength=self.J)
-            den = np.bincount(j, dw * dw, minlength=self.J)
-            radius = np.clip(radius - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0),
-                             0.0, 0.2)
-        return (width(radius[j]) - obs_w) / self.sigma[k]
+        for it in range(iters + 1):
+            rays = rays_from_pixels(self.K, u, self.obs.v[k])
+            for _ in range(1 if it else 2):
+                lo, hi = cols(rays, radius[j])
+                lo2, hi2 = cols(rays, radius[j] + 1e-3)
+                w, dw = hi - lo, (hi2 - lo2 - hi + lo) / 1e-3
+                num = np.bincount(j, dw * (w - obs_w), minlength=self.J)
+                den = np.bincount(j, dw * dw, minlength=self.J)
+                radius = np.clip(radius - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0),
+                                 0.0, 0.2)
+            lo, hi = cols(rays, radius[j])
+            if it < iters:
+                u = u - (0.5 * (lo + hi) - mid)
+        return rays, (hi - lo - obs_w) / self.sigma[k]
 
     def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, dev=None, rays=None):
         rays = self.anchored(n, theta, s, dev)[0] if rays is None else rays
         return predict_top(self.K, n, rays, s[self.obs.idx], self.group,
                            self.params(theta, dev), self.headings(n))
-
-    def column_residuals(self, n, theta, s, dev=None):
-        """(foot rays, residuals over the noise model of the box observations' left and right
-        columns (2 x len(side_idx)))."""
-        rays, left, right = self.anchored(n, theta, s, dev)
-        if left is None:
-            return rays, np.zeros(0)
-        k = self.side_idx
-        return rays, np.nan_to_num(np.r_[(left - self.obs.left[k]) / self.sigma[k],
-                                         (right - self.obs.right[k]) / self.sigma[k]], nan=_BIG)
 
     def top_rows(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
         return self.top(n, theta, s)[1]
@@ -207,13 +208,13 @@ class _Problem:
         n = _normal(x[0], x[1])
         theta, lam, s = x[2:2 + self.n_shape], x[self.k_s - 1], x[self.k_s:self.k_s + self.J]
         dev = x[self.k_s + self.J:] if len(x) > self.k_s + self.J else None
-        rays, cols = self.column_residuals(n, theta, s, dev)
+        rays, cols = self.anchored(n, theta, s, dev)
         u, v = self.top(n, theta, s, dev, rays)
         r = np.nan_to_num((v - self.obs.top_v) / self.sigma, nan=_BIG)
         if col_w > 0:
             r = np.r_[r, col_w * np.nan_to_num((u - self.top_u)[self.has_u]
                                                / self.sigma[self.has_u], nan=_BIG)]
-        r = np.r_[r, cols, self.width_residuals(n, theta, s, dev)]
+        r = np.r_[r, cols]
         sd = np.concatenate([GROUPS[g].prior_sd for g in self.present] or [np.zeros(0)])
         # heights: log s_j = log H_class - log d + eps, robust (children, outliers)
         z = (np.log(s) - self.log_h - lam) / self.log_sd
@@ -342,6 +343,7 @@ def _ransac(K, prob: _Problem, conf, rng):
     while it < min(need, conf.ransac_iters):
         it += 1
         sub = _Problem(K, obs.subset(rng.choice(J, 3, replace=False)), prob.kappa)
+        sub.width_idx = sub.width_idx[:0]     # rows (and box sides) only: the widths are slow
         start = _affine_start(K, sub.obs) or (30.0, 0.0)
         p, r, _, _, _ = sub.fit(conf, [start], sub.prior_theta(), max_nfev=30, free_shape=False)
         n = _normal(p, r)

@@ -146,7 +146,7 @@ WIDTH_AT = 0.75     # a person's widest ring (shoulders, arms, torso) at this sh
 
 
 def person_columns(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray, e_f, e_h,
-                   radius, k: int = 36) -> tuple[np.ndarray, np.ndarray]:
+                   radius, k: int = 16) -> tuple[np.ndarray, np.ndarray]:
     """(left (N,), right (N,)) extreme columns in pixels of people seen as boxes: the convex
     hull of the foot disk (radius ``e_f s``, its lowest point on ``rays``), the head disk (``e_h
     s`` at the height s (N,), :func:`top_points`) and a ring of ``radius`` (N, units of d) at
