@@ -41,10 +41,9 @@ from scipy.sparse import lil_matrix
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
-from staticdepth.geometry.agent_shape import (GROUPS, box_columns, group_of_class,
-                                              person_columns, predict_top, track_headings)
+from staticdepth.geometry.agent_plane_sides import anchored
+from staticdepth.geometry.agent_shape import GROUPS, group_of_class, predict_top, track_headings
 from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
-from staticdepth.geometry.projection import rays_from_pixels
 
 
 MIN_SHAPE_TRACKS = 3
@@ -124,68 +123,10 @@ class _Problem:
             F = self.obs.rays / nr[:, None]
         return track_headings(n, F, self.obs.idx, self.J)[self.obs.idx]
 
-    def anchored(self, n, theta, s, dev=None, iters: int = 3):
-        """(foot rays (N, 3), residuals over the noise model of the box outlines' left and right
-        columns (2 x len(side_idx)) and of the people-as-boxes' widths (len(width_idx))).
-
-        A box's lowest mask row is an edge as often as a corner, and a box detection's foot
-        column is its centre, so the foot column says little where the sides are known: the
-        outline's lowest point keeps the foot row and slides along it until the outline's
-        projection is centred between the observed sides (Newton steps of slope 1: the
-        projection moves with its anchor). People seen as boxes
-        (:func:`~staticdepth.geometry.agent_shape.person_columns`) have a shoulder radius per
-        track (Gauss-Newton per track); a body's width does not foreshorten with the viewing
-        angle, its height does: the width along a track measures the viewing angle that rows
-        alone trade against the foot and head extents."""
-        rays = self.obs.rays.copy()
-        out = []
-        k = self.side_idx
-        if len(k):
-            params, heading = self.params(theta, dev), self.headings(n)[k]
-            mid = 0.5 * (self.obs.left[k] + self.obs.right[k])
-            u, sk, grp = self.obs.u[k].copy(), s[self.obs.idx[k]], self.group[k]
-            for it in range(iters + 1):
-                rays[k] = rays_from_pixels(self.K, u, self.obs.v[k])
-                left, right = box_columns(self.K, n, rays[k], sk, grp, params, heading)
-                if it < iters:
-                    u = u - np.nan_to_num(0.5 * (left + right) - mid)
-            out += [(left - self.obs.left[k]) / self.sigma[k],
-                    (right - self.obs.right[k]) / self.sigma[k]]
-        k = self.width_idx
-        if len(k):
-            rays[k], wres = self._people_widths(n, theta, s, dev)
-            out.append(wres)
-        return rays, np.nan_to_num(np.concatenate(out), nan=_BIG) if out else np.zeros(0)
-
-    def _people_widths(self, n, theta, s, dev, iters: int = 1):
-        """(foot rays, width residuals) of the people seen as boxes; see :meth:`anchored`."""
-        k = self.width_idx
-        e_f, e_h = self.params(theta, dev)[0]   # people (the disk group): foot, head extents
-        if np.ndim(e_f):                          # per observation of the group (striding)
-            e_f = np.asarray(e_f)[(np.cumsum(self.group == 0) - 1)[k]]
-        j, sk = self.obs.idx[k], s[self.obs.idx[k]]
-        obs_w = self.obs.right[k] - self.obs.left[k]
-        mid = 0.5 * (self.obs.left[k] + self.obs.right[k])
-        u, radius = self.obs.u[k].copy(), np.full(self.J, 0.02)
-
-        def cols(rays, r):
-            lo, hi = person_columns(self.K, n, rays, sk, e_f, e_h, r)
-            return np.nan_to_num(lo, nan=-_BIG), np.nan_to_num(hi, nan=_BIG)
-
-        for it in range(iters + 1):
-            rays = rays_from_pixels(self.K, u, self.obs.v[k])
-            for _ in range(1 if it else 2):
-                lo, hi = cols(rays, radius[j])
-                lo2, hi2 = cols(rays, radius[j] + 1e-3)
-                w, dw = hi - lo, (hi2 - lo2 - hi + lo) / 1e-3
-                num = np.bincount(j, dw * (w - obs_w), minlength=self.J)
-                den = np.bincount(j, dw * dw, minlength=self.J)
-                radius = np.clip(radius - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0),
-                                 0.0, 0.2)
-            lo, hi = cols(rays, radius[j])
-            if it < iters:
-                u = u - (0.5 * (lo + hi) - mid)
-        return rays, (hi - lo - obs_w) / self.sigma[k]
+    def anchored(self, n, theta, s, dev=None):
+        """(foot rays (N, 3), column residuals of the boxes' sides and the people-as-boxes'
+        widths): :func:`staticdepth.geometry.agent_plane_sides.anchored`."""
+        return anchored(self, n, theta, s, dev)
 
     def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, dev=None, rays=None):
         rays = self.anchored(n, theta, s, dev)[0] if rays is None else rays
