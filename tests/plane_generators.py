@@ -247,6 +247,9 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
             rows += out
             heights[track] = hgt
             track += 1
+    if not rows:        # e.g. vehicles under a steep, low camera: none fits in the image
+        raise ValueError(f"no whole {kind} track fits in the image of camera {seed} (pitch "
+                         f"{pitch:.0f} deg, {d:.1f} m high)")
     a = np.array(rows, dtype=np.float64)
     obs = np.zeros(len(a), OBS)
     for k, name in enumerate(("track", "frame", "class_id", "foot_u", "foot_v", "top_v", "top_u",
