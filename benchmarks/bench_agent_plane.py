@@ -2,6 +2,8 @@
 
 Usage: python benchmarks/bench_agent_plane.py [--cameras 8] [--outliers 0.0] [--detection mask]
        [--generators thin,tapered,cylinder,ellipsoid,vehicles] [--models paper,exact,joint]
+       [--bootstrap 0]
+       python benchmarks/bench_agent_plane.py --scenes i1,i2,i3,i4 [--frames 27] [--bootstrap 20]
 
 Scenes from the independent generators of tests/plane_generators.py (cameras 3-12 m high, pitched
 10-50 degrees, roll +-5, 24 tracks, 1 px noise; ``--detection box`` gives boxes with +-2 px
@@ -9,13 +11,23 @@ jitter and no top column; ``--outliers 0.2`` corrupts 20% of the observations). 
 model: median and max error of the normal (degrees) and of the camera height from the agents
 (percent: Eq. 1 and exact from a 1.72 m agent height, people's median; joint from the classes'
 height distributions, maximum likelihood), and seconds per fit; a fit that refuses (InputError,
-e.g. a near-nadir camera) is printed and counted, not in the statistics.
+e.g. a near-nadir camera) is printed and counted, not in the statistics. ``--bootstrap N``: the
+joint model's bootstrap too, and the ratio of the true normal error to its reported uncertainty
+(median / max; <= 1 where the uncertainty covers the error).
+
+``--scenes``: the independent rendered scenes of tests/indep_scenes.py (people as ellipsoids,
+cars as body + cabin + wheel boxes, 320x160, the first ``--frames`` frames: adapt's split of 60),
+observations from their ground-truth instance maps as ``adapt`` takes them
+(``tracking.observations_from_instances``, straight walkers kept, ``--min-height-px`` 10); per
+scene and class set (people, all, vehicles) the joint model's normal error, its bootstrap
+uncertainty and their ratio, and the inlier tracks per class.
 """
 from __future__ import annotations
 
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from plane_generators import GENERATORS, scene  # noqa: E402
 
+from staticdepth import tracking  # noqa: E402
 from staticdepth.errors import InputError  # noqa: E402
 from staticdepth.geometry.agent_plane import (AgentPlaneConfig, camera_height_from_prior,  # noqa: E402
                                               fit_agent_plane)
@@ -46,6 +59,38 @@ def camera_height(plane, model: str, vehicles: bool) -> float:
         return float("nan")
 
 
+def scene_table(names: list[str], frames: int, min_height_px: float, bootstrap: int) -> None:
+    """Plane error per class set on the independent rendered scenes (see the module doc)."""
+    from indep_scenes import SCENES, Scene
+
+    from staticdepth.geometry.camera import normal_from_pitch_roll
+
+    print(f"independent scenes, {frames} frames at 320x160, gt instances; joint model, "
+          f"bootstrap {bootstrap}: normal error deg, reported std deg, error / std, inlier tracks")
+    sets = {"people": (0, -1), "all": None, "vehicles": (1, 2, 3, 5, 7)}
+    for spec in SCENES:
+        if spec.name not in names:
+            continue
+        sc = Scene(spec, 320, 160)
+        pairs = [(f["instances"], f["agents"]) for f in (sc.render(i) for i in range(frames))]
+        obs = tracking.observations_from_instances(pairs, tracking.TrackingConfig(
+            drop_collinear=False, min_height_px=min_height_px))
+        truth = normal_from_pitch_roll(spec.pitch_deg, 0.0)
+        for name, cls in sets.items():
+            try:
+                p = fit_agent_plane(sc.camera.K, obs, AgentPlaneConfig(classes=cls,
+                                                                        bootstrap=bootstrap))
+            except InputError as e:
+                print(f"{spec.name:3} {name:8} refused: {e}")
+                continue
+            err = angle_between_deg(p.normal, truth)
+            c = np.asarray(p.extra["classes"])
+            per = ", ".join(f"class {k}: {np.count_nonzero(p.inliers & (c == k))}/"
+                            f"{np.count_nonzero(c == k)}" for k in np.unique(c))
+            print(f"{spec.name:3} {name:8} error {err:5.2f}  std {p.normal_std_deg:5.2f}  "
+                  f"ratio {err / p.normal_std_deg:5.2f}  tracks {per}", flush=True)
+
+
 def main() -> None:
     ap_ = argparse.ArgumentParser(description=__doc__)
     ap_.add_argument("--cameras", type=int, default=8)
@@ -53,8 +98,18 @@ def main() -> None:
     ap_.add_argument("--detection", choices=("mask", "box"), default="mask")
     ap_.add_argument("--generators", default=",".join(GENERATORS))
     ap_.add_argument("--models", default="paper,exact,joint")
+    ap_.add_argument("--bootstrap", type=int, default=0)
+    ap_.add_argument("--verbose", action="store_true", help="every camera's error")
+    ap_.add_argument("--scenes", default="", help="e.g. i1,i2,i3,i4: the rendered scenes instead")
+    ap_.add_argument("--frames", type=int, default=27)
+    ap_.add_argument("--min-height-px", type=float, default=10.0)
     args = ap_.parse_args()
+    if args.scenes:
+        scene_table(args.scenes.split(","), args.frames, args.min_height_px, args.bootstrap)
+        return
     models = args.models.split(",")
+    if args.bootstrap:
+        CONFIGS["joint"] = replace(CONFIGS["joint"], bootstrap=args.bootstrap)
     print(f"{args.cameras} cameras per generator, detections: {args.detection}, outliers "
           f"{args.outliers:.0%}; normal error deg (median / max), camera height error % "
           "(median / max), s per fit")
@@ -62,6 +117,7 @@ def main() -> None:
     for kind in args.generators.split(","):
         stats = {m: ([], [], []) for m in models}
         refused = {m: 0 for m in models}
+        ratios = []
         for seed in range(args.cameras):
             s = scene(kind, seed, detection=args.detection, outliers=args.outliers)
             n_tracks = len(np.unique(s.obs["track"]))
@@ -80,6 +136,11 @@ def main() -> None:
                 stats[m][0].append(angle_between_deg(p.normal, s.normal))
                 h = camera_height(p, m, kind == "vehicles")
                 stats[m][1].append(abs(h / s.height_m - 1) * 100)
+                if args.verbose:
+                    print(f"  {kind} camera {seed} {m}: {stats[m][0][-1]:.2f} deg, "
+                          f"{n_tracks} tracks, uncertainty {p.normal_std_deg:.2f}", flush=True)
+                if m == "joint" and args.bootstrap:
+                    ratios.append(stats[m][0][-1] / p.normal_std_deg)
         cells = []
         for m in models:
             e, h, t = (np.asarray(x) for x in stats[m])
@@ -89,6 +150,8 @@ def main() -> None:
             cells.append(f"{np.median(e):5.2f} / {np.max(e):5.2f}  {np.nanmedian(h):4.1f} / "
                          f"{np.nanmax(h):4.1f}  {np.median(t):4.1f}"
                          + (f" ({refused[m]} refused)" if refused[m] else ""))
+        if ratios:
+            cells.append(f"error / std {np.nanmedian(ratios):.2f} / {np.nanmax(ratios):.2f}")
         print(f"{kind:10}" + "".join(f" | {c:^30}" for c in cells), flush=True)
 
 

@@ -56,6 +56,7 @@ def read_observations_csv(path: str | os.PathLike) -> np.ndarray:
     out["class_id"] = -1
     out["score"] = 1.0
     out["top_u"] = np.nan
+    out["left"] = out["right"] = np.nan
     for i, r in enumerate(rows[1:]):
         if len(r) != len(header):
             raise InputError(f"line {i + 2}: {len(r)} fields, the header has {len(header)}", path)

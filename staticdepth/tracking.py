@@ -4,7 +4,8 @@ A detection is one agent instance in one frame (a rider and its bicycle or motor
 into one agent of the two-wheeler's class first, :func:`merge_riders`): its foot point (bottom
 centre of the mask: the lowest row, the median column of that row; for people the mean of both
 feet's lowest points, :func:`walker_foot`), its top point (the highest row, the median column of
-that row; the column is NaN when only a box or an agent row without it is known), box and score.
+that row; the column is NaN when only a box or an agent row without it is known, or the mask
+fills its bounding box: a box detection), box and score.
 Detections are linked across frames by the Hungarian assignment
 (``scipy.optimize.linear_sum_assignment``) on box IoU, or on foot-point distance relative to the
 pixel height when there are no boxes; track ids given with the rows (``track_id`` >= 0, e.g. the
@@ -33,7 +34,8 @@ ground-plane model.
 
 Output: :data:`OBS_DTYPE` rows (frame, track, class_id, foot_u, foot_v, height_px, top_v, score,
 top_u, feet: 2 where a walker's foot point is its two feet's mean, 1 one foot, 0 not a person
-mask), foot and top rows moved ``edge_px`` outwards, the input of
+mask; left, right: the silhouette's extreme columns, the box's sides for a box detection, NaN
+when unknown), foot and top rows and the side columns moved ``edge_px`` outwards, the input of
 :func:`staticdepth.geometry.agent_plane.fit_agent_plane`.
 """
 from __future__ import annotations
@@ -50,7 +52,7 @@ from staticdepth.errors import InputError
 OBS_DTYPE = np.dtype([("frame", np.int32), ("track", np.int32), ("class_id", np.int16),
                       ("foot_u", np.float32), ("foot_v", np.float32), ("height_px", np.float32),
                       ("top_v", np.float32), ("score", np.float32), ("top_u", np.float32),
-                      ("feet", np.uint8)])
+                      ("feet", np.uint8), ("left", np.float32), ("right", np.float32)])
 
 DET_DTYPE = np.dtype([("frame", np.int32), ("instance_id", np.int32), ("class_id", np.int16),
                       ("track", np.int32), ("foot_u", np.float32), ("foot_v", np.float32),
@@ -120,8 +122,11 @@ def detections_from_instances(instance_map: np.ndarray, rows: np.ndarray | None 
         else:
             out["foot_u"][k], out["foot_v"][k] = np.median(low_cols), v_low
         out["top_v"][k] = v_top
-        out["top_u"][k] = np.median(top_cols)
         out["left"][k], out["right"][k] = us[a:b].min(), us[a:b].max()
+        # a mask that fills its bounding box is a box detection: its top row's middle is not
+        # the silhouette's highest point (the fit then uses its sides)
+        box = b - a == (out["right"][k] - out["left"][k] + 1) * (v_low - v_top + 1)
+        out["top_u"][k] = np.nan if box else np.median(top_cols)
         out["occluded"][k] = (_touches(m, uniq[k], v_low + 1, v_low + 1 + contact_px, low_cols)
                               or _touches(m, uniq[k], v_top - contact_px, v_top, top_cols))
     out["class_id"], out["score"], out["track"] = info[:, 0], info[:, 1], info[:, 2]
@@ -366,6 +371,8 @@ def observations(dets: np.ndarray, conf: TrackingConfig = TrackingConfig()) -> n
     out["foot_v"] = d["foot_v"] + conf.edge_px
     out["top_v"] = d["top_v"] - conf.edge_px
     out["height_px"] = out["foot_v"] - out["top_v"]
+    out["left"] = d["left"] - conf.edge_px
+    out["right"] = d["right"] + conf.edge_px
     return np.sort(out, order=["track", "frame"])
 
 

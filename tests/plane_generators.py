@@ -18,7 +18,9 @@ with the median column of the points within half a pixel of that row (a mask's e
 run of pixels; a person's foot is both feet's mean where the bottom profile of the union of its
 pieces' convex hulls shows two feet apart, as ``staticdepth.tracking.walker_foot`` takes it from
 a mask; ``feet`` says how many), 1 px Gaussian noise on all four; as a box, the extreme rows and
-columns each jittered by U(-2, 2) px, the foot column the box centre and no top column. Outliers
+columns each jittered by U(-2, 2) px, the foot column the box centre and no top column. Both
+record the extreme columns (``left``, ``right``; a mask's with 1 px noise from a generator of
+their own, so the other observations stay as they were). Outliers
 (``outliers`` = share of observations): sitting people (whole tracks, 55-70% of the height),
 detections cut by the image top (the top row moved down by 15-50% of the height) and partly
 occluded feet (the foot row moved up by 15-40%).
@@ -33,7 +35,8 @@ from scipy.spatial import ConvexHull, QhullError
 
 W, H = 960, 540
 OBS = [("frame", "i4"), ("track", "i4"), ("class_id", "i2"), ("foot_u", "f8"), ("foot_v", "f8"),
-       ("height_px", "f8"), ("top_v", "f8"), ("top_u", "f8"), ("score", "f4"), ("feet", "u1")]
+       ("height_px", "f8"), ("top_v", "f8"), ("top_u", "f8"), ("score", "f4"), ("feet", "u1"),
+       ("left", "f8"), ("right", "f8")]
 GENERATORS = ("thin", "tapered", "cylinder", "ellipsoid", "vehicles")
 PERSON, BICYCLE, CAR, BUS = 0, 1, 2, 5
 FOOT_BAND, FOOT_DIP = 0.25, 0.03   # a walker's second foot, as staticdepth.tracking takes it
@@ -197,7 +200,7 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
           n_tracks: int = 24, frames: tuple[int, int] = (6, 10), noise_px: float = 1.0,
           pitch_deg: float | None = None) -> Scene:
     """A random camera and ``n_tracks`` tracks of ``kind`` agents; see the module doc."""
-    rng = np.random.default_rng(seed)
+    rng, side_rng = np.random.default_rng(seed), np.random.default_rng([seed, 1])
     K, n, d, pitch, roll = camera(rng, pitch_deg)
     up = -n
     e1 = np.cross(n, [1.0, 0, 0])
@@ -232,20 +235,25 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
                 ub, vb, feet = (np.median(u[v >= v.max() - 0.5]), v.max(), 0) if cls != PERSON \
                     else _walker_foot(u, v, *_bottom_profile([_project(K, p) for p in pieces]))
                 ut = np.median(u[v <= v.min() + 0.5])
-                out.append((track, i, cls, ub + e[0], vb + e[1], v.min() + e[2], ut + e[3], feet))
+                es = side_rng.normal(0, noise_px, 2)
+                out.append((track, i, cls, ub + e[0], vb + e[1], v.min() + e[2], ut + e[3], feet,
+                            u.min() + es[0], u.max() + es[1]))
             else:
                 j = rng.uniform(-2, 2, 4)
                 lo, hi = u.min() + j[0], u.max() + j[1]
                 out.append((track, i, cls, (lo + hi) / 2, v.max() + j[2], v.min() + j[3], np.nan,
-                            0))
+                            0, lo, hi))
         if len(out) >= 3:
             rows += out
             heights[track] = hgt
             track += 1
+    if not rows:        # e.g. vehicles under a steep, low camera: none fits in the image
+        raise ValueError(f"no whole {kind} track fits in the image of camera {seed} (pitch "
+                         f"{pitch:.0f} deg, {d:.1f} m high)")
     a = np.array(rows, dtype=np.float64)
     obs = np.zeros(len(a), OBS)
     for k, name in enumerate(("track", "frame", "class_id", "foot_u", "foot_v", "top_v", "top_u",
-                              "feet")):
+                              "feet", "left", "right")):
         obs[name] = a[:, k]
     obs["score"] = 1.0
     if outliers > 0:

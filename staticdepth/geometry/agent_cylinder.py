@@ -123,12 +123,17 @@ class AgentObservations:
     cls: np.ndarray
     top_u: np.ndarray | None = None
     feet: np.ndarray | None = None
+    left: np.ndarray | None = None     # (N,) the silhouette's extreme columns (NaN: unknown)
+    right: np.ndarray | None = None
 
     def __post_init__(self):
         if self.top_u is None:
             object.__setattr__(self, "top_u", np.full(len(self.top_v), np.nan))
         if self.feet is None:
             object.__setattr__(self, "feet", np.zeros(len(self.top_v), np.int64))
+        for side in ("left", "right"):
+            if getattr(self, side) is None:
+                object.__setattr__(self, side, np.full(len(self.top_v), np.nan))
 
     @property
     def has_u(self) -> np.ndarray:
@@ -138,7 +143,8 @@ class AgentObservations:
     def _take(self, sel: np.ndarray, idx: np.ndarray, tracks: np.ndarray) -> "AgentObservations":
         return AgentObservations(self.rays[sel], self.top_v[sel], self.h[sel], self.u[sel],
                                  self.v[sel], idx, self.ids[tracks], self.cls[tracks],
-                                 self.top_u[sel], self.feet[sel])
+                                 self.top_u[sel], self.feet[sel], self.left[sel],
+                                 self.right[sel])
 
     def subset(self, tracks: np.ndarray) -> "AgentObservations":
         """Observations of the given track indices (duplicates become separate tracks)."""

@@ -264,8 +264,10 @@ def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact",
         top_u = np.asarray(obs["top_u"], dtype=np.float64)
     if "feet" in obs.dtype.names:
         feet = np.asarray(obs["feet"], dtype=np.int64)
+    sides = [np.asarray(obs[c], dtype=np.float64) if c in obs.dtype.names else None
+             for c in ("left", "right")]
     return AgentObservations(rays_from_pixels(K, u, v), v - h, h, u, v, idx, ids, cls, top_u,
-                             feet)
+                             feet, *sides)
 
 
 def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
@@ -306,7 +308,8 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
                           boot.get("d_over_h_std", float("nan")),
                           extra={"classes": obs.cls, "extents": extents,
                                  "column_weight": boot.get("column_weight", 0.0),
-                                 "inlier_px": boot.get("inlier_px", conf.inlier_px)})
+                                 "inlier_px": boot.get("inlier_px", conf.inlier_px),
+                                 "class_misfit_deg": boot.get("class_misfit_deg", float("nan"))})
     else:
         n, s, inl, res = fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))

@@ -26,8 +26,8 @@ lowest point by +-0.3 m along its heading: several pixels).
 Robust pipeline: RANSAC over tracks (3 tracks, extents at their prior means, every other track's
 ``s_j`` solved with the normal fixed, observations within ``inlier_px`` counted), a soft-L1 fit of
 all unknowns on the inlier tracks from the RANSAC and the affine (Eq. 1) normals, the residual
-scales, then a fit on the inlier observations; the bootstrap over inlier tracks refits from that
-solution.
+scales, then a fit on the inlier observations; its uncertainty
+(:mod:`staticdepth.geometry.agent_plane_boot`) refits from that solution.
 """
 from __future__ import annotations
 
@@ -41,10 +41,9 @@ from scipy.sparse import lil_matrix
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
-from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
-                                              track_headings)
+from staticdepth.geometry.agent_plane_sides import anchored
+from staticdepth.geometry.agent_shape import GROUPS, group_of_class, predict_top, track_headings
 from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
-from staticdepth.geometry.plane import angle_between_deg
 
 
 MIN_SHAPE_TRACKS = 3
@@ -73,7 +72,17 @@ class _Problem:
             self.slices[g] = slice(k, k + m)
             k += m
         self.n_shape = k - 2
-        self.has_u = np.isfinite(obs.top_u)
+        # a box's highest mask row is often an edge (its median column between two corners):
+        # only the disk outlines' top columns are used
+        box_obs = np.array([GROUPS[g].outline == "box" for g in range(len(GROUPS))])[self.group]
+        self.top_u = np.where(box_obs, np.nan, obs.top_u)
+        self.has_u = np.isfinite(self.top_u)
+        # a box outline's extreme columns (a box detection's sides, a mask's extreme columns)
+        self.sides = box_obs & np.isfinite(obs.left) & np.isfinite(obs.right)
+        self.side_idx = np.flatnonzero(self.sides)
+        # people seen as boxes (no top column): their widths, each track's body radius free
+        self.width_idx = np.flatnonzero(~box_obs & ~self.has_u & np.isfinite(obs.left)
+                                        & np.isfinite(obs.right))
         self.k_s = k + 1                  # index of s_1 (k: log of 1 / camera height in metres)
         mh = np.array([GROUPS[g].typical_height for g in self.track_group])
         self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
@@ -114,8 +123,14 @@ class _Problem:
             F = self.obs.rays / nr[:, None]
         return track_headings(n, F, self.obs.idx, self.J)[self.obs.idx]
 
-    def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, dev=None):
-        return predict_top(self.K, n, self.obs.rays, s[self.obs.idx], self.group,
+    def anchored(self, n, theta, s, dev=None):
+        """(foot rays (N, 3), column residuals of the boxes' sides and the people-as-boxes'
+        widths): :func:`staticdepth.geometry.agent_plane_sides.anchored`."""
+        return anchored(self, n, theta, s, dev)
+
+    def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, dev=None, rays=None):
+        rays = self.anchored(n, theta, s, dev)[0] if rays is None else rays
+        return predict_top(self.K, n, rays, s[self.obs.idx], self.group,
                            self.params(theta, dev), self.headings(n))
 
     def top_rows(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -126,7 +141,7 @@ class _Problem:
         u, v = self.top(n, theta, s)
         e = np.abs(np.nan_to_num(v - self.obs.top_v, nan=_BIG))
         if col_w > 0:
-            e = np.maximum(e, col_w * np.nan_to_num(np.abs(u - self.obs.top_u), nan=0.0))
+            e = np.maximum(e, col_w * np.nan_to_num(np.abs(u - self.top_u), nan=0.0))
         return e / self.sigma
 
     def residuals(self, x: np.ndarray, prior_w: float, height_w: float,
@@ -134,11 +149,13 @@ class _Problem:
         n = _normal(x[0], x[1])
         theta, lam, s = x[2:2 + self.n_shape], x[self.k_s - 1], x[self.k_s:self.k_s + self.J]
         dev = x[self.k_s + self.J:] if len(x) > self.k_s + self.J else None
-        u, v = self.top(n, theta, s, dev)
+        rays, cols = self.anchored(n, theta, s, dev)
+        u, v = self.top(n, theta, s, dev, rays)
         r = np.nan_to_num((v - self.obs.top_v) / self.sigma, nan=_BIG)
         if col_w > 0:
-            r = np.r_[r, col_w * np.nan_to_num((u - self.obs.top_u)[self.has_u]
+            r = np.r_[r, col_w * np.nan_to_num((u - self.top_u)[self.has_u]
                                                / self.sigma[self.has_u], nan=_BIG)]
+        r = np.r_[r, cols]
         sd = np.concatenate([GROUPS[g].prior_sd for g in self.present] or [np.zeros(0)])
         # heights: log s_j = log H_class - log d + eps, robust (children, outliers)
         z = (np.log(s) - self.log_h - lam) / self.log_sd
@@ -148,7 +165,8 @@ class _Problem:
         return out if dev is None else np.r_[out, dev / self.dev_sd]
 
     def sparsity(self, col_w: float, with_dev: bool = False):
-        ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else []].astype(int)
+        ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else [],
+                   self.side_idx, self.side_idx, self.width_idx].astype(int)
         R = len(ob)
         nd = self.J if with_dev else 0
         S = lil_matrix((R + self.n_shape + self.J + nd, self.k_s + self.J + nd), dtype=np.int8)
@@ -266,6 +284,7 @@ def _ransac(K, prob: _Problem, conf, rng):
     while it < min(need, conf.ransac_iters):
         it += 1
         sub = _Problem(K, obs.subset(rng.choice(J, 3, replace=False)), prob.kappa)
+        sub.width_idx = sub.width_idx[:0]     # rows (and box sides) only: the widths are slow
         start = _affine_start(K, sub.obs) or (30.0, 0.0)
         p, r, _, _, _ = sub.fit(conf, [start], sub.prior_theta(), max_nfev=30, free_shape=False)
         n = _normal(p, r)
@@ -322,7 +341,9 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
         inl = np.ones(J, bool)
     extents = {GROUPS[g].name: [float(v) for v in theta_all[sl.start - 2:sl.stop - 2]]
                for g, sl in prob.slices.items()}
-    boot = _bootstrap(K, prob, conf, n, theta_all, inl, rng) if conf.bootstrap > 0 else {}
+    from staticdepth.geometry.agent_plane_boot import joint_uncertainty
+
+    boot = joint_uncertainty(K, prob, conf, n, theta_all, inl, rng) if conf.bootstrap > 0 else {}
     boot["column_weight"] = conf.fit_column_weight
     boot["inlier_px"] = thr
     return n, s, inl, res, extents, boot
@@ -344,7 +365,7 @@ def _column_weight(conf, prob: _Problem, n, theta, s, keep):
     if conf.fit_column_weight <= 0:
         return conf
     u, v = prob.top(n, theta, s)
-    ru, rv = (u - prob.obs.top_u)[keep], (v - prob.obs.top_v)[keep]
+    ru, rv = (u - prob.top_u)[keep], (v - prob.obs.top_v)[keep]
     ru = ru[np.isfinite(ru)]
     if len(ru) < 5:
         return conf
@@ -362,22 +383,3 @@ def _expand(full: _Problem, sub: _Problem, theta: np.ndarray) -> np.ndarray:
             ss = sub.slices[g]
             out[sl.start - 2:sl.stop - 2] = theta[ss.start - 2:ss.stop - 2]
     return out
-
-
-def _bootstrap(K, prob: _Problem, conf, n, theta, inl, rng) -> dict:
-    """Resample the inlier tracks, refit from the solution (least squares, inlier observations
-    of the full fit): RMS angle to the solution's normal (deg), std of d/H (typical agent)."""
-    tracks = np.flatnonzero(inl)
-    if len(tracks) < 3:
-        return {}
-    p0, r0 = pitch_roll_from_normal(n)
-    angles, dh = [], []
-    for _ in range(conf.bootstrap):
-        sub = _Problem(K, prob.obs.subset(rng.choice(tracks, len(tracks), replace=True)),
-                       prob.kappa)
-        p, r, _, s, _ = sub.fit(conf, [(p0, r0)], _expand(sub, prob, theta), loss=conf.loss,
-                                max_nfev=40, feet=True)
-        angles.append(angle_between_deg(_normal(p, r), n))
-        dh.append(1.0 / float(np.median(s)))
-    return {"normal_std_deg": float(np.sqrt(np.mean(np.square(angles)))),
-            "d_over_h_std": float(np.std(dh, ddof=1)), "n_tracks": int(len(tracks))}

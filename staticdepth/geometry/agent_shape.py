@@ -118,6 +118,16 @@ def _rows(P: np.ndarray) -> np.ndarray:
 
 def _box_top(n, F, s, a, b, heading) -> np.ndarray:
     """Highest top corners (N, 3) of boxes whose lowest footprint corner is F (N, 3)."""
+    top = box_corners(n, F, s, a, b, heading)[:, 4:]
+    trows = np.nan_to_num(_rows(top), nan=np.inf)
+    trows[top[..., 2] <= 1e-9] = np.inf
+    return top[np.arange(len(F)), np.argmin(trows, axis=1)]
+
+
+def box_corners(n, F, s, a, b, heading) -> np.ndarray:
+    """(N, 8, 3) corners of boxes (footprint first, then roof) whose lowest footprint corner in
+    the image is F (N, 3): half-length ``a s`` along ``heading`` (N, 3), half-width ``b s``,
+    height ``s``."""
     side = np.cross(n, heading)
     signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], np.float64)
     off = (signs[None, :, 0, None] * (a * s)[:, None, None] * heading[:, None, :]
@@ -129,10 +139,61 @@ def _box_top(n, F, s, a, b, heading) -> np.ndarray:
     margin = rows[:, np.arange(4), np.arange(4)] - np.max(rows, axis=2)             # <= 0
     k = np.argmax(np.nan_to_num(margin, nan=-np.inf), axis=1)
     c = centre[np.arange(len(F)), k]
-    top = c[:, None, :] - s[:, None, None] * n + off                                # (N, 4, 3)
-    trows = np.nan_to_num(_rows(top), nan=np.inf)
-    trows[top[..., 2] <= 1e-9] = np.inf
-    return top[np.arange(len(F)), np.argmin(trows, axis=1)]
+    return np.concatenate([c[:, None, :] + off, c[:, None, :] - s[:, None, None] * n + off], 1)
+
+
+WIDTH_AT = 0.75     # a person's widest ring (shoulders, arms, torso) at this share of its height
+
+
+def person_columns(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray, e_f, e_h,
+                   radius, k: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """(left (N,), right (N,)) extreme columns in pixels of people seen as boxes: the convex
+    hull of the foot disk (radius ``e_f s``, its lowest point on ``rays``), the head disk (``e_h
+    s`` at the height s (N,), :func:`top_points`) and a ring of ``radius`` (N, units of d) at
+    :data:`WIDTH_AT` of the height (the shoulders). A wide cylinder is all three alike, a thin
+    axis none. NaN behind the camera."""
+    nr = rays @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        F = rays / nr[:, None]
+    F[~(nr > 1e-9)] = np.nan
+    basis = _ground_basis(n)
+    A = F.copy()
+    if np.any(np.asarray(e_f) > 0):
+        for _ in range(3):
+            A = A + (F - _rim(A, basis, np.asarray(e_f) * s, lowest=True))
+    a = np.linspace(0, 2 * np.pi, k, endpoint=False)
+    circle = (np.cos(a)[:, None] * basis[0] + np.sin(a)[:, None] * basis[1])[None]  # (1, k, 3)
+    rad = lambda r: (np.asarray(r, np.float64) * np.ones(len(s))).reshape(-1, 1, 1)  # noqa: E731
+    P = np.concatenate([A[:, None] + rad(np.asarray(e_f) * s) * circle,
+                        (A - s[:, None] * n)[:, None] + rad(np.asarray(e_h) * s) * circle,
+                        (A - WIDTH_AT * s[:, None] * n)[:, None] + rad(radius) * circle], 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K[0, 0] * P[..., 0] / P[..., 2] + K[0, 1] * P[..., 1] / P[..., 2] + K[0, 2]
+    u[~(P[..., 2] > 1e-9)] = np.nan
+    return u.min(1), u.max(1)
+
+
+def box_columns(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray,
+                group: np.ndarray, params: list[np.ndarray], heading: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(left (N,), right (N,)) extreme columns in pixels of the box outlines' projections (the
+    sides of a box detection); NaN for the other outlines and where a corner is behind the
+    camera. Arguments as :func:`top_points`."""
+    left, right = np.full(len(rays), np.nan), np.full(len(rays), np.nan)
+    nr = rays @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        F = rays / nr[:, None]
+    F[~(nr > 1e-9)] = np.nan
+    for g, grp in enumerate(GROUPS):
+        m = group == g
+        if grp.outline != "box" or not m.any():
+            continue
+        C = box_corners(n, F[m], s[m], params[g][0], params[g][1], heading[m])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = K[0, 0] * C[..., 0] / C[..., 2] + K[0, 1] * C[..., 1] / C[..., 2] + K[0, 2]
+        u[~(C[..., 2] > 1e-9)] = np.nan
+        left[m], right[m] = u.min(1), u.max(1)
+    return left, right
 
 
 def top_points(n: np.ndarray, rays: np.ndarray, s: np.ndarray, group: np.ndarray,

@@ -1,0 +1,64 @@
+"""The joint ground-plane model's uncertainty: a bootstrap over tracks and a class-misfit term.
+
+Bootstrap: resample the inlier tracks with replacement, refit from the solution (extents free),
+RMS angle of the refitted normals to the solution's. It measures how much the plane depends on
+which agents happened to pass, not a bias that every track shares: a class whose outline the
+model describes worse (a real car: body, cabin and wheels, not one box) shifts the plane
+consistently whenever it is drawn, and the bootstrap reported 0.23 deg for an all-class plane
+0.58 deg off (independent scene i1, one car among 13 people).
+
+Class misfit (a jackknife over class groups): each class group holding less than half of the
+inlier tracks is left out in turn and the plane refitted from the solution; the largest angle to
+the solution is added in quadrature to the bootstrap's. A class that agrees with the others adds
+little; one that pulls the plane adds its pull. The dominant group is never left out (the rest
+would be too few to judge it by).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from staticdepth.geometry.agent_plane_joint import _expand, _normal, _Problem
+from staticdepth.geometry.camera import pitch_roll_from_normal
+from staticdepth.geometry.plane import angle_between_deg
+
+
+def _refit_angle(K, prob: _Problem, conf, n, theta, tracks, max_nfev: int = 40):
+    """(angle deg of the refit on ``tracks`` (indices, repeats allowed) to n, median s)."""
+    p0, r0 = pitch_roll_from_normal(n)
+    sub = _Problem(K, prob.obs.subset(tracks), prob.kappa)
+    p, r, _, s, _ = sub.fit(conf, [(p0, r0)], _expand(sub, prob, theta), loss=conf.loss,
+                            max_nfev=max_nfev, feet=True)
+    return angle_between_deg(_normal(p, r), n), float(np.median(s))
+
+
+def class_misfit_deg(K, prob: _Problem, conf, n, theta, inl) -> float:
+    """The largest angle (deg) between the plane and its refit without one minority class group
+    (0 when a single group is present); see the module doc."""
+    tracks = np.flatnonzero(inl)
+    groups = prob.track_group[tracks]
+    worst = 0.0
+    for g in np.unique(groups):
+        rest = tracks[groups != g]
+        if np.count_nonzero(groups == g) * 2 >= len(tracks) or len(rest) < 3:
+            continue
+        worst = max(worst, _refit_angle(K, prob, conf, n, theta, rest, max_nfev=60)[0])
+    return worst
+
+
+def joint_uncertainty(K, prob: _Problem, conf, n, theta, inl, rng) -> dict:
+    """``normal_std_deg`` (the bootstrap's RMS angle and the class misfit in quadrature),
+    ``bootstrap_std_deg``, ``class_misfit_deg``, ``d_over_h_std`` (bootstrap std of d/H of a
+    typical agent) and ``n_tracks``; empty with fewer than 3 inlier tracks."""
+    tracks = np.flatnonzero(inl)
+    if len(tracks) < 3:
+        return {}
+    angles, dh = [], []
+    for _ in range(conf.bootstrap):
+        a, s = _refit_angle(K, prob, conf, n, theta, rng.choice(tracks, len(tracks)))
+        angles.append(a)
+        dh.append(1.0 / s)
+    boot = float(np.sqrt(np.mean(np.square(angles))))
+    misfit = class_misfit_deg(K, prob, conf, n, theta, inl)
+    return {"normal_std_deg": float(np.hypot(boot, misfit)), "bootstrap_std_deg": boot,
+            "class_misfit_deg": misfit, "d_over_h_std": float(np.std(dh, ddof=1)),
+            "n_tracks": int(len(tracks))}

@@ -1,0 +1,81 @@
+"""Column residuals of the joint ground-plane model (:mod:`staticdepth.geometry.agent_plane_joint`)
+where an observation's sides are known: box detections and box-class masks (``left``, ``right``
+of :data:`staticdepth.tracking.OBS_DTYPE`).
+
+- Box outlines (two-wheelers, cars, buses/trucks): the projected box's extreme columns against
+  the observed sides, the box's lowest corner slid along the foot row to centre it between them.
+- People seen as boxes (no top column): the width of the hull of the foot disk, the head disk and
+  a shoulder ring (:func:`staticdepth.geometry.agent_shape.person_columns`), each track's
+  shoulder radius its own, the axis slid along the foot row likewise.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from staticdepth.geometry.agent_cylinder import _BIG
+from staticdepth.geometry.agent_shape import box_columns, person_columns
+from staticdepth.geometry.projection import rays_from_pixels
+
+
+def anchored(prob, n, theta, s, dev=None, iters: int = 3):
+    """(foot rays (N, 3), residuals over the noise model of the box outlines' left and right
+    columns (2 x len(side_idx)) and of the people-as-boxes' widths (len(width_idx))).
+
+    A box's lowest mask row is an edge as often as a corner, and a box detection's foot
+    column is its centre, so the foot column says little where the sides are known: the
+    outline's lowest point keeps the foot row and slides along it until the outline's
+    projection is centred between the observed sides (Newton steps of slope 1: the
+    projection moves with its anchor). People seen as boxes
+    (:func:`~staticdepth.geometry.agent_shape.person_columns`) have a shoulder radius per
+    track (Gauss-Newton per track); a body's width does not foreshorten with the viewing
+    angle, its height does: the width along a track measures the viewing angle that rows
+    alone trade against the foot and head extents."""
+    rays = prob.obs.rays.copy()
+    out = []
+    k = prob.side_idx
+    if len(k):
+        params, heading = prob.params(theta, dev), prob.headings(n)[k]
+        mid = 0.5 * (prob.obs.left[k] + prob.obs.right[k])
+        u, sk, grp = prob.obs.u[k].copy(), s[prob.obs.idx[k]], prob.group[k]
+        for it in range(iters + 1):
+            rays[k] = rays_from_pixels(prob.K, u, prob.obs.v[k])
+            left, right = box_columns(prob.K, n, rays[k], sk, grp, params, heading)
+            if it < iters:
+                u = u - np.nan_to_num(0.5 * (left + right) - mid)
+        out += [(left - prob.obs.left[k]) / prob.sigma[k],
+                (right - prob.obs.right[k]) / prob.sigma[k]]
+    k = prob.width_idx
+    if len(k):
+        rays[k], wres = _people_widths(prob, n, theta, s, dev)
+        out.append(wres)
+    return rays, np.nan_to_num(np.concatenate(out), nan=_BIG) if out else np.zeros(0)
+
+def _people_widths(prob, n, theta, s, dev, iters: int = 1):
+    """(foot rays, width residuals) of the people seen as boxes; see :func:`anchored`."""
+    k = prob.width_idx
+    e_f, e_h = prob.params(theta, dev)[0]   # people (the disk group): foot, head extents
+    if np.ndim(e_f):                          # per observation of the group (striding)
+        e_f = np.asarray(e_f)[(np.cumsum(prob.group == 0) - 1)[k]]
+    j, sk = prob.obs.idx[k], s[prob.obs.idx[k]]
+    obs_w = prob.obs.right[k] - prob.obs.left[k]
+    mid = 0.5 * (prob.obs.left[k] + prob.obs.right[k])
+    u, radius = prob.obs.u[k].copy(), np.full(prob.J, 0.02)
+
+    def cols(rays, r):
+        lo, hi = person_columns(prob.K, n, rays, sk, e_f, e_h, r)
+        return np.nan_to_num(lo, nan=-_BIG), np.nan_to_num(hi, nan=_BIG)
+
+    for it in range(iters + 1):
+        rays = rays_from_pixels(prob.K, u, prob.obs.v[k])
+        for _ in range(1 if it else 2):
+            lo, hi = cols(rays, radius[j])
+            lo2, hi2 = cols(rays, radius[j] + 1e-3)
+            w, dw = hi - lo, (hi2 - lo2 - hi + lo) / 1e-3
+            num = np.bincount(j, dw * (w - obs_w), minlength=prob.J)
+            den = np.bincount(j, dw * dw, minlength=prob.J)
+            radius = np.clip(radius - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0),
+                             0.0, 0.2)
+        lo, hi = cols(rays, radius[j])
+        if it < iters:
+            u = u - (0.5 * (lo + hi) - mid)
+    return rays, (hi - lo - obs_w) / prob.sigma[k]
