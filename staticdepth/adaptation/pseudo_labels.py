@@ -1,5 +1,7 @@
 """Stage pseudo_labels: each adaptation frame's label from the base inverse depth and its agents.
 
+With ``pseudo_labels.dense_mode`` the aligned labels take that mode's depth on the static pixels
+it keeps stable over the split (:func:`staticdepth.pseudo_labels.stable_depth`).
 Written to ``<SEQ>.h5.adapt/labels.h5`` (one (H, W) float32 label per frame of the adaptation
 split, with the number of relabelled agent pixels per frame in its ``rows``).
 """
@@ -45,13 +47,15 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
         plane_inv = (ray_grid(ws.K, ws.width, ws.height) @ np.asarray(plane.normal)
                      ).astype(np.float32)
         ground = ground_region(conf, ws, feet)
-        dense = _dense(conf, ws, agents, plane, ground) if pl.dense_mode else None
+        dense: list = []            # computed on the first frame labelled (not when skipped)
 
         def label_frame(i, inv):
             inst = agents.instances(i)
             A = aligned_frame(conf, ws.K, plane.normal, ground, inst, agents.rows(i),
                               depth_from_inverse(inv))
-            if dense is not None:       # stable pixels of the dense mode, off the frame's agents
+            if pl.dense_mode:           # stable pixels of the dense mode, off the frame's agents
+                if not dense:
+                    dense.extend(_dense(conf, ws, agents, plane, ground))
                 A = np.where(dense[1] & (inst == 0), dense[0], A)
             label, m = aligned_pseudo_label(inv, A, plane_inv, ground & (inst == 0))
             if not m.any():     # the network's ground does not recede: its own contact values
