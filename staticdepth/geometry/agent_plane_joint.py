@@ -43,6 +43,8 @@ from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
 from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
                                               track_headings)
+from staticdepth.geometry.agent_walker import (MIN_ONE_FOOT, ONE_FOOT_BOUNDS, ONE_FOOT_PRIOR,
+                                               relative_noise)
 from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
 from staticdepth.geometry.plane import angle_between_deg
 
@@ -79,23 +81,33 @@ class _Problem:
         self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
         self.boxes = any(GROUPS[g].outline == "box" for g in self.present)
         # residual scale per observation (1 px + a share of the pixel height: gait, bobbing)
-        self.sigma = np.sqrt(1.0 + (relative_noise * obs.h) ** 2)
+        self.people = np.array([GROUPS[g].outline == "disk" for g in self.group], bool)
+        self.sigma = np.sqrt(1.0 + (relative_noise * obs.h * self.people) ** 2)
         self.dev = np.zeros(self.J)      # per-track foot extent deviation (disk groups)
         # tracks whose masks showed two feet apart: a walker's stride moves its foot point by a
         # share of the stride that depends on its heading, a foot extent of its own
         striding = np.bincount(obs.idx, (obs.feet >= 2).astype(float), minlength=self.J) > 0
         self.disk = striding & np.array([GROUPS[g].outline == "disk"
                                          for g in self.track_group], bool)
+        # a walker's one-foot frames (feet overlapping in the image): its nearer foot, half a
+        # stride towards the camera; an extent of their own where other frames show two feet
+        self.one = self.people & (obs.feet == 1)
+        self.one_free = (np.count_nonzero(self.one) >= MIN_ONE_FOOT
+                         and np.count_nonzero(self.people & (obs.feet >= 2)) >= MIN_ONE_FOOT)
+        self.e1, self._with_dev, self._with_one = 0.0, False, False
 
-    def params(self, theta: np.ndarray, dev: np.ndarray | None = None) -> list:
+    def params(self, theta: np.ndarray, dev: np.ndarray | None = None,
+               e1: float | None = None) -> list:
         out = [np.asarray(GROUPS[g].prior) for g in range(len(GROUPS))]
         for g, sl in self.slices.items():
             out[g] = theta[sl.start - 2:sl.stop - 2]
         dev = self.dev if dev is None else dev
+        e1 = self.e1 if e1 is None else e1
         for g in self.present:
-            if GROUPS[g].outline == "disk" and np.any(dev != 0):
+            if GROUPS[g].outline == "disk" and (np.any(dev != 0) or e1 != 0):
                 m = self.group == g
-                out[g] = [np.maximum(out[g][0] + dev[self.obs.idx[m]], 0.0), out[g][1]]
+                out[g] = [np.maximum(out[g][0] + dev[self.obs.idx[m]] + e1 * self.one[m], 0.0),
+                          out[g][1]]
         return out
 
     def prior_theta(self) -> np.ndarray:
@@ -114,9 +126,9 @@ class _Problem:
             F = self.obs.rays / nr[:, None]
         return track_headings(n, F, self.obs.idx, self.J)[self.obs.idx]
 
-    def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, dev=None):
+    def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, dev=None, e1=None):
         return predict_top(self.K, n, self.obs.rays, s[self.obs.idx], self.group,
-                           self.params(theta, dev), self.headings(n))
+                           self.params(theta, dev, e1), self.headings(n))
 
     def top_rows(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
         return self.top(n, theta, s)[1]
@@ -133,8 +145,8 @@ class _Problem:
                   col_w: float) -> np.ndarray:
         n = _normal(x[0], x[1])
         theta, lam, s = x[2:2 + self.n_shape], x[self.k_s - 1], x[self.k_s:self.k_s + self.J]
-        dev = x[self.k_s + self.J:] if len(x) > self.k_s + self.J else None
-        u, v = self.top(n, theta, s, dev)
+        dev, e1 = self._extras(x)
+        u, v = self.top(n, theta, s, dev, e1)
         r = np.nan_to_num((v - self.obs.top_v) / self.sigma, nan=_BIG)
         if col_w > 0:
             r = np.r_[r, col_w * np.nan_to_num((u - self.obs.top_u)[self.has_u]
@@ -145,16 +157,30 @@ class _Problem:
         zr = np.sign(z) * np.sqrt(2.0 * (np.sqrt(1.0 + z * z) - 1.0))
         out = np.r_[r, prior_w * (theta - self.prior_theta()) / np.maximum(sd, 1e-9),
                     height_w * zr]
-        return out if dev is None else np.r_[out, dev / self.dev_sd]
+        if dev is not None:
+            out = np.r_[out, dev / self.dev_sd]
+        if e1 is not None:
+            out = np.r_[out, prior_w * (e1 - ONE_FOOT_PRIOR[0]) / ONE_FOOT_PRIOR[1]]
+        return out
 
-    def sparsity(self, col_w: float, with_dev: bool = False):
+    def _extras(self, x: np.ndarray):
+        """(per-track foot deviations or None, one-foot extent or None) from the tail of x."""
+        tail = x[self.k_s + self.J:]
+        nd = self.J if self._with_dev else 0
+        return (tail[:nd] if nd else None), (float(tail[nd]) if self._with_one else None)
+
+    def sparsity(self, col_w: float, with_dev: bool = False, with_one: bool = False):
         ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else []].astype(int)
         R = len(ob)
-        nd = self.J if with_dev else 0
-        S = lil_matrix((R + self.n_shape + self.J + nd, self.k_s + self.J + nd), dtype=np.int8)
+        nd, n1 = (self.J if with_dev else 0), int(with_one)
+        S = lil_matrix((R + self.n_shape + self.J + nd + n1, self.k_s + self.J + nd + n1),
+                       dtype=np.int8)
         if with_dev:
             S[np.arange(R), self.k_s + self.J + self.obs.idx[ob]] = 1
             S[R + self.n_shape + self.J + np.arange(nd), self.k_s + self.J + np.arange(nd)] = 1
+        if with_one:
+            S[np.flatnonzero(self.one[ob]), self.k_s + self.J + nd] = 1
+            S[R + self.n_shape + self.J + nd, self.k_s + self.J + nd] = 1
         rows = np.arange(R)
         S[rows, 0] = 1
         S[rows, 1] = 1
@@ -215,19 +241,26 @@ class _Problem:
         upper = np.r_[hi_p, mr, t_hi, 10.0, np.full(self.J, 100.0)]
         self.dev_sd = conf.foot_track_sd
         with_dev = feet and free_shape and conf.foot_track_sd > 0 and self.disk.sum() >= 3
+        with_one = free_shape and conf.one_foot and self.one_free
+        self._with_dev, self._with_one = with_dev, with_one
         if not with_dev:
             self.dev = np.zeros(self.J)
         if with_dev:
             lower = np.r_[lower, np.where(self.disk, -0.3, -1e-9)]
             upper = np.r_[upper, np.where(self.disk, 0.3, 1e-9)]
+        if with_one:
+            lower, upper = np.r_[lower, ONE_FOOT_BOUNDS[0]], np.r_[upper, ONE_FOOT_BOUNDS[1]]
+        elif not (free_shape and conf.one_foot and self.one_free):
+            self.e1 = 0.0
         cw = conf.fit_column_weight
-        sparsity, best = self.sparsity(cw, with_dev), None
+        sparsity, best = self.sparsity(cw, with_dev, with_one), None
         for p0, r0 in starts:
             p0 = float(np.clip(math.radians(p0), lo_p + 1e-3, hi_p - 1e-3))
             r0 = float(np.clip(math.radians(r0), -mr + 1e-3, mr - 1e-3))
             s0 = np.clip(self.solve_scales(_normal(p0, r0), th0, iters=4), 2e-4, 99.0)
             lam0 = float(np.median(np.log(s0) - self.log_h))
-            x0 = np.r_[p0, r0, th0, lam0, s0, np.zeros(self.J if with_dev else 0)]
+            x0 = np.r_[p0, r0, th0, lam0, s0, np.zeros(self.J if with_dev else 0),
+                       [self.e1 or ONE_FOOT_PRIOR[0]] if with_one else []]
             x0 = np.clip(x0, lower + 1e-12, upper - 1e-12)
             hw = conf.height_prior_weight
             res = least_squares(lambda x: self.residuals(x, conf.shape_prior_weight, hw, cw), x0,
@@ -235,10 +268,12 @@ class _Problem:
                                 jac_sparsity=sparsity, x_scale="jac", max_nfev=max_nfev)
             if best is None or res.cost < best[4]:
                 k = 2 + self.n_shape
+                dev, e1 = self._extras(res.x)
                 best = (float(res.x[0]), float(res.x[1]), res.x[2:k].copy(),
                         res.x[self.k_s:self.k_s + self.J].copy(), float(res.cost),
-                        res.x[self.k_s + self.J:].copy() if with_dev else np.zeros(self.J))
-        self.dev = best[5]
+                        np.zeros(self.J) if dev is None else dev.copy(),
+                        self.e1 if e1 is None else e1)
+        self.dev, self.e1 = best[5], best[6]
         return best[:5]
 
     def take_dev(self, other: "_Problem") -> None:
@@ -246,6 +281,7 @@ class _Problem:
         pos = {int(t): k for k, t in enumerate(other.obs.ids)}
         self.dev = np.array([other.dev[pos[int(t)]] if int(t) in pos else 0.0
                              for t in self.obs.ids])
+        self.e1 = other.e1 if self.one_free else 0.0
 
 
 def _track_inliers(idx: np.ndarray, good: np.ndarray, J: int) -> np.ndarray:
@@ -284,7 +320,8 @@ def _ransac(K, prob: _Problem, conf, rng):
 def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     """Fit the joint model. Returns (n, s (J,), inliers (J,), row residuals (N,), extents
     {group name: list}, bootstrap {normal_std_deg, d_over_h_std, ...})."""
-    prob = _Problem(K, obs, conf.relative_noise)
+    auto_noise = conf.relative_noise is None
+    prob = _Problem(K, obs, 0.0 if auto_noise else conf.relative_noise)
     J = prob.J
     starts = [(p, 0.0) for p in conf.pitch_starts_deg]
     if J >= 4:
@@ -304,6 +341,12 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     theta_all = _expand(prob, sub, theta)
     prob.take_dev(sub)
     s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
+    if auto_noise:     # the people's residual scale (a walker's gait) from this fit
+        kappa = relative_noise(*_people_residuals(prob, n, theta_all, s, inl))
+        dev, e1 = prob.dev, prob.e1
+        prob = _Problem(K, obs, kappa)
+        prob.dev, prob.e1 = dev, e1
+        s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
     err = prob.errors(n, theta_all, s, 0.0)
     thr = max(conf.inlier_px, 2.5 * 1.4826 * float(np.median(err)))
     inl = _track_inliers(obs.idx, err < thr, J)
@@ -326,6 +369,14 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     boot["column_weight"] = conf.fit_column_weight
     boot["inlier_px"] = thr
     return n, s, inl, res, extents, boot
+
+
+def _people_residuals(prob: _Problem, n, theta, s, inl):
+    """(row and column residuals, pixel heights) of the people on inlier tracks."""
+    u, v = prob.top(n, theta, s)
+    keep = inl[prob.obs.idx] & prob.people
+    h = prob.obs.h[keep]
+    return np.r_[(v - prob.obs.top_v)[keep], (u - prob.obs.top_u)[keep]], np.r_[h, h]
 
 
 def _fine_fit(fine: _Problem, prob: _Problem, conf, p, r, theta_all):
