@@ -90,9 +90,8 @@ class AgentPlaneConfig:
     relative_noise: float | None = None   # joint: people's residuals over sqrt(1 + (this *
     #                                  pixel height)^2): gait and bobbing move a walker's extremes
     #                                  by a share of its size (None: estimated from the residuals)
-    foot_track_sd: float = 0.0       # joint: prior sd of a striding track's own foot extent
-    #                                  around its class's (masks showing two feet; 0 = off)
-    one_foot: bool = True            # joint: walkers' one-foot frames get an extent of their own
+    one_foot: bool = True            # joint: people's one-foot frames (masks whose feet overlap,
+    #                                  where others show two) get a foot extent of their own
 
     def __post_init__(self):
         if isinstance(self.classes, str) and self.classes != "auto":
@@ -308,7 +307,8 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
                           boot.get("d_over_h_std", float("nan")),
                           extra={"classes": obs.cls, "extents": extents,
                                  "column_weight": boot.get("column_weight", 0.0),
-                                 "inlier_px": boot.get("inlier_px", conf.inlier_px)})
+                                 "inlier_px": boot.get("inlier_px", conf.inlier_px),
+                                 "relative_noise": boot.get("relative_noise", 0.0)})
     else:
         n, s, inl, res = fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))
