@@ -1,4 +1,4 @@
-"""Does the joint ground plane's reported uncertainty cover its true error? Normal and camera height.
+"""Does the joint ground plane's reported uncertainty cover its true error (normal, camera height)?
 
 Usage: python benchmarks/bench_plane_uncertainty.py [--cameras 20] [--outliers 0.0]
        [--generators thin,tapered,cylinder,ellipsoid,vehicles] [--bootstrap 20]
