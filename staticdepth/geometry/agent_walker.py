@@ -20,8 +20,8 @@ A walker is not rigid. Two of its effects bias the plane if the fit treats it as
   keep a far one's, a bias that grows with the size in the image, i.e. a pitch bias (2.5 degrees
   on a camera 3.4 m high at 43 degrees with the true foot points; 0.5 without the bobbing). The
   people's residuals are scaled by ``sqrt(1 + (kappa h)^2)`` (h: pixel height), kappa estimated
-  from the residuals (:func:`relative_noise`): 0.01-0.04 for the walkers, under 0.01 for rigid
-  bodies.
+  from the residuals (:func:`relative_noise`; 0.01-0.04 for the walkers) where the masks show a
+  gait (the one-foot extent's condition); rigid bodies keep 1 px.
 """
 from __future__ import annotations
 
