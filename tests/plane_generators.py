@@ -51,6 +51,8 @@ class Scene:
     agent_heights: dict          # track -> true height (m)
     pitch_deg: float
     roll_deg: float
+    foot_true: np.ndarray | None = None   # (N, 3) per observation: the agent's axis foot (m,
+    #                                       camera frame; the ground point under its body)
 
 
 def camera(rng, pitch_deg: float | None = None) -> tuple[np.ndarray, np.ndarray, float, float,
@@ -206,7 +208,7 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
     e1 = np.cross(n, [1.0, 0, 0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(n, e1)
-    rows, heights, track, tries = [], {}, 0, 0
+    rows, heights, track, tries, truth = [], {}, 0, 0, []
     while track < n_tracks and tries < 5000:
         tries += 1
         u0, v0 = rng.uniform(60, W - 60), rng.uniform(0.25 * H, H - 20)
@@ -216,6 +218,7 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
         pos = ray * d / (ray @ n)
         bkind, cls, hgt, dims, speed, turn = _agent_spec(kind, rng)
         heading, phase, out = rng.uniform(0, 2 * math.pi), rng.uniform(0, 2 * math.pi), []
+        feet_true = []
         for i in range(int(rng.integers(frames[0], frames[1] + 1))):
             heading += rng.normal(0, turn) if turn else 0.0
             fwd = math.cos(heading) * e1 + math.sin(heading) * e2
@@ -243,8 +246,10 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
                 lo, hi = u.min() + j[0], u.max() + j[1]
                 out.append((track, i, cls, (lo + hi) / 2, v.max() + j[2], v.min() + j[3], np.nan,
                             0, lo, hi))
+            feet_true.append(pos)
         if len(out) >= 3:
             rows += out
+            truth += feet_true
             heights[track] = hgt
             track += 1
     if not rows:        # e.g. vehicles under a steep, low camera: none fits in the image
@@ -259,7 +264,7 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
     if outliers > 0:
         _corrupt(rng, obs, outliers)
     obs["height_px"] = obs["foot_v"] - obs["top_v"]
-    return Scene(K, n, d, obs, heights, pitch, roll)
+    return Scene(K, n, d, obs, heights, pitch, roll, np.array(truth))
 
 
 def _corrupt(rng, obs: np.ndarray, share: float) -> None:

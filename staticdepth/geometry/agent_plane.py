@@ -87,10 +87,11 @@ class AgentPlaneConfig:
     seed: int = 0
     shape_prior_weight: float = 1.0  # joint: pixels of residual per prior sd of an extent
     height_prior_weight: float = 1.0  # joint: pixels per sd of a track's height from its class
-    relative_noise: float = 0.0      # joint: residuals over sqrt(1 + (this * pixel height)^2):
-    #                                  gait and bobbing move a body's extremes by a share of it
-    foot_track_sd: float = 0.05      # joint: prior sd of a striding track's own foot extent
-    #                                  around its class's (masks showing two feet; 0 = off)
+    relative_noise: float | None = None   # joint: people's residuals over sqrt(1 + (this *
+    #                                  pixel height)^2): gait and bobbing move a walker's extremes
+    #                                  by a share of its size (None: estimated from the residuals)
+    one_foot: bool = True            # joint: people's one-foot frames (masks whose feet overlap,
+    #                                  where others show two) get a foot extent of their own
 
     def __post_init__(self):
         if isinstance(self.classes, str) and self.classes != "auto":
@@ -102,7 +103,7 @@ class AgentPlaneConfig:
             raise InputError("agent radius and head radius must be >= 0 and agent height > 0")
         if not 0 < self.max_pitch_deg < 90:
             raise InputError(f"max_pitch_deg must be in (0, 90), got {self.max_pitch_deg}")
-        if not self.relative_noise >= 0:
+        if self.relative_noise is not None and not self.relative_noise >= 0:
             raise InputError(f"relative_noise must be >= 0, got {self.relative_noise}")
         if not self.fit_column_weight >= 0:
             raise InputError(f"column weight must be >= 0, got {self.column_weight}")
@@ -309,7 +310,8 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
                           extra={"classes": obs.cls, "extents": extents,
                                  "column_weight": boot.get("column_weight", 0.0),
                                  "inlier_px": boot.get("inlier_px", conf.inlier_px),
-                                 "class_misfit_deg": boot.get("class_misfit_deg", float("nan"))})
+                                 "class_misfit_deg": boot.get("class_misfit_deg", float("nan")),
+                                 "relative_noise": boot.get("relative_noise", 0.0)})
     else:
         n, s, inl, res = fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))

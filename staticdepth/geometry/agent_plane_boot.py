@@ -26,8 +26,9 @@ def _refit_angle(K, prob: _Problem, conf, n, theta, tracks, max_nfev: int = 40):
     """(angle deg of the refit on ``tracks`` (indices, repeats allowed) to n, median s)."""
     p0, r0 = pitch_roll_from_normal(n)
     sub = _Problem(K, prob.obs.subset(tracks), prob.kappa)
+    sub.take_feet(prob)
     p, r, _, s, _ = sub.fit(conf, [(p0, r0)], _expand(sub, prob, theta), loss=conf.loss,
-                            max_nfev=max_nfev, feet=True)
+                            max_nfev=max_nfev)
     return angle_between_deg(_normal(p, r), n), float(np.median(s))
 
 

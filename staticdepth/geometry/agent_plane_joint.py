@@ -4,13 +4,18 @@ Unknowns: the normal (pitch, roll), one extent vector per class group present
 (:mod:`staticdepth.geometry.agent_shape`: people are foot and head disks ``(e_f, e_h)``,
 two-wheelers and vehicles boxes ``(a, b)``; each with a weak Gaussian prior,
 ``shape_prior_weight`` pixels per prior standard deviation; a group with fewer than 3 tracks
-keeps the prior means), the log of 1 / camera height (tying every track's height to its class's
-typical height, robustly: children and outliers weigh little) and per track ``s_j = H_j / d``.
+keeps the prior means), where masks show walkers' feet both apart and overlapping the one-foot
+frames' extra foot extent ``e_1`` (:mod:`staticdepth.geometry.agent_walker`), the log of 1 /
+camera height (tying every track's height to its class's typical height, robustly: children and
+outliers weigh little) and per track ``s_j = H_j / d``.
 Residuals: each observation's top row predicted from its foot ray minus the observed one, and
-where the top column is known (masks) its column, in pixels over ``sqrt(1 + (relative_noise h)^2)``
-(h: the pixel height): a body is not rigid (a walker bobs by ~3% of its height, its stride moves
-the feet), so a near agent's residuals are larger in pixels, not more informative; unscaled, they
-dominate the fit with a bias that grows with the agent's size in the image, i.e. a pitch bias.
+where the top column is known (masks) its column, in pixels; people's over
+``sqrt(1 + (kappa h)^2)`` (h: the pixel height; ``relative_noise``; by default kappa is estimated
+from the first fit's residuals where the masks show walkers' feet both apart and overlapping,
+else 0): a walker is not rigid (it bobs by ~3% of its height, its stride moves the feet), so a
+near walker's residuals are larger in pixels, not more informative; at 1 px the robust loss and
+the inlier rules cut a near walker's extreme frames and keep a far one's, a bias that grows with
+the size in the image, i.e. a pitch bias.
 
 Why the columns: an extent moves the top point along the line of sight, which to first order is
 the same as leaning the agent towards the camera, i.e. a change of pitch; from rows alone the
@@ -42,7 +47,10 @@ from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
 from staticdepth.geometry.agent_plane_sides import anchored
-from staticdepth.geometry.agent_shape import GROUPS, group_of_class, predict_top, track_headings
+from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
+                                              track_headings)
+from staticdepth.geometry.agent_walker import (MIN_ONE_FOOT, ONE_FOOT_BOUNDS, ONE_FOOT_PRIOR,
+                                               relative_noise)
 from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
 
 
@@ -88,23 +96,24 @@ class _Problem:
         self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
         self.boxes = any(GROUPS[g].outline == "box" for g in self.present)
         # residual scale per observation (1 px + a share of the pixel height: gait, bobbing)
-        self.sigma = np.sqrt(1.0 + (relative_noise * obs.h) ** 2)
-        self.dev = np.zeros(self.J)      # per-track foot extent deviation (disk groups)
-        # tracks whose masks showed two feet apart: a walker's stride moves its foot point by a
-        # share of the stride that depends on its heading, a foot extent of its own
-        striding = np.bincount(obs.idx, (obs.feet >= 2).astype(float), minlength=self.J) > 0
-        self.disk = striding & np.array([GROUPS[g].outline == "disk"
-                                         for g in self.track_group], bool)
+        self.people = np.array([GROUPS[g].outline == "disk" for g in self.group], bool)
+        self.sigma = np.sqrt(1.0 + (relative_noise * obs.h * self.people) ** 2)
+        # a walker's one-foot frames (feet overlapping in the image): its nearer foot, half a
+        # stride towards the camera; an extent of their own where other frames show two feet
+        self.one = self.people & (obs.feet == 1)
+        self.one_free = (np.count_nonzero(self.one) >= MIN_ONE_FOOT
+                         and np.count_nonzero(self.people & (obs.feet >= 2)) >= MIN_ONE_FOOT)
+        self.e1, self._with_one = 0.0, False      # the one-foot extent, fitted or not
 
-    def params(self, theta: np.ndarray, dev: np.ndarray | None = None) -> list:
+    def params(self, theta: np.ndarray, e1: float | None = None) -> list:
         out = [np.asarray(GROUPS[g].prior) for g in range(len(GROUPS))]
         for g, sl in self.slices.items():
             out[g] = theta[sl.start - 2:sl.stop - 2]
-        dev = self.dev if dev is None else dev
+        e1 = self.e1 if e1 is None else e1
         for g in self.present:
-            if GROUPS[g].outline == "disk" and np.any(dev != 0):
+            if GROUPS[g].outline == "disk" and e1 != 0:   # one-foot frames: e_f + e_1
                 m = self.group == g
-                out[g] = [np.maximum(out[g][0] + dev[self.obs.idx[m]], 0.0), out[g][1]]
+                out[g] = [out[g][0] + e1 * self.one[m], out[g][1]]
         return out
 
     def prior_theta(self) -> np.ndarray:
@@ -123,15 +132,15 @@ class _Problem:
             F = self.obs.rays / nr[:, None]
         return track_headings(n, F, self.obs.idx, self.J)[self.obs.idx]
 
-    def anchored(self, n, theta, s, dev=None):
+    def anchored(self, n, theta, s, e1=None):
         """(foot rays (N, 3), column residuals of the boxes' sides and the people-as-boxes'
         widths): :func:`staticdepth.geometry.agent_plane_sides.anchored`."""
-        return anchored(self, n, theta, s, dev)
+        return anchored(self, n, theta, s, e1)
 
-    def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, dev=None, rays=None):
-        rays = self.anchored(n, theta, s, dev)[0] if rays is None else rays
+    def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, e1=None, rays=None):
+        rays = self.anchored(n, theta, s, e1)[0] if rays is None else rays
         return predict_top(self.K, n, rays, s[self.obs.idx], self.group,
-                           self.params(theta, dev), self.headings(n))
+                           self.params(theta, e1), self.headings(n))
 
     def top_rows(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
         return self.top(n, theta, s)[1]
@@ -148,9 +157,9 @@ class _Problem:
                   col_w: float) -> np.ndarray:
         n = _normal(x[0], x[1])
         theta, lam, s = x[2:2 + self.n_shape], x[self.k_s - 1], x[self.k_s:self.k_s + self.J]
-        dev = x[self.k_s + self.J:] if len(x) > self.k_s + self.J else None
-        rays, cols = self.anchored(n, theta, s, dev)
-        u, v = self.top(n, theta, s, dev, rays)
+        e1 = float(x[-1]) if self._with_one else None
+        rays, cols = self.anchored(n, theta, s, e1)
+        u, v = self.top(n, theta, s, e1, rays)
         r = np.nan_to_num((v - self.obs.top_v) / self.sigma, nan=_BIG)
         if col_w > 0:
             r = np.r_[r, col_w * np.nan_to_num((u - self.top_u)[self.has_u]
@@ -162,17 +171,18 @@ class _Problem:
         zr = np.sign(z) * np.sqrt(2.0 * (np.sqrt(1.0 + z * z) - 1.0))
         out = np.r_[r, prior_w * (theta - self.prior_theta()) / np.maximum(sd, 1e-9),
                     height_w * zr]
-        return out if dev is None else np.r_[out, dev / self.dev_sd]
+        if e1 is not None:
+            out = np.r_[out, prior_w * (e1 - ONE_FOOT_PRIOR[0]) / ONE_FOOT_PRIOR[1]]
+        return out
 
-    def sparsity(self, col_w: float, with_dev: bool = False):
+    def sparsity(self, col_w: float, with_one: bool = False):
         ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else [],
                    self.side_idx, self.side_idx, self.width_idx].astype(int)
-        R = len(ob)
-        nd = self.J if with_dev else 0
-        S = lil_matrix((R + self.n_shape + self.J + nd, self.k_s + self.J + nd), dtype=np.int8)
-        if with_dev:
-            S[np.arange(R), self.k_s + self.J + self.obs.idx[ob]] = 1
-            S[R + self.n_shape + self.J + np.arange(nd), self.k_s + self.J + np.arange(nd)] = 1
+        R, n1 = len(ob), int(with_one)
+        S = lil_matrix((R + self.n_shape + self.J + n1, self.k_s + self.J + n1), dtype=np.int8)
+        if with_one:     # the one-foot extent: the one-foot frames' residuals and its prior
+            S[np.flatnonzero(self.one[ob]), self.k_s + self.J] = 1
+            S[R + self.n_shape + self.J, self.k_s + self.J] = 1
         rows = np.arange(R)
         S[rows, 0] = 1
         S[rows, 1] = 1
@@ -215,11 +225,10 @@ class _Problem:
             s = np.clip(s - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0), 1e-4, 100.0)
         return s
 
-    def fit(self, conf, starts, theta0=None, loss="linear", max_nfev=200, free_shape=True,
-            feet=False):
+    def fit(self, conf, starts, theta0=None, loss="linear", max_nfev=200, free_shape=True):
         """Best of several (pitch, roll) starts in degrees: (pitch, roll (rad), theta, s, cost);
-        ``feet``: with per-track foot deviations of the striding tracks (``self.dev``, else
-        zeros)."""
+        with ``free_shape`` the free groups' extents and, where fitted, the one-foot extent
+        (``self.e1``) are unknowns, else fixed."""
         lo_p, hi_p = (math.radians(b) for b in conf.pitch_bounds_deg)
         mr = math.radians(conf.max_roll_deg)
         th0 = self.prior_theta() if theta0 is None else np.asarray(theta0, np.float64)
@@ -231,21 +240,19 @@ class _Problem:
         t_lo, t_hi = np.where(fixed, th0 - 1e-9, t_lo), np.where(fixed, th0 + 1e-9, t_hi)
         lower = np.r_[lo_p, -mr, t_lo, -10.0, np.full(self.J, 1e-4)]
         upper = np.r_[hi_p, mr, t_hi, 10.0, np.full(self.J, 100.0)]
-        self.dev_sd = conf.foot_track_sd
-        with_dev = feet and free_shape and conf.foot_track_sd > 0 and self.disk.sum() >= 3
-        if not with_dev:
-            self.dev = np.zeros(self.J)
-        if with_dev:
-            lower = np.r_[lower, np.where(self.disk, -0.3, -1e-9)]
-            upper = np.r_[upper, np.where(self.disk, 0.3, 1e-9)]
+        with_one = self._with_one = free_shape and conf.one_foot and self.one_free
+        if with_one:
+            lower, upper = np.r_[lower, ONE_FOOT_BOUNDS[0]], np.r_[upper, ONE_FOOT_BOUNDS[1]]
+        elif not (conf.one_foot and self.one_free):
+            self.e1 = 0.0
         cw = conf.fit_column_weight
-        sparsity, best = self.sparsity(cw, with_dev), None
+        sparsity, best = self.sparsity(cw, with_one), None
         for p0, r0 in starts:
             p0 = float(np.clip(math.radians(p0), lo_p + 1e-3, hi_p - 1e-3))
             r0 = float(np.clip(math.radians(r0), -mr + 1e-3, mr - 1e-3))
             s0 = np.clip(self.solve_scales(_normal(p0, r0), th0, iters=4), 2e-4, 99.0)
             lam0 = float(np.median(np.log(s0) - self.log_h))
-            x0 = np.r_[p0, r0, th0, lam0, s0, np.zeros(self.J if with_dev else 0)]
+            x0 = np.r_[p0, r0, th0, lam0, s0, [self.e1 or ONE_FOOT_PRIOR[0]] if with_one else []]
             x0 = np.clip(x0, lower + 1e-12, upper - 1e-12)
             hw = conf.height_prior_weight
             res = least_squares(lambda x: self.residuals(x, conf.shape_prior_weight, hw, cw), x0,
@@ -255,15 +262,13 @@ class _Problem:
                 k = 2 + self.n_shape
                 best = (float(res.x[0]), float(res.x[1]), res.x[2:k].copy(),
                         res.x[self.k_s:self.k_s + self.J].copy(), float(res.cost),
-                        res.x[self.k_s + self.J:].copy() if with_dev else np.zeros(self.J))
-        self.dev = best[5]
+                        float(res.x[-1]) if with_one else self.e1)
+        self.e1 = best[5]
         return best[:5]
 
-    def take_dev(self, other: "_Problem") -> None:
-        """Per-track foot deviations of ``other`` (a problem on a subset) by track id."""
-        pos = {int(t): k for k, t in enumerate(other.obs.ids)}
-        self.dev = np.array([other.dev[pos[int(t)]] if int(t) in pos else 0.0
-                             for t in self.obs.ids])
+    def take_feet(self, other: "_Problem") -> None:
+        """The one-foot extent of ``other`` (a problem on a subset of the observations)."""
+        self.e1 = other.e1 if self.one_free else 0.0
 
 
 def _track_inliers(idx: np.ndarray, good: np.ndarray, J: int) -> np.ndarray:
@@ -303,7 +308,8 @@ def _ransac(K, prob: _Problem, conf, rng):
 def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     """Fit the joint model. Returns (n, s (J,), inliers (J,), row residuals (N,), extents
     {group name: list}, bootstrap {normal_std_deg, d_over_h_std, ...})."""
-    prob = _Problem(K, obs, conf.relative_noise)
+    auto_noise = conf.relative_noise is None
+    prob = _Problem(K, obs, 0.0 if auto_noise else conf.relative_noise)
     J = prob.J
     starts = [(p, 0.0) for p in conf.pitch_starts_deg]
     if J >= 4:
@@ -321,8 +327,13 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     # the rows' noise scale (gait, rough masks) sets the inlier threshold, never below inlier_px
     n = _normal(p, r)
     theta_all = _expand(prob, sub, theta)
-    prob.take_dev(sub)
+    prob.take_feet(sub)
     s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
+    if auto_noise and prob.one_free:   # walkers' gait seen in their masks: its residual scale
+        kappa = relative_noise(*_people_residuals(prob, n, theta_all, s, inl))
+        e1, prob = prob.e1, _Problem(K, obs, kappa)
+        prob.e1 = e1
+        s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
     err = prob.errors(n, theta_all, s, 0.0)
     thr = max(conf.inlier_px, 2.5 * 1.4826 * float(np.median(err)))
     inl = _track_inliers(obs.idx, err < thr, J)
@@ -332,7 +343,7 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     if fine.present == sub.present:
         p, r, theta = _fine_fit(fine, prob, conf, p, r, theta_all)
         theta_all = _expand(prob, fine, theta)
-        prob.take_dev(fine)
+        prob.take_feet(fine)
     n = _normal(p, r)
     s = prob.solve_scales(n, theta_all, huber_px=thr)
     res = np.nan_to_num(prob.top_rows(n, theta_all, s) - obs.top_v, nan=_BIG)
@@ -341,20 +352,31 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
         inl = np.ones(J, bool)
     extents = {GROUPS[g].name: [float(v) for v in theta_all[sl.start - 2:sl.stop - 2]]
                for g, sl in prob.slices.items()}
+    if prob.e1:
+        extents["people one-foot"] = [prob.e1]     # e_1: added to e_f in one-foot frames
     from staticdepth.geometry.agent_plane_boot import joint_uncertainty
 
     boot = joint_uncertainty(K, prob, conf, n, theta_all, inl, rng) if conf.bootstrap > 0 else {}
     boot["column_weight"] = conf.fit_column_weight
     boot["inlier_px"] = thr
+    boot["relative_noise"] = prob.kappa
     return n, s, inl, res, extents, boot
 
 
+def _people_residuals(prob: _Problem, n, theta, s, inl):
+    """(row and column residuals, pixel heights) of the people on inlier tracks."""
+    u, v = prob.top(n, theta, s)
+    keep = inl[prob.obs.idx] & prob.people
+    h = prob.obs.h[keep]
+    return np.r_[(v - prob.obs.top_v)[keep], (u - prob.top_u)[keep]], np.r_[h, h]
+
+
 def _fine_fit(fine: _Problem, prob: _Problem, conf, p, r, theta_all):
-    """The fit on the inlier observations (pitch, roll, theta), with per-track foot deviations
-    for the tracks seen striding (:attr:`_Problem.disk`)."""
+    """The fit on the inlier observations (pitch, roll, theta), the one-foot extent from the
+    first fit's."""
+    fine.take_feet(prob)
     fit = fine.fit(conf, [(math.degrees(p), math.degrees(r))], _expand(fine, prob, theta_all),
-                   loss=conf.loss if conf.fit_column_weight > 0 else "linear", max_nfev=60,
-                   feet=True)
+                   loss=conf.loss if conf.fit_column_weight > 0 else "linear", max_nfev=60)
     return fit[0], fit[1], fit[2]
 
 
