@@ -210,7 +210,8 @@ def register(sub) -> None:
                                       "(= --set detector.name=...)")
     p.add_argument("--camera-height", type=float, help="camera height in metres (default: the "
                                                        "sequence's, else a 1.7 m agent prior)")
-    p.add_argument("--epochs", type=int, help="fine-tuning epochs (default 30, cut at finetune.max_steps optimiser steps, default 60; 0 = none)")
+    p.add_argument("--epochs", type=int, help="fine-tuning epochs (default 30, cut at "
+                   "finetune.max_steps optimiser steps, default 60; 0 = none)")
     p.add_argument("--seed", type=int, help="seed of fine-tuning and of the plane's RANSAC "
                    "(= --set finetune.seed=N --set plane.seed=N)")
     p.add_argument("--summary", help="summary JSON (default: SEQ.adapt.json)")
