@@ -43,14 +43,14 @@ class _ModulePayload:
         return _make_module, (str(self.marker),)
 
 
-def _seq(path: pathlib.Path, n: int = 3) -> pathlib.Path:
+def _seq(path: pathlib.Path, n: int = 5) -> pathlib.Path:
     cam = Camera.from_fov(80, 40, 90)
     mnt = Mounting.from_pitch_roll(5.0, 45.0)
     gt = plane_depth_map(cam.K, mnt.normal, mnt.height_m, 80, 40)
     ag = schema.empty_agents(1)
     ag["instance_id"], ag["class_id"], ag["track_id"], ag["foot_u"], ag["foot_v"] = 1, 0, 7, 40, 30
     with SequenceWriter(path, SequenceMeta(name="s", camera=cam, gt_kind="synthetic",
-                                           adapt_frames=2, mounting=mnt),
+                                           adapt_frames=n - 1, mounting=mnt),  # >= tracking.min_frames
                         streams=("left", "depth")) as w:
         for i in range(n):
             w.append(left=np.full((40, 80, 3), 60 * i, np.uint8), depth=gt, agents=ag)
@@ -133,7 +133,7 @@ def test_a_recipe_cannot_trust_models(tmp_path, capsys):
 
 
 def test_report_escapes_names_from_data_files(tmp_path):
-    seq = _seq(tmp_path / "s.h5")
+    seq = _seq(tmp_path / "s.h5", n=3)
     gt = plane_depth_map(Camera.from_fov(80, 40, 90).K, Mounting.from_pitch_roll(5.0, 45.0).normal,
                          Mounting.from_pitch_roll(5.0, 45.0).height_m, 80, 40)
     # prediction names written by staticdepth are restricted (dataset/predictions.check_name), but
