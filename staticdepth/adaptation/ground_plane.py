@@ -70,6 +70,10 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str
         raise InputError(f"only {len(obs)} usable agent observations in the adaptation split: "
                          "the ground plane needs tracked agents (check the detector)")
     plane = fit_agent_plane(ws.K, obs, plane_config(conf))
+    if "left_out" in plane.extra:
+        lo = plane.extra["left_out"]
+        ws.log(f"ground plane: {lo['group']} left out (leaving them out moved the normal by "
+               f"{lo['misfit_deg']:.1f} deg > plane.max_class_misfit_deg)")
     # The ground region covered by the agents' feet: every agent of the adaptation split (the
     # plane fit keeps only clean person tracks; the region should not shrink with that filter).
     feet = [np.stack([r["foot_u"], r["foot_v"]], 1) for r in

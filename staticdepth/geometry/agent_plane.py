@@ -92,6 +92,9 @@ class AgentPlaneConfig:
     #                                  by a share of its size (None: estimated from the residuals)
     one_foot: bool = True            # joint: people's one-foot frames (masks whose feet overlap,
     #                                  where others show two) get a foot extent of their own
+    max_class_misfit_deg: float | None = 2.0   # joint: a minority class group whose leaving-out
+    #                                  moves the normal by more than this disagrees with the rest:
+    #                                  the plane is refit without it (None: never)
 
     def __post_init__(self):
         if isinstance(self.classes, str) and self.classes != "auto":
@@ -191,6 +194,8 @@ class AgentPlane:
             d["camera_height_source"] = self.camera_height_source
         if "extents" in self.extra:
             d["extents"] = {k: list(v) for k, v in self.extra["extents"].items()}
+        if "left_out" in self.extra:      # a class group that disagreed with the rest
+            d["left_out"] = dict(self.extra["left_out"])
         return d
 
     @classmethod
@@ -301,6 +306,9 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
         res = K[1, 1] * (obs.rays @ n) / d_over_h - obs.h
     elif conf.model == "joint":
         n, s, inl, res, extents, boot = fit_joint(K, obs, conf, rng)
+        left_out = _disagreeing_group(boot, conf)
+        if left_out is not None:
+            return _without_group(K, observations, obs, conf, left_out, boot)
         _check_fitted_plane(n, conf, obs, inl)
         d_over_h = 1.0 / float(np.median(s[inl]))
         rms = float(np.sqrt(np.mean(res[inl[obs.idx]] ** 2)))
@@ -325,6 +333,32 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
                       else (np.nan,) * 2)
     return AgentPlane(n, horizon_line(K, n), d_over_h, obs.ids.copy(), s, inl, rms, conf.model,
                       len(obs.top_v), std_n, std_dh, extra={"classes": obs.cls})
+
+
+def _disagreeing_group(boot: dict, conf: AgentPlaneConfig) -> tuple[int, ...] | None:
+    """The class groups (indices in ``GROUPS``) whose leaving-out moved the normal by more than
+    ``conf.max_class_misfit_deg``, else None. Not against the bootstrap's spread: a few tracks of
+    a disagreeing class inflate it too (demo scene: one bus among 10 tracks, bootstrap 3.5 deg,
+    leaving the bus out 4.4 deg)."""
+    misfit, g = boot.get("class_misfit_deg", 0.0), boot.get("class_misfit_group", ())
+    if conf.max_class_misfit_deg is None or not g:
+        return None
+    return g if misfit > conf.max_class_misfit_deg else None
+
+
+def _without_group(K, observations, obs, conf: AgentPlaneConfig, gs: tuple[int, ...],
+                   boot: dict):
+    """The joint fit again without class groups ``gs`` (recorded in ``extra["left_out"]``)."""
+    from staticdepth.geometry.agent_shape import GROUPS
+
+    out = [c for g in gs for c in GROUPS[g].classes]
+    keep = tuple(int(c) for c in np.unique(obs.cls) if c not in out)
+    plane = fit_agent_plane(K, observations, replace(conf, classes=keep,
+                                                     max_class_misfit_deg=None))
+    plane.extra["left_out"] = {"group": ", ".join(GROUPS[g].name for g in gs),
+                               "misfit_deg": boot["class_misfit_deg"],
+                               "bootstrap_std_deg": boot.get("bootstrap_std_deg")}
+    return plane
 
 
 def _check_nadir(n: np.ndarray, conf: AgentPlaneConfig, what: str = "the fit") -> None:

@@ -32,18 +32,28 @@ def _refit_angle(K, prob: _Problem, conf, n, theta, tracks, max_nfev: int = 40):
     return angle_between_deg(_normal(p, r), n), float(np.median(s))
 
 
-def class_misfit_deg(K, prob: _Problem, conf, n, theta, inl) -> float:
-    """The largest angle (deg) between the plane and its refit without one minority class group
-    (0 when a single group is present); see the module doc."""
+def class_misfit_deg(K, prob: _Problem, conf, n, theta, inl) -> tuple[float, tuple[int, ...]]:
+    """(the largest angle (deg) between the plane and its refit without some minority class
+    groups, those groups' indices in ``GROUPS``; (0, ()) when none can be left out): each
+    minority group alone, and every group but the dominant one together (two vehicle groups that
+    agree with each other and not with the people); see the module doc."""
     tracks = np.flatnonzero(inl)
     groups = prob.track_group[tracks]
-    worst = 0.0
-    for g in np.unique(groups):
-        rest = tracks[groups != g]
-        if np.count_nonzero(groups == g) * 2 >= len(tracks) or len(rest) < 3:
+    present = np.unique(groups)
+    counts = {int(g): np.count_nonzero(groups == g) for g in present}
+    minority = [g for g in counts if counts[g] * 2 < len(tracks)]
+    candidates = [(g,) for g in minority]
+    if len(minority) > 1 and len(minority) == len(present) - 1:
+        candidates.append(tuple(minority))
+    worst, worst_g = 0.0, ()
+    for gs in candidates:
+        rest = tracks[~np.isin(groups, gs)]
+        if len(rest) < 3:
             continue
-        worst = max(worst, _refit_angle(K, prob, conf, n, theta, rest, max_nfev=60)[0])
-    return worst
+        a = _refit_angle(K, prob, conf, n, theta, rest, max_nfev=60)[0]
+        if a > worst:
+            worst, worst_g = a, tuple(int(g) for g in gs)
+    return worst, worst_g
 
 
 def joint_uncertainty(K, prob: _Problem, conf, n, theta, inl, rng) -> dict:
@@ -59,7 +69,8 @@ def joint_uncertainty(K, prob: _Problem, conf, n, theta, inl, rng) -> dict:
         angles.append(a)
         dh.append(1.0 / s)
     boot = float(np.sqrt(np.mean(np.square(angles))))
-    misfit = class_misfit_deg(K, prob, conf, n, theta, inl)
+    misfit, misfit_group = class_misfit_deg(K, prob, conf, n, theta, inl)
     return {"normal_std_deg": float(np.hypot(boot, misfit)), "bootstrap_std_deg": boot,
-            "class_misfit_deg": misfit, "d_over_h_std": float(np.std(dh, ddof=1)),
+            "class_misfit_deg": misfit, "class_misfit_group": misfit_group,
+            "d_over_h_std": float(np.std(dh, ddof=1)),
             "n_tracks": int(len(tracks))}
