@@ -92,7 +92,9 @@ class AgentPlaneConfig:
     #                                  pixel height)^2): gait and bobbing move a walker's extremes
     #                                  by a share of its size (None: estimated from the residuals)
     one_foot: bool = True            # joint: people's one-foot frames (masks whose feet overlap,
-    #                                  where others show two) get a foot extent of their own
+    #                                  where others show two) take the foot interpolated between
+    #                                  their track's two-foot frames, else a foot extent of their
+    #                                  own (agent_walker)
     max_class_misfit_deg: float | None = 2.0   # joint: a minority class group whose leaving-out
     #                                  moves the normal by more than this disagrees with the rest:
     #                                  the plane is refit without it (None: never)
