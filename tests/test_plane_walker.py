@@ -45,15 +45,17 @@ def test_one_foot_frames_show_the_nearer_foot():
 
 def test_interpolated_one_foot_frames_lie_on_the_axis():
     """A one-foot frame between two two-foot frames of its track takes their interpolated foot:
-    on the truth it lies a foot's size from the axis like the two-foot frames (0.05 m), not half a
-    stride (0.25 m); one-foot frames outside their track's two-foot frames are left out, those of
-    tracks with fewer than two two-foot frames kept (camera 8: 41 interpolated, 5 kept)."""
+    on the truth it lies near the axis like the two-foot frames, not half a stride away (camera
+    8: 0.09 m towards the camera (10 frames) against 0.05 for the two-foot frames and 0.25 for
+    the one-foot frames); its other one-foot frames are left out, those of tracks showing too few
+    two-foot frames kept (camera 8: 10 interpolated, 48 left out, 10 kept)."""
     s = scene("ellipsoid", 8)
     i = interpolate_one_foot(s.obs)
     tow, feet = _towards_camera(s, i), i["feet"]
-    assert np.count_nonzero(feet == INTERPOLATED) >= 30 and len(i) < len(s.obs)
-    assert abs(tow[feet == INTERPOLATED].mean() - tow[feet == 2].mean()) < 0.04
-    assert tow[feet == INTERPOLATED].mean() < 0.1
+    assert np.count_nonzero(feet == INTERPOLATED) >= 8 and len(i) < len(s.obs) - 30
+    one = _towards_camera(s)[s.obs["feet"] == 1].mean()
+    assert abs(tow[feet == INTERPOLATED].mean() - tow[feet == 2].mean()) < 0.06
+    assert tow[feet == INTERPOLATED].mean() < min(0.1, one / 2)
     o = s.obs
     for t in np.unique(i["track"][feet == 1]):      # kept: tracks showing too few two-foot frames
         rows = o["track"] == t
@@ -109,18 +111,18 @@ def test_one_foot_extent_is_fitted_to_the_stride(steep):
 
 def test_one_foot_frames_remove_the_steep_cameras_pitch_bias(steep):
     """One foot extent for both kinds of frame puts the pitch 2.5 degrees off here; the one-foot
-    extent 0.02, the interpolated frames 0.69 (measured; over 20 cameras the interpolation is the
-    better: 0.31 / 1.76 degrees median / max against 0.22 / 1.29, camera height 1.2 / 3.2% against
+    extent 0.02, the interpolated frames 0.16 (measured; over 20 cameras the interpolation is the
+    better: 0.21 / 0.71 degrees median / max against 0.22 / 1.29, camera height 1.3 / 4.4% against
     1.6 / 5.1%)."""
     s, interp, extent, without = steep
     assert angle_between_deg(extent.normal, s.normal) < 0.5
-    assert angle_between_deg(interp.normal, s.normal) < 1.0
+    assert angle_between_deg(interp.normal, s.normal) < 0.5
     assert angle_between_deg(without.normal, s.normal) > 2.0
 
 
 def test_rigid_bodies_keep_the_rigid_model():
     """A rigid body never shows two feet: no one-foot extent and no relative noise (its fit is
-    the rigid model's), while walkers get a relative noise (kappa 0.021 on camera 0, measured)."""
+    the rigid model's), while walkers get a relative noise (kappa 0.018 on camera 0, measured)."""
     cyl = scene("cylinder", 0)
     p = fit_agent_plane(cyl.K, cyl.obs, FAST)
     assert "people one-foot" not in p.extra["extents"] and p.extra["relative_noise"] == 0.0
