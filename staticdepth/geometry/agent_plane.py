@@ -50,10 +50,10 @@ from staticdepth.geometry.agent_cylinder import (_BIG, AgentObservations, extrem
                                                  observation_residual, solve_track_scales)
 from staticdepth.geometry.agent_plane_exact import bootstrap_normal, fit_robust
 from staticdepth.geometry.agent_plane_joint import fit_joint
-from staticdepth.geometry.agent_walker import interpolate_one_foot
 from staticdepth.geometry.agent_plane_linear import (LINEAR_MODELS, fit_linear,  # noqa: F401
                                                      plane_affine, plane_paper,
                                                      vertical_from_axes)
+from staticdepth.geometry.agent_walker import interpolate_one_foot
 from staticdepth.geometry.camera import pitch_roll_from_normal
 from staticdepth.geometry.plane import horizon_line
 from staticdepth.geometry.projection import rays_from_pixels

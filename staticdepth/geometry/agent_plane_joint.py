@@ -50,8 +50,7 @@ from staticdepth.geometry.agent_plane_sides import anchored
 from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
                                               track_headings)
 from staticdepth.geometry.agent_walker import (MIN_ONE_FOOT, ONE_FOOT_BOUNDS, ONE_FOOT_PRIOR,
-                                               relative_noise_split,
-                                               residual_scale)
+                                               relative_noise_split, residual_scale)
 from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
 
 
@@ -370,7 +369,8 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
 
 
 def _people_residuals(prob: _Problem, n, theta, s, inl):
-    """(row and column residuals, pixel heights) of the people on inlier tracks."""
+    """(row and column residuals, pixel heights, one-foot frames) of the people on inlier
+    tracks."""
     u, v = prob.top(n, theta, s)
     keep = inl[prob.obs.idx] & prob.people
     h, one = prob.obs.h[keep], prob.one[keep]
