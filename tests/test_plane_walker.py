@@ -68,7 +68,8 @@ def test_interpolation_needs_close_two_foot_frames():
     """Closed form: a track walking straight at 10 px per frame, its one-foot frames 12 px below
     the line. Frames 1 and 3 sit between two-foot frames 2 apart: interpolated onto the line;
     frames 5-8 lie between two-foot frames 4 and 9, 5 apart (over MAX_GAP), and frame 10 after
-    the last two-foot frame: left out. A track with 1 two-foot frame in 6 (rough masks) is left as it is."""
+    the last two-foot frame: left out. A track with 1 two-foot frame in 6 (rough masks) is left
+    as it is."""
     from plane_generators import OBS
     feet = [2, 1, 2, 1, 2, 1, 1, 1, 1, 2, 1]
     o = np.zeros(len(feet) + 6, OBS)

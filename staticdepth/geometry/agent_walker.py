@@ -100,14 +100,14 @@ def interpolate_one_foot(obs: np.ndarray) -> np.ndarray:
     frame, or in a longer gap) are left out (a turning walker's foot drifts from the line:
     extrapolated, 0.47 / 3.05 degrees median / max on the 20 cameras; interpolated across gaps
     up to 4 frames, 0.31 / 1.76; up to 2, 0.21 / 0.71, and 0.43 / 1.41 against 0.40 / 1.87 on
-    20 other cameras, seeds 20-39). Only tracks whose masks
-    show the gait, at least two two-foot frames and :data:`MIN_TWO_FOOT_SHARE` of their frames,
-    are changed; the others keep their one-foot frames (the extent ``e_1``): on the real
-    vtest.avi's rough YOLOX masks 7% of the frames show two feet, and interpolating between
-    those, leaving the rest out, moved a half's roll by 6 degrees. The interpolation is linear
-    in the image (the perspective-correct one, depths ~ 1 / pixel height, measured the same
-    within 0.06 degrees on the 20 cameras: the gaps are short) A two-foot frame's foot is the body's axis
-    (both feet's mean); a one-foot frame's is the nearer foot, 0-0.17 of the height ahead with
+    20 other cameras, seeds 20-39). Only tracks whose masks show the gait, at least two
+    two-foot frames and :data:`MIN_TWO_FOOT_SHARE` of their frames, are changed; the others
+    keep their one-foot frames (the extent ``e_1``): on the real vtest.avi's rough YOLOX masks
+    7% of the frames show two feet, and interpolating between those, leaving the rest out,
+    moved a half's roll by 6 degrees. The interpolation is linear in the image (the
+    perspective-correct one, depths ~ 1 / pixel height, measured the same within 0.06 degrees
+    on the 20 cameras: the gaps are short). A two-foot frame's foot is the body's axis (both
+    feet's mean); a one-foot frame's is the nearer foot, 0-0.17 of the height ahead with
     the stride's phase, an offset that no one extent describes (far walkers' feet merge in the
     mask more often than near ones', so the one-foot frames' mean offset varies with distance:
     a pitch bias). A table without ``frame`` and ``feet`` columns is returned as it is."""
