@@ -34,7 +34,8 @@ from staticdepth.geometry.agent_shape import group_of_class  # noqa: E402
 from staticdepth.geometry.plane import angle_between_deg  # noqa: E402
 
 
-def one_camera(kind: str, seed: int, outliers: float, bootstrap: int) -> dict | None:
+def one_camera(kind: str, seed: int, outliers: float, bootstrap: int,
+               verbose: bool = False) -> dict | None:
     s = scene(kind, seed, outliers=outliers)
     try:
         p = fit_agent_plane(s.K, s.obs, AgentPlaneConfig(bootstrap=bootstrap))
@@ -48,6 +49,10 @@ def one_camera(kind: str, seed: int, outliers: float, bootstrap: int) -> dict | 
     s_true = np.array([s.agent_heights[int(t)] for t in p.track_ids]) / s.height_m
     d_prior = camera_height_ml(s_true[use], group_of_class(cls[use]))
     err = angle_between_deg(p.normal, s.normal)
+    if verbose:
+        print(f"  {kind} camera {seed} (pitch {s.pitch_deg:.0f}, {s.height_m:.1f} m): error "
+              f"{err:.2f} std {p.normal_std_deg:.2f} deg, height {100 * (d / s.height_m - 1):+.1f}"
+              f" % std {100 * sd / d:.1f} %", flush=True)
     return {"err": err, "std": p.normal_std_deg, "ok": plane_gate(p).ok,
             "h": 100 * abs(d / s.height_m - 1), "h_sd": 100 * sd / d,
             "h_prior": 100 * abs(d_prior / s.height_m - 1)}
@@ -59,6 +64,7 @@ def main() -> None:
     ap_.add_argument("--outliers", type=float, default=0.0)
     ap_.add_argument("--generators", default=",".join(GENERATORS))
     ap_.add_argument("--bootstrap", type=int, default=20)
+    ap_.add_argument("--verbose", action="store_true", help="every camera's figures")
     args = ap_.parse_args()
     print(f"{args.cameras} cameras per generator, masks, outliers {args.outliers:.0%}, bootstrap "
           f"{args.bootstrap}")
@@ -66,7 +72,8 @@ def main() -> None:
           "max err accepted | camera height %: err med / max, std med, err/std med / max, "
           "height distributions alone med / max")
     for kind in args.generators.split(","):
-        rows = [r for r in (one_camera(kind, k, args.outliers, args.bootstrap)
+        rows = [r for r in (one_camera(kind, k, args.outliers, args.bootstrap,
+                                                       args.verbose)
                             for k in range(args.cameras)) if r is not None]
         if not rows:
             print(f"{kind:10} | all refused")

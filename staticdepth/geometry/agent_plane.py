@@ -53,6 +53,7 @@ from staticdepth.geometry.agent_plane_joint import fit_joint
 from staticdepth.geometry.agent_plane_linear import (LINEAR_MODELS, fit_linear,  # noqa: F401
                                                      plane_affine, plane_paper,
                                                      vertical_from_axes)
+from staticdepth.geometry.agent_walker import interpolate_one_foot
 from staticdepth.geometry.camera import pitch_roll_from_normal
 from staticdepth.geometry.plane import horizon_line
 from staticdepth.geometry.projection import rays_from_pixels
@@ -91,7 +92,9 @@ class AgentPlaneConfig:
     #                                  pixel height)^2): gait and bobbing move a walker's extremes
     #                                  by a share of its size (None: estimated from the residuals)
     one_foot: bool = True            # joint: people's one-foot frames (masks whose feet overlap,
-    #                                  where others show two) get a foot extent of their own
+    #                                  where others show two) take the foot interpolated between
+    #                                  their track's two-foot frames, else a foot extent of their
+    #                                  own (agent_walker)
     max_class_misfit_deg: float | None = 2.0   # joint: a minority class group whose leaving-out
     #                                  moves the normal by more than this disagrees with the rest:
     #                                  the plane is refit without it (None: never)
@@ -291,7 +294,10 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     fit that puts over 5% of the inlier feet above its horizon.
     """
     K = np.asarray(K, dtype=np.float64)
-    obs = _prepare(K, np.asarray(observations), conf.model, conf.fit_classes)
+    observations = np.asarray(observations)
+    if conf.model == "joint" and conf.one_foot:
+        observations = interpolate_one_foot(observations)
+    obs = _prepare(K, observations, conf.model, conf.fit_classes)
     rng = np.random.default_rng(conf.seed)
     # people's lowest and highest points are near their axis (a vehicle's are corners)
     ppl = np.isin(obs.cls[obs.idx], PERSON_CLASSES)
@@ -319,7 +325,9 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
                                  "column_weight": boot.get("column_weight", 0.0),
                                  "inlier_px": boot.get("inlier_px", conf.inlier_px),
                                  "class_misfit_deg": boot.get("class_misfit_deg", float("nan")),
-                                 "relative_noise": boot.get("relative_noise", 0.0)})
+                                 "relative_noise": boot.get("relative_noise", 0.0),
+                                 "relative_noise_one_foot": boot.get("relative_noise_one_foot",
+                                                                     0.0)})
     else:
         n, s, inl, res = fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))

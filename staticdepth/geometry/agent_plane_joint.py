@@ -50,7 +50,7 @@ from staticdepth.geometry.agent_plane_sides import anchored
 from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
                                               track_headings)
 from staticdepth.geometry.agent_walker import (MIN_ONE_FOOT, ONE_FOOT_BOUNDS, ONE_FOOT_PRIOR,
-                                               relative_noise)
+                                               relative_noise_split, residual_scale)
 from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
 
 
@@ -97,12 +97,16 @@ class _Problem:
         self.boxes = any(GROUPS[g].outline == "box" for g in self.present)
         # residual scale per observation (1 px + a share of the pixel height: gait, bobbing)
         self.people = np.array([GROUPS[g].outline == "disk" for g in self.group], bool)
-        self.sigma = np.sqrt(1.0 + (relative_noise * obs.h * self.people) ** 2)
         # a walker's one-foot frames (feet overlapping in the image): its nearer foot, half a
         # stride towards the camera; an extent of their own where other frames show two feet
         self.one = self.people & (obs.feet == 1)
+        self.sigma = residual_scale(relative_noise, obs.h, self.people, self.one)
         self.one_free = (np.count_nonzero(self.one) >= MIN_ONE_FOOT
                          and np.count_nonzero(self.people & (obs.feet >= 2)) >= MIN_ONE_FOOT)
+        # a gait shown (one-foot frames, kept or interpolated, beside two-foot ones): kappa
+        self.gait = (np.count_nonzero(self.people & (obs.feet != 0) & (obs.feet != 2))
+                     >= MIN_ONE_FOOT and np.count_nonzero(self.people & (obs.feet >= 2))
+                     >= MIN_ONE_FOOT)
         self.e1, self._with_one = 0.0, False      # the one-foot extent, fitted or not
 
     def params(self, theta: np.ndarray, e1: float | None = None) -> list:
@@ -329,8 +333,8 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     theta_all = _expand(prob, sub, theta)
     prob.take_feet(sub)
     s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
-    if auto_noise and prob.one_free:   # walkers' gait seen in their masks: its residual scale
-        kappa = relative_noise(*_people_residuals(prob, n, theta_all, s, inl))
+    if auto_noise and prob.gait:   # walkers' gait seen in their masks: its residual scale
+        kappa = relative_noise_split(*_people_residuals(prob, n, theta_all, s, inl))
         e1, prob = prob.e1, _Problem(K, obs, kappa)
         prob.e1 = e1
         s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
@@ -359,16 +363,19 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     boot = joint_uncertainty(K, prob, conf, n, theta_all, inl, rng) if conf.bootstrap > 0 else {}
     boot["column_weight"] = conf.fit_column_weight
     boot["inlier_px"] = thr
-    boot["relative_noise"] = prob.kappa
+    k2, k1 = (prob.kappa, prob.kappa) if np.isscalar(prob.kappa) else prob.kappa
+    boot["relative_noise"], boot["relative_noise_one_foot"] = float(k2), float(k1)
     return n, s, inl, res, extents, boot
 
 
 def _people_residuals(prob: _Problem, n, theta, s, inl):
-    """(row and column residuals, pixel heights) of the people on inlier tracks."""
+    """(row and column residuals, pixel heights, one-foot frames) of the people on inlier
+    tracks."""
     u, v = prob.top(n, theta, s)
     keep = inl[prob.obs.idx] & prob.people
-    h = prob.obs.h[keep]
-    return np.r_[(v - prob.obs.top_v)[keep], (u - prob.top_u)[keep]], np.r_[h, h]
+    h, one = prob.obs.h[keep], prob.one[keep]
+    return (np.r_[(v - prob.obs.top_v)[keep], (u - prob.top_u)[keep]], np.r_[h, h],
+            np.r_[one, one])
 
 
 def _fine_fit(fine: _Problem, prob: _Problem, conf, p, r, theta_all):
