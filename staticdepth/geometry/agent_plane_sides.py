@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from staticdepth.geometry.agent_cylinder import _BIG
-from staticdepth.geometry.agent_shape import box_columns, person_columns
+from staticdepth.geometry.agent_shape import WIDTH_AT, box_columns, person_columns
 from staticdepth.geometry.projection import rays_from_pixels
 
 
@@ -59,7 +59,7 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
     j, sk = prob.obs.idx[k], s[prob.obs.idx[k]]
     obs_w = prob.obs.right[k] - prob.obs.left[k]
     mid = 0.5 * (prob.obs.left[k] + prob.obs.right[k])
-    u, radius = prob.obs.u[k].copy(), np.full(prob.J, 0.02)
+    u = prob.obs.u[k].copy()
 
     def cols(rays, r):
         lo, hi = person_columns(prob.K, n, rays, sk, e_f, e_h, r)
@@ -67,6 +67,8 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
 
     for it in range(iters + 1):
         rays = rays_from_pixels(prob.K, u, prob.obs.v[k])
+        if it == 0:       # the ring that alone spans the observed width, per track (median)
+            radius = _ring_start(prob, n, rays, sk, obs_w, j)
         for _ in range(1 if it else 2):
             lo, hi = cols(rays, radius[j])
             lo2, hi2 = cols(rays, radius[j] + 1e-3)
@@ -79,3 +81,19 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
         if it < iters:
             u = u - (0.5 * (lo + hi) - mid)
     return rays, (hi - lo - obs_w) / prob.sigma[k]
+
+
+def _ring_start(prob, n, rays, sk, obs_w, j) -> np.ndarray:
+    """(J,) per track the median radius (units of d) of a ring at :data:`WIDTH_AT` of the height
+    whose projection is as wide as the observed box: ``w Z / (2 fx)``, Z the ring centre's
+    depth. The hull's width does not move with the ring while the foot or head disk is wider, so
+    a start below them would leave those disks to explain the widths."""
+    nr = rays @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = rays[:, 2] / nr - WIDTH_AT * sk * n[2]
+        r = obs_w * z / (2.0 * prob.K[0, 0])
+    ok = np.isfinite(r) & (r > 0)
+    out = np.full(prob.J, 0.02)
+    for t in np.unique(j[ok]):
+        out[t] = np.median(r[ok & (j == t)])
+    return np.clip(out, 0.0, 0.2)
