@@ -46,7 +46,7 @@ from scipy.sparse import lil_matrix
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
-from staticdepth.geometry.agent_plane_sides import anchored
+from staticdepth.geometry.agent_plane_sides import WIDTH_SD, anchored, width_tracks
 from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
                                               track_headings)
 from staticdepth.geometry.agent_walker import (MIN_ONE_FOOT, ONE_FOOT_BOUNDS, ONE_FOOT_PRIOR,
@@ -65,8 +65,10 @@ class _Problem:
     """The observations with their class groups; packs and unpacks the parameter vector
     ``[pitch, roll, extents of the groups present..., s_1..s_J]``."""
 
-    def __init__(self, K: np.ndarray, obs: AgentObservations, relative_noise: float = 0.0):
+    def __init__(self, K: np.ndarray, obs: AgentObservations, relative_noise: float = 0.0,
+                 ring: bool = True):
         self.K, self.obs, self.kappa = K, obs, relative_noise
+        self.ring = ring      # people as boxes: a shoulder ring per track, or the disks alone
         self.J, self.N = len(obs.ids), len(obs.top_v)
         self.track_group = group_of_class(obs.cls)
         self.group = self.track_group[obs.idx]
@@ -177,7 +179,8 @@ class _Problem:
 
     def sparsity(self, col_w: float, with_one: bool = False):
         ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else [],
-                   self.side_idx, self.side_idx, self.width_idx].astype(int)
+                   self.side_idx, self.side_idx, self.width_idx,
+                   width_tracks(self)[1] if WIDTH_SD and len(self.width_idx) else []].astype(int)
         R, n1 = len(ob), int(with_one)
         S = lil_matrix((R + self.n_shape + self.J + n1, self.k_s + self.J + n1), dtype=np.int8)
         if with_one:     # the one-foot extent: the one-foot frames' residuals and its prior

@@ -16,6 +16,10 @@ from staticdepth.geometry.agent_cylinder import _BIG
 from staticdepth.geometry.agent_shape import WIDTH_AT, box_columns, person_columns
 from staticdepth.geometry.projection import rays_from_pixels
 
+# people seen as boxes: the spread (log sd) of their widest ring's radius about the tracks'
+# median (people of one class are alike in width as in height; 0 = each track's own, unrelated)
+WIDTH_SD = 0.15
+
 
 def anchored(prob, n, theta, s, dev=None, iters: int = 3):
     """(foot rays (N, 3), residuals over the noise model of the box outlines' left and right
@@ -59,7 +63,8 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
     j, sk = prob.obs.idx[k], s[prob.obs.idx[k]]
     obs_w = prob.obs.right[k] - prob.obs.left[k]
     mid = 0.5 * (prob.obs.left[k] + prob.obs.right[k])
-    u = prob.obs.u[k].copy()
+    u, sig = prob.obs.u[k].copy(), prob.sigma[k]
+    tracks = width_tracks(prob)[0]
 
     def cols(rays, r):
         lo, hi = person_columns(prob.K, n, rays, sk, e_f, e_h, r)
@@ -67,20 +72,46 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
 
     for it in range(iters + 1):
         rays = rays_from_pixels(prob.K, u, prob.obs.v[k])
-        if it == 0:       # the ring that alone spans the observed width, per track (median)
-            radius = _ring_start(prob, n, rays, sk, obs_w, j)
-        for _ in range(1 if it else 2):
+        if it == 0:       # the ring that alone spans the box, never inside the widest disk
+            r_lo = np.bincount(j, np.maximum(e_f, e_h) * sk, minlength=prob.J) \
+                / np.maximum(np.bincount(j, minlength=prob.J), 1)
+            radius = np.maximum(_ring_start(prob, n, rays, sk, obs_w, j), r_lo) \
+                if prob.ring else r_lo
+        for _ in range((1 if it else 2) if prob.ring else 0):
             lo, hi = cols(rays, radius[j])
             lo2, hi2 = cols(rays, radius[j] + 1e-3)
-            w, dw = hi - lo, (hi2 - lo2 - hi + lo) / 1e-3
-            num = np.bincount(j, dw * (w - obs_w), minlength=prob.J)
+            w, dw = (hi - lo) / sig, (hi2 - lo2 - hi + lo) / 1e-3 / sig
+            num = np.bincount(j, dw * (w - obs_w / sig), minlength=prob.J)
             den = np.bincount(j, dw * dw, minlength=prob.J)
+            if WIDTH_SD:     # the shared-width prior's Gauss-Newton terms
+                pr, dpr = _width_prior(radius, tracks)
+                num[tracks] += pr * dpr
+                den[tracks] += dpr * dpr
             radius = np.clip(radius - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0),
-                             0.0, 0.2)
+                             r_lo, 0.2)
         lo, hi = cols(rays, radius[j])
         if it < iters:
             u = u - (0.5 * (lo + hi) - mid)
-    return rays, (hi - lo - obs_w) / prob.sigma[k]
+    out = (hi - lo - obs_w) / sig
+    if WIDTH_SD:
+        out = np.r_[out, _width_prior(radius, tracks)[0] if prob.ring else np.zeros(len(tracks))]
+    return rays, out
+
+
+def width_tracks(prob) -> tuple[np.ndarray, np.ndarray]:
+    """(tracks with people-as-box widths, one observation index of each): the rows of the
+    shared-width prior's residuals, in the order :func:`anchored` returns them."""
+    j = prob.obs.idx[prob.width_idx]
+    tracks, first = np.unique(j, return_index=True)
+    return tracks, prob.width_idx[first]
+
+
+def _width_prior(radius: np.ndarray, tracks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(residuals, their derivatives in the radius) of the tracks' ring radii about their
+    median, in log units over :data:`WIDTH_SD`."""
+    r = np.maximum(radius[tracks], 1e-6)
+    z = (np.log(r) - np.median(np.log(r))) / WIDTH_SD
+    return z, 1.0 / (r * WIDTH_SD)
 
 
 def _ring_start(prob, n, rays, sk, obs_w, j) -> np.ndarray:
