@@ -46,7 +46,7 @@ from scipy.sparse import lil_matrix
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
-from staticdepth.geometry.agent_plane_sides import WIDTH_SD, anchored, width_tracks
+from staticdepth.geometry.agent_plane_sides import WIDTH_SD, anchored, wide_start, width_tracks
 from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
                                               track_headings)
 from staticdepth.geometry.agent_walker import (MIN_ONE_FOOT, ONE_FOOT_BOUNDS, ONE_FOOT_PRIOR,
@@ -55,6 +55,7 @@ from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_
 
 
 MIN_SHAPE_TRACKS = 3
+BOX_GAIT = True
 
 
 def _normal(pitch: float, roll: float) -> np.ndarray:
@@ -326,13 +327,19 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     aff = _affine_start(K, sub.obs)
     if aff is not None:
         starts.insert(1, aff)
-    p, r, theta, s, _ = sub.fit(conf, starts, loss=conf.loss, max_nfev=100)
+    p, r, theta, s, cost = sub.fit(conf, starts, loss=conf.loss, max_nfev=100)
+    wide = wide_start(sub)      # people as boxes: also from disks as wide as the boxes
+    if wide is not None:
+        alt = sub.fit(conf, [(math.degrees(p), math.degrees(r))] + starts, wide,
+                      loss=conf.loss, max_nfev=100)
+        if alt[4] < cost:
+            p, r, theta, s, cost = alt
     # the rows' noise scale (gait, rough masks) sets the inlier threshold, never below inlier_px
     n = _normal(p, r)
     theta_all = _expand(prob, sub, theta)
     prob.take_feet(sub)
     s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
-    if auto_noise and prob.one_free:   # walkers' gait seen in their masks: its residual scale
+    if auto_noise and (prob.one_free or BOX_GAIT and len(prob.width_idx)):   # walkers' gait
         kappa = relative_noise(*_people_residuals(prob, n, theta_all, s, inl))
         e1, prob = prob.e1, _Problem(K, obs, kappa)
         prob.e1 = e1

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from staticdepth.geometry.agent_cylinder import _BIG
-from staticdepth.geometry.agent_shape import WIDTH_AT, box_columns, person_columns
+from staticdepth.geometry.agent_shape import WIDTH_AT, box_columns, disk_scale, person_columns
 from staticdepth.geometry.projection import rays_from_pixels
 
 # people seen as boxes: the spread (log sd) of their widest ring's radius about the tracks'
@@ -73,7 +73,7 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
     for it in range(iters + 1):
         rays = rays_from_pixels(prob.K, u, prob.obs.v[k])
         if it == 0:       # the ring that alone spans the box, never inside the widest disk
-            r_lo = np.bincount(j, np.maximum(e_f, e_h) * sk, minlength=prob.J) \
+            r_lo = np.bincount(j, np.maximum(e_f, e_h) * disk_scale(sk), minlength=prob.J) \
                 / np.maximum(np.bincount(j, minlength=prob.J), 1)
             radius = np.maximum(_ring_start(prob, n, rays, sk, obs_w, j), r_lo) \
                 if prob.ring else r_lo
@@ -128,3 +128,20 @@ def _ring_start(prob, n, rays, sk, obs_w, j) -> np.ndarray:
     for t in np.unique(j[ok]):
         out[t] = np.median(r[ok & (j == t)])
     return np.clip(out, 0.0, 0.2)
+
+
+def wide_start(prob) -> np.ndarray | None:
+    """A second start for the extents where people are seen as boxes (None otherwise): their
+    foot and head disks as wide as the boxes (half the median width over the height). From the
+    prior's narrow head alone the fit of a wide body (a 0.3 m cylinder seen at 46 deg) stayed in a
+    valley 2 deg off, the shoulder ring standing in for the head: its cost is far above the true
+    plane's, so the lower cost of the two fits decides."""
+    k = prob.width_idx
+    if len(k) < 3 or 0 not in prob.slices:
+        return None
+    w = (prob.obs.right[k] - prob.obs.left[k]) / np.maximum(prob.obs.h[k], 1e-9)
+    e = float(np.clip(0.5 * np.median(w), 0.0, 0.3))
+    theta = prob.prior_theta().copy()
+    sl = prob.slices[0]
+    theta[sl.start - 2:sl.stop - 2] = e
+    return theta
