@@ -13,7 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from staticdepth.geometry.agent_cylinder import _BIG
-from staticdepth.geometry.agent_shape import WIDTH_AT, box_columns, disk_scale, person_columns
+from staticdepth.geometry.agent_shape import (WIDTH_AT, box_columns, disk_columns, disk_scale,
+                                              foot_centres, ring_columns)
 from staticdepth.geometry.projection import rays_from_pixels
 
 # people seen as boxes: the spread (log sd) of their widest ring's radius about the tracks'
@@ -66,20 +67,23 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
     u, sig = prob.obs.u[k].copy(), prob.sigma[k]
     tracks = width_tracks(prob)[0]
 
-    def cols(rays, r):
-        lo, hi = person_columns(prob.K, n, rays, sk, e_f, e_h, r)
-        return np.nan_to_num(lo, nan=-_BIG), np.nan_to_num(hi, nan=_BIG)
+    def cols(d_lo, d_hi, A, r):
+        lo, hi = ring_columns(prob.K, n, A, sk, r)
+        return (np.nan_to_num(np.fmin(d_lo, lo), nan=-_BIG),
+                np.nan_to_num(np.fmax(d_hi, hi), nan=_BIG))
 
     for it in range(iters + 1):
         rays = rays_from_pixels(prob.K, u, prob.obs.v[k])
+        A = foot_centres(n, rays, sk, e_f)
+        d_lo, d_hi = disk_columns(prob.K, n, A, sk, e_f, e_h)
         if it == 0:       # the ring that alone spans the box, never inside the widest disk
             r_lo = np.bincount(j, np.maximum(e_f, e_h) * disk_scale(sk), minlength=prob.J) \
                 / np.maximum(np.bincount(j, minlength=prob.J), 1)
             radius = np.maximum(_ring_start(prob, n, rays, sk, obs_w, j), r_lo) \
                 if prob.ring else r_lo
         for _ in range((1 if it else 2) if prob.ring else 0):
-            lo, hi = cols(rays, radius[j])
-            lo2, hi2 = cols(rays, radius[j] + 1e-3)
+            lo, hi = cols(d_lo, d_hi, A, radius[j])
+            lo2, hi2 = cols(d_lo, d_hi, A, radius[j] + 1e-3)
             w, dw = (hi - lo) / sig, (hi2 - lo2 - hi + lo) / 1e-3 / sig
             num = np.bincount(j, dw * (w - obs_w / sig), minlength=prob.J)
             den = np.bincount(j, dw * dw, minlength=prob.J)
@@ -89,7 +93,7 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
                 den[tracks] += dpr * dpr
             radius = np.clip(radius - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0),
                              r_lo, 0.2)
-        lo, hi = cols(rays, radius[j])
+        lo, hi = cols(d_lo, d_hi, A, radius[j])
         if it < iters:
             u = u - (0.5 * (lo + hi) - mid)
     out = (hi - lo - obs_w) / sig

@@ -172,33 +172,63 @@ def person_columns(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray
     """(left (N,), right (N,)) extreme columns in pixels of people seen as boxes: the convex
     hull of the foot disk (radius ``e_f`` times :func:`disk_scale`, its lowest point on
     ``rays``), the head disk (``e_h`` likewise, at the height s (N,), :func:`top_points`) and a
-    ring of ``radius`` (N, units of d) at :data:`WIDTH_AT` of the height (the shoulders); each
-    circle's extreme columns in closed form (a 16-gon's were up to 2% of the radius short, a
-    pixel's width error that moved with the viewing direction: 1-2 deg of a wide body's plane;
-    the skew ``K[0, 1]`` is taken as 0 for where the extreme lies). A wide cylinder is all three
-    alike, a thin axis none. NaN behind the camera."""
+    ring of ``radius`` (N, units of d) at :data:`WIDTH_AT` of the height (the shoulders). A wide
+    cylinder is all three alike, a thin axis none. NaN behind the camera."""
+    A = foot_centres(n, rays, s, e_f)
+    lo, hi = disk_columns(K, n, A, s, e_f, e_h)
+    rlo, rhi = ring_columns(K, n, A, s, radius)
+    return np.fmin(lo, rlo), np.fmax(hi, rhi)
+
+
+def foot_centres(n: np.ndarray, rays: np.ndarray, s: np.ndarray, e_f) -> np.ndarray:
+    """(N, 3) centres of the people's foot disks whose lowest image points are on ``rays`` (NaN
+    where a ray misses the ground)."""
     nr = rays @ n
     with np.errstate(divide="ignore", invalid="ignore"):
         F = rays / nr[:, None]
     F[~(nr > 1e-9)] = np.nan
-    basis = _ground_basis(n)
-    sc, ones = disk_scale(s), np.ones(len(s))
     A = F.copy()
     if np.any(np.asarray(e_f) > 0):
+        basis = _ground_basis(n)
         for _ in range(3):
-            A = A + (F - _rim(A, basis, np.asarray(e_f) * sc, lowest=True))
-    circles = ((A, np.asarray(e_f) * sc * ones), (A - s[:, None] * n, np.asarray(e_h) * sc * ones),
-               (A - WIDTH_AT * s[:, None] * n, np.asarray(radius, np.float64) * ones))
-    cols = []
-    for C, rho in circles:
-        for largest in (False, True):
-            P = _extreme(C, basis, rho, 0, largest)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                u = K[0, 0] * P[:, 0] / P[:, 2] + K[0, 1] * P[:, 1] / P[:, 2] + K[0, 2]
-            u[~(P[:, 2] > 1e-9)] = np.nan
-            cols.append(u)
-    u = np.stack(cols, 1)
-    return u.min(1), u.max(1)
+            A = A + (F - _rim(A, basis, np.asarray(e_f) * disk_scale(s), lowest=True))
+    return A
+
+
+def disk_columns(K, n, A, s, e_f, e_h) -> tuple[np.ndarray, np.ndarray]:
+    """(left, right) columns of the hull of the foot disks (centres A) and the head disks."""
+    sc, N = disk_scale(s), len(A)
+    lo, hi = circle_columns(K, n, np.r_[A, A - s[:, None] * n],
+                            np.r_[np.asarray(e_f) * sc * np.ones(N), np.asarray(e_h) * sc])
+    return np.fmin(lo[:N], lo[N:]), np.fmax(hi[:N], hi[N:])
+
+
+def ring_columns(K, n, A, s, radius) -> tuple[np.ndarray, np.ndarray]:
+    """(left, right) columns of rings of ``radius`` at :data:`WIDTH_AT` of the height."""
+    return circle_columns(K, n, A - WIDTH_AT * s[:, None] * n,
+                          np.asarray(radius, np.float64) * np.ones(len(A)))
+
+
+def circle_columns(K, n, C, rho) -> tuple[np.ndarray, np.ndarray]:
+    """(leftmost, rightmost) image columns of horizontal circles (centres C (M, 3), radii rho
+    (M,)) in closed form: the two stationary points of ``X / Z`` on each (a 16-gon's were up to
+    2% of the radius short, a pixel's width error that moved with the viewing direction: 1-2 deg
+    of a wide body's plane; the skew ``K[0, 1]`` is taken as 0 for where they lie). NaN behind
+    the camera."""
+    e1, e2 = _ground_basis(n)
+    g0, g1 = C[:, 2] * e1[0] - C[:, 0] * e1[2], C[:, 2] * e2[0] - C[:, 0] * e2[2]
+    k = e2[0] * e1[2] - e1[0] * e2[2]
+    R = np.maximum(np.hypot(g0, g1), 1e-300)
+    alpha, acos = np.arctan2(g0, g1), np.arccos(np.clip(-rho * k / R, -1.0, 1.0))
+    us = []
+    for sign in (1.0, -1.0):
+        phi = sign * acos - alpha
+        P = C + rho[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = K[0, 0] * P[:, 0] / P[:, 2] + K[0, 1] * P[:, 1] / P[:, 2] + K[0, 2]
+        u[~(P[:, 2] > 1e-9)] = np.nan
+        us.append(u)
+    return np.fmin(*us), np.fmax(*us)
 
 
 def box_columns(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray,
