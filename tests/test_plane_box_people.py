@@ -13,7 +13,7 @@ import numpy as np
 
 from plane_generators import H, W, scene
 from staticdepth.geometry.agent_plane import AgentPlaneConfig, fit_agent_plane
-from staticdepth.geometry.agent_shape import _ground_basis, disk_scale, person_columns
+from staticdepth.geometry.agent_shape import _ground_basis, person_columns
 from staticdepth.geometry.camera import normal_from_pitch_roll
 from staticdepth.geometry.plane import angle_between_deg
 from staticdepth.geometry.scale import anchor_depth, anchor_pixel
@@ -46,7 +46,7 @@ def test_person_columns_are_the_circles_extreme_columns():
     for e_f, e_h, ring in ((0.0, 0.0, 0.0), (0.2, 0.05, 0.01), (0.03, 0.2, 0.02),
                            (0.03, 0.03, 0.06)):
         lo, hi = person_columns(K, n, rays, s, e_f, e_h, np.full(4, ring))
-        sc = disk_scale(s)
+        sc = s
         for i in range(4):
             F = rays[i] / (rays[i] @ n)
             A = _foot_centre(K, n, F, e_f * sc[i])

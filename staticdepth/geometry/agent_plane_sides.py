@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from staticdepth.geometry.agent_cylinder import _BIG
-from staticdepth.geometry.agent_shape import (WIDTH_AT, box_columns, disk_columns, disk_scale,
+from staticdepth.geometry.agent_shape import (WIDTH_AT, box_columns, disk_columns,
                                               foot_centres, ring_columns)
 from staticdepth.geometry.projection import rays_from_pixels
 
@@ -77,7 +77,7 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
         A = foot_centres(n, rays, sk, e_f)
         d_lo, d_hi = disk_columns(prob.K, n, A, sk, e_f, e_h)
         if it == 0:       # the ring that alone spans the box, never inside the widest disk
-            r_lo = np.bincount(j, np.maximum(e_f, e_h) * disk_scale(sk), minlength=prob.J) \
+            r_lo = np.bincount(j, np.maximum(e_f, e_h) * sk, minlength=prob.J) \
                 / np.maximum(np.bincount(j, minlength=prob.J), 1)
             radius = np.maximum(_ring_start(prob, n, rays, sk, obs_w, j), r_lo) \
                 if prob.ring else r_lo

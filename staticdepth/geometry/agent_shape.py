@@ -150,28 +150,14 @@ def box_corners(n, F, s, a, b, heading) -> np.ndarray:
     return np.concatenate([c[:, None, :] + off, c[:, None, :] - s[:, None, None] * n + off], 1)
 
 
-ABSOLUTE_DISKS = True
-
-
-def disk_scale(s: np.ndarray) -> np.ndarray:
-    """What the people's disk extents are ratios of: with :data:`ABSOLUTE_DISKS` the median
-    height of the agents given (units of d; every person's feet and head alike in metres:
-    head and shoulder sizes vary little with stature, a child's head is nearly an adult's),
-    else each agent's own height."""
-    s = np.asarray(s, np.float64)
-    if not ABSOLUTE_DISKS or len(s) == 0:
-        return s
-    return np.full(len(s), np.nanmedian(s))
-
-
 WIDTH_AT = 0.75     # a person's widest ring (shoulders, arms, torso) at this share of its height
 
 
 def person_columns(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray, e_f, e_h,
                    radius) -> tuple[np.ndarray, np.ndarray]:
     """(left (N,), right (N,)) extreme columns in pixels of people seen as boxes: the convex
-    hull of the foot disk (radius ``e_f`` times :func:`disk_scale`, its lowest point on
-    ``rays``), the head disk (``e_h`` likewise, at the height s (N,), :func:`top_points`) and a
+    hull of the foot disk (radius ``e_f s``, its lowest point on ``rays``), the head disk
+    (``e_h s`` at the height s (N,), :func:`top_points`) and a
     ring of ``radius`` (N, units of d) at :data:`WIDTH_AT` of the height (the shoulders). A wide
     cylinder is all three alike, a thin axis none. NaN behind the camera."""
     A = foot_centres(n, rays, s, e_f)
@@ -191,15 +177,15 @@ def foot_centres(n: np.ndarray, rays: np.ndarray, s: np.ndarray, e_f) -> np.ndar
     if np.any(np.asarray(e_f) > 0):
         basis = _ground_basis(n)
         for _ in range(3):
-            A = A + (F - _rim(A, basis, np.asarray(e_f) * disk_scale(s), lowest=True))
+            A = A + (F - _rim(A, basis, np.asarray(e_f) * s, lowest=True))
     return A
 
 
 def disk_columns(K, n, A, s, e_f, e_h) -> tuple[np.ndarray, np.ndarray]:
     """(left, right) columns of the hull of the foot disks (centres A) and the head disks."""
-    sc, N = disk_scale(s), len(A)
+    N = len(A)
     lo, hi = circle_columns(K, n, np.r_[A, A - s[:, None] * n],
-                            np.r_[np.asarray(e_f) * sc * np.ones(N), np.asarray(e_h) * sc])
+                            np.r_[np.asarray(e_f) * s * np.ones(N), np.asarray(e_h) * s])
     return np.fmin(lo[:N], lo[N:]), np.fmax(hi[:N], hi[N:])
 
 
@@ -276,8 +262,8 @@ def top_points(n: np.ndarray, rays: np.ndarray, s: np.ndarray, group: np.ndarray
             A = F[m].copy()
             if np.any(np.asarray(p[0]) > 0):
                 for _ in range(3):
-                    A = A + (F[m] - _rim(A, basis, p[0] * disk_scale(s[m]), lowest=True))
-            T[m] = _rim(A - s[m, None] * n, basis, p[1] * disk_scale(s[m]), lowest=False)
+                    A = A + (F[m] - _rim(A, basis, p[0] * s[m], lowest=True))
+            T[m] = _rim(A - s[m, None] * n, basis, p[1] * s[m], lowest=False)
         else:
             T[m] = _box_top(n, F[m], s[m], p[0], p[1], heading[m])
     return T
