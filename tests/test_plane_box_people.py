@@ -67,3 +67,32 @@ def _foot_centre(K, n, F, rho, k=20000):
         low = P[np.argmax(P[:, 1] / P[:, 2])]
         A = A + (F - low)
     return A
+
+
+def _fit_errors(kind: str, seed: int) -> tuple[float, float]:
+    """(normal error deg, anchor depth error % from the true camera height) of the joint fit of
+    one generator camera's boxes."""
+    s = scene(kind, seed, detection="box")
+    assert np.all(np.isnan(s.obs["top_u"])) and np.all(s.obs["right"] > s.obs["left"])
+    p = fit_agent_plane(s.K, s.obs, FAST)
+    u, v = anchor_pixel(W, H)
+    a = anchor_depth(s.K, p.normal, s.height_m, u, v)
+    truth = anchor_depth(s.K, s.normal, s.height_m, u, v)
+    return angle_between_deg(p.normal, s.normal), abs(a / truth - 1) * 100
+
+
+def test_tapered_people_as_boxes():
+    """The tapered body (widest at 0.4 of its height, not at the shoulder ring's 0.75) on the
+    camera that was its worst of 8 (3: 1.56 deg when the ring started inside the foot disk, which
+    then stood in for it; measured 0.18 deg now, anchor 0.11%): within 0.6 deg, anchor within
+    0.5%."""
+    err, anchor = _fit_errors("tapered", 3)
+    assert err < 0.6 and anchor < 0.5, (err, anchor)
+
+
+def test_wide_cylinders_as_boxes():
+    """0.3 m cylinders seen at 46 deg (camera 7: 2.10 deg with 16-gon columns and the narrow
+    start only, measured 0.34 deg now, anchor 0.13%): the closed-form columns and the wide start
+    put it within 0.6 deg, the anchor within 0.5%."""
+    err, anchor = _fit_errors("cylinder", 7)
+    assert err < 0.6 and anchor < 0.5, (err, anchor)
