@@ -7,7 +7,8 @@ Usage: python benchmarks/bench_agent_plane.py [--cameras 8] [--outliers 0.0] [--
 
 Scenes from the independent generators of tests/plane_generators.py (cameras 3-12 m high, pitched
 10-50 degrees, roll +-5, 24 tracks, 1 px noise; ``--detection box`` gives boxes with +-2 px
-jitter and no top column; ``--outliers 0.2`` corrupts 20% of the observations). Per generator and
+jitter and no top column, ``--detection mask,box`` both, each generator's rows side by side;
+``--outliers 0.2`` corrupts 20% of the observations). Per generator and
 model: median and max error of the normal (degrees) and of the camera height from the agents
 (percent: Eq. 1 and exact from a 1.72 m agent height, people's median; joint from the classes'
 height distributions, maximum likelihood), of the anchor depth given the true camera height
@@ -110,7 +111,8 @@ def main() -> None:
     ap_ = argparse.ArgumentParser(description=__doc__)
     ap_.add_argument("--cameras", type=int, default=8)
     ap_.add_argument("--outliers", type=float, default=0.0)
-    ap_.add_argument("--detection", choices=("mask", "box"), default="mask")
+    ap_.add_argument("--detection", default="mask",
+                     help="mask, box, or mask,box (both per generator: their s per fit compare)")
     ap_.add_argument("--generators", default=",".join(GENERATORS))
     ap_.add_argument("--models", default="paper,exact,joint")
     ap_.add_argument("--bootstrap", type=int, default=0)
@@ -123,6 +125,9 @@ def main() -> None:
         scene_table(args.scenes.split(","), args.frames, args.min_height_px, args.bootstrap)
         return
     models = args.models.split(",")
+    detections = args.detection.split(",")
+    if not set(detections) <= {"mask", "box"}:
+        ap_.error(f"--detection: mask, box or mask,box, got {args.detection}")
     if args.bootstrap:
         CONFIGS["joint"] = replace(CONFIGS["joint"], bootstrap=args.bootstrap)
     print(f"{args.cameras} cameras per generator, detections: {args.detection}, outliers "
@@ -130,12 +135,12 @@ def main() -> None:
           "(median / max), anchor depth error % with the true camera height (median / max), "
           "s per fit")
     print(f"{'generator':10}" + "".join(f" | {m:^42}" for m in models))
-    for kind in args.generators.split(","):
+    for kind, det in ((k, d) for k in args.generators.split(",") for d in detections):
         stats = {m: ([], [], [], []) for m in models}
         refused = {m: 0 for m in models}
         ratios = []
         for seed in range(args.cameras):
-            s = scene(kind, seed, detection=args.detection, outliers=args.outliers)
+            s = scene(kind, seed, detection=det, outliers=args.outliers)
             n_tracks = len(np.unique(s.obs["track"]))
             if n_tracks < 8:     # e.g. a low, steep camera where whole vehicles rarely fit
                 print(f"  {kind} camera {seed}: only {n_tracks} tracks in view (the gate refuses "
@@ -171,7 +176,8 @@ def main() -> None:
                          + (f" ({refused[m]} refused)" if refused[m] else ""))
         if ratios:
             cells.append(f"error / std {np.nanmedian(ratios):.2f} / {np.nanmax(ratios):.2f}")
-        print(f"{kind:10}" + "".join(f" | {c:^42}" for c in cells), flush=True)
+        label = f"{kind}/{det}" if len(detections) > 1 else kind
+        print(f"{label:10}" + "".join(f" | {c:^42}" for c in cells), flush=True)
 
 
 if __name__ == "__main__":
