@@ -55,7 +55,6 @@ from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_
 
 
 MIN_SHAPE_TRACKS = 3
-BOX_GAIT = True
 
 
 def _normal(pitch: float, roll: float) -> np.ndarray:
@@ -66,10 +65,8 @@ class _Problem:
     """The observations with their class groups; packs and unpacks the parameter vector
     ``[pitch, roll, extents of the groups present..., s_1..s_J]``."""
 
-    def __init__(self, K: np.ndarray, obs: AgentObservations, relative_noise: float = 0.0,
-                 ring: bool = True):
+    def __init__(self, K: np.ndarray, obs: AgentObservations, relative_noise: float = 0.0):
         self.K, self.obs, self.kappa = K, obs, relative_noise
-        self.ring = ring      # people as boxes: a shoulder ring per track, or the disks alone
         self.J, self.N = len(obs.ids), len(obs.top_v)
         self.track_group = group_of_class(obs.cls)
         self.group = self.track_group[obs.idx]
@@ -339,7 +336,7 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     theta_all = _expand(prob, sub, theta)
     prob.take_feet(sub)
     s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
-    if auto_noise and (prob.one_free or BOX_GAIT and len(prob.width_idx)):   # walkers' gait
+    if auto_noise and (prob.one_free or len(prob.width_idx)):   # walkers' gait (or boxes')
         kappa = relative_noise(*_people_residuals(prob, n, theta_all, s, inl))
         e1, prob = prob.e1, _Problem(K, obs, kappa)
         prob.e1 = e1
