@@ -92,31 +92,29 @@ def track_headings(n: np.ndarray, feet: np.ndarray, idx: np.ndarray, J: int) -> 
 
 def _rim(C: np.ndarray, basis, rho: np.ndarray, lowest: bool) -> np.ndarray:
     """:func:`~staticdepth.geometry.agent_cylinder.extreme_rim` with the plane's basis given."""
-    return _extreme(C, basis, rho, 1, lowest)
+    best, best_row = None, None
+    for P in _stationary(C, basis, rho, 1):
+        row = np.nan_to_num(_rows(P), nan=-np.inf if lowest else np.inf)
+        if best is None:
+            best, best_row = P, row
+        else:
+            take = row > best_row if lowest else row < best_row
+            best = np.where(take[:, None], P, best)
+    return best
 
 
-def _extreme(C: np.ndarray, basis, rho: np.ndarray, axis: int, largest: bool) -> np.ndarray:
-    """Points (N, 3) of the horizontal circles (centres C (N, 3), radii rho, in the plane's
-    ``basis``) whose image coordinate ``P[axis] / P[2]`` (1: the row, 0: the column, up to the
-    intrinsics) is largest (or smallest): the two stationary points in closed form."""
+def _stationary(C: np.ndarray, basis, rho: np.ndarray, axis: int) -> list[np.ndarray]:
+    """The two points (N, 3 each) of the horizontal circles (centres C (N, 3), radii rho, in the
+    plane's ``basis``) where the image coordinate ``P[axis] / P[2]`` (1: the row, 0: the column,
+    up to the intrinsics) is stationary, in closed form: its extremes."""
     e1, e2 = basis
     p, q = np.array([e1[axis], e2[axis]]), np.array([e1[2], e2[2]])
     g0, g1 = C[:, 2] * p[0] - C[:, axis] * q[0], C[:, 2] * p[1] - C[:, axis] * q[1]
     k = p[1] * q[0] - p[0] * q[1]
     R = np.maximum(np.hypot(g0, g1), 1e-300)
     alpha, acos = np.arctan2(g0, g1), np.arccos(np.clip(-rho * k / R, -1.0, 1.0))
-    best, best_val = None, None
-    for sign in (1.0, -1.0):
-        phi = sign * acos - alpha
-        P = C + rho[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            val = np.nan_to_num(P[:, axis] / P[:, 2], nan=-np.inf if largest else np.inf)
-        if best is None:
-            best, best_val = P, val
-        else:
-            take = val > best_val if largest else val < best_val
-            best = np.where(take[:, None], P, best)
-    return best
+    return [C + rho[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+            for phi in (acos - alpha, -acos - alpha)]
 
 
 def _rows(P: np.ndarray) -> np.ndarray:
@@ -201,15 +199,8 @@ def circle_columns(K, n, C, rho) -> tuple[np.ndarray, np.ndarray]:
     2% of the radius short, a pixel's width error that moved with the viewing direction: 1-2 deg
     of a wide body's plane; the skew ``K[0, 1]`` is taken as 0 for where they lie). NaN behind
     the camera."""
-    e1, e2 = _ground_basis(n)
-    g0, g1 = C[:, 2] * e1[0] - C[:, 0] * e1[2], C[:, 2] * e2[0] - C[:, 0] * e2[2]
-    k = e2[0] * e1[2] - e1[0] * e2[2]
-    R = np.maximum(np.hypot(g0, g1), 1e-300)
-    alpha, acos = np.arctan2(g0, g1), np.arccos(np.clip(-rho * k / R, -1.0, 1.0))
     us = []
-    for sign in (1.0, -1.0):
-        phi = sign * acos - alpha
-        P = C + rho[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
+    for P in _stationary(C, _ground_basis(n), rho, 0):
         with np.errstate(divide="ignore", invalid="ignore"):
             u = K[0, 0] * P[:, 0] / P[:, 2] + K[0, 1] * P[:, 1] / P[:, 2] + K[0, 2]
         u[~(P[:, 2] > 1e-9)] = np.nan
