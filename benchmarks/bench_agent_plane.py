@@ -7,10 +7,13 @@ Usage: python benchmarks/bench_agent_plane.py [--cameras 8] [--outliers 0.0] [--
 
 Scenes from the independent generators of tests/plane_generators.py (cameras 3-12 m high, pitched
 10-50 degrees, roll +-5, 24 tracks, 1 px noise; ``--detection box`` gives boxes with +-2 px
-jitter and no top column; ``--outliers 0.2`` corrupts 20% of the observations). Per generator and
+jitter and no top column, ``--detection mask,box`` both, each generator's rows side by side;
+``--outliers 0.2`` corrupts 20% of the observations). Per generator and
 model: median and max error of the normal (degrees) and of the camera height from the agents
 (percent: Eq. 1 and exact from a 1.72 m agent height, people's median; joint from the classes'
-height distributions, maximum likelihood), and seconds per fit; a fit that refuses (InputError,
+height distributions, maximum likelihood), of the anchor depth given the true camera height
+(percent; the ground's depth at the bottom row's centre pixel, the metric scale's anchor) and
+seconds per fit; a fit that refuses (InputError,
 e.g. a near-nadir camera) is printed and counted, not in the statistics. ``--bootstrap N``: the
 joint model's bootstrap too, and the ratio of the true normal error to its reported uncertainty
 (median / max; <= 1 where the uncertainty covers the error).
@@ -34,7 +37,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from plane_generators import GENERATORS, scene  # noqa: E402
+from plane_generators import GENERATORS, H, W, scene  # noqa: E402
 
 from staticdepth import tracking  # noqa: E402
 from staticdepth.errors import InputError  # noqa: E402
@@ -42,10 +45,23 @@ from staticdepth.geometry.agent_plane import (AgentPlaneConfig, camera_height_fr
                                               fit_agent_plane)
 from staticdepth.geometry.agent_plane_gate import camera_height_from_agents  # noqa: E402
 from staticdepth.geometry.plane import angle_between_deg  # noqa: E402
+from staticdepth.geometry.scale import anchor_depth, anchor_pixel  # noqa: E402
 
 CONFIGS = {"paper": AgentPlaneConfig(model="paper", bootstrap=0, classes=None),
            "exact": AgentPlaneConfig(model="exact", bootstrap=0, classes=None),
            "joint": AgentPlaneConfig(bootstrap=0, column_weight=1.0)}
+
+
+def anchor_error(s, normal) -> float:
+    """Percent error of the anchor depth (the ground's depth at the bottom row's centre pixel,
+    :func:`staticdepth.geometry.scale.anchor_depth`) from the fitted normal and the true camera
+    height, against the true plane's."""
+    u, v = anchor_pixel(W, H)
+    try:
+        fit = anchor_depth(s.K, normal, s.height_m, u, v)
+    except InputError:          # the anchor above the fitted horizon
+        return float("inf")
+    return abs(fit / anchor_depth(s.K, s.normal, s.height_m, u, v) - 1) * 100
 
 
 def camera_height(plane, model: str, vehicles: bool) -> float:
@@ -95,7 +111,8 @@ def main() -> None:
     ap_ = argparse.ArgumentParser(description=__doc__)
     ap_.add_argument("--cameras", type=int, default=8)
     ap_.add_argument("--outliers", type=float, default=0.0)
-    ap_.add_argument("--detection", choices=("mask", "box"), default="mask")
+    ap_.add_argument("--detection", default="mask",
+                     help="mask, box, or mask,box (both per generator: their s per fit compare)")
     ap_.add_argument("--generators", default=",".join(GENERATORS))
     ap_.add_argument("--models", default="paper,exact,joint")
     ap_.add_argument("--bootstrap", type=int, default=0)
@@ -108,18 +125,22 @@ def main() -> None:
         scene_table(args.scenes.split(","), args.frames, args.min_height_px, args.bootstrap)
         return
     models = args.models.split(",")
+    detections = args.detection.split(",")
+    if not set(detections) <= {"mask", "box"}:
+        ap_.error(f"--detection: mask, box or mask,box, got {args.detection}")
     if args.bootstrap:
         CONFIGS["joint"] = replace(CONFIGS["joint"], bootstrap=args.bootstrap)
     print(f"{args.cameras} cameras per generator, detections: {args.detection}, outliers "
           f"{args.outliers:.0%}; normal error deg (median / max), camera height error % "
-          "(median / max), s per fit")
-    print(f"{'generator':10}" + "".join(f" | {m:^30}" for m in models))
-    for kind in args.generators.split(","):
-        stats = {m: ([], [], []) for m in models}
+          "(median / max), anchor depth error % with the true camera height (median / max), "
+          "s per fit")
+    print(f"{'generator':10}" + "".join(f" | {m:^42}" for m in models))
+    for kind, det in ((k, d) for k in args.generators.split(",") for d in detections):
+        stats = {m: ([], [], [], []) for m in models}
         refused = {m: 0 for m in models}
         ratios = []
         for seed in range(args.cameras):
-            s = scene(kind, seed, detection=args.detection, outliers=args.outliers)
+            s = scene(kind, seed, detection=det, outliers=args.outliers)
             n_tracks = len(np.unique(s.obs["track"]))
             if n_tracks < 8:     # e.g. a low, steep camera where whole vehicles rarely fit
                 print(f"  {kind} camera {seed}: only {n_tracks} tracks in view (the gate refuses "
@@ -136,23 +157,27 @@ def main() -> None:
                 stats[m][0].append(angle_between_deg(p.normal, s.normal))
                 h = camera_height(p, m, kind == "vehicles")
                 stats[m][1].append(abs(h / s.height_m - 1) * 100)
+                stats[m][3].append(anchor_error(s, p.normal))
                 if args.verbose:
-                    print(f"  {kind} camera {seed} {m}: {stats[m][0][-1]:.2f} deg, "
+                    print(f"  {kind} camera {seed} {m}: {stats[m][0][-1]:.2f} deg, anchor "
+                          f"{stats[m][3][-1]:.2f}%, "
                           f"{n_tracks} tracks, uncertainty {p.normal_std_deg:.2f}", flush=True)
                 if m == "joint" and args.bootstrap:
                     ratios.append(stats[m][0][-1] / p.normal_std_deg)
         cells = []
         for m in models:
-            e, h, t = (np.asarray(x) for x in stats[m])
+            e, h, t, a = (np.asarray(x) for x in stats[m])
             if len(e) == 0:
                 cells.append(f"all {refused[m]} refused")
                 continue
             cells.append(f"{np.median(e):5.2f} / {np.max(e):5.2f}  {np.nanmedian(h):4.1f} / "
-                         f"{np.nanmax(h):4.1f}  {np.median(t):4.1f}"
+                         f"{np.nanmax(h):4.1f}  {np.median(a):4.2f} / {np.max(a):4.2f}  "
+                         f"{np.median(t):4.1f}"
                          + (f" ({refused[m]} refused)" if refused[m] else ""))
         if ratios:
             cells.append(f"error / std {np.nanmedian(ratios):.2f} / {np.nanmax(ratios):.2f}")
-        print(f"{kind:10}" + "".join(f" | {c:^30}" for c in cells), flush=True)
+        label = f"{kind}/{det}" if len(detections) > 1 else kind
+        print(f"{label:10}" + "".join(f" | {c:^42}" for c in cells), flush=True)
 
 
 if __name__ == "__main__":

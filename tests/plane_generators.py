@@ -200,8 +200,9 @@ def _agent_spec(kind: str, rng):
 
 def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.0,
           n_tracks: int = 24, frames: tuple[int, int] = (6, 10), noise_px: float = 1.0,
-          pitch_deg: float | None = None) -> Scene:
-    """A random camera and ``n_tracks`` tracks of ``kind`` agents; see the module doc."""
+          pitch_deg: float | None = None, box_jitter_px: float = 2.0) -> Scene:
+    """A random camera and ``n_tracks`` tracks of ``kind`` agents; see the module doc
+    (``box_jitter_px``: the boxes' sides and rows jittered by U(-this, this))."""
     rng, side_rng = np.random.default_rng(seed), np.random.default_rng([seed, 1])
     K, n, d, pitch, roll = camera(rng, pitch_deg)
     up = -n
@@ -242,7 +243,7 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
                 out.append((track, i, cls, ub + e[0], vb + e[1], v.min() + e[2], ut + e[3], feet,
                             u.min() + es[0], u.max() + es[1]))
             else:
-                j = rng.uniform(-2, 2, 4)
+                j = rng.uniform(-1, 1, 4) * box_jitter_px
                 lo, hi = u.min() + j[0], u.max() + j[1]
                 out.append((track, i, cls, (lo + hi) / 2, v.max() + j[2], v.min() + j[3], np.nan,
                             0, lo, hi))

@@ -46,7 +46,7 @@ from scipy.sparse import lil_matrix
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
-from staticdepth.geometry.agent_plane_sides import anchored
+from staticdepth.geometry.agent_plane_sides import WIDTH_SD, anchored, wide_start, width_tracks
 from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
                                               track_headings)
 from staticdepth.geometry.agent_walker import (MIN_ONE_FOOT, ONE_FOOT_BOUNDS, ONE_FOOT_PRIOR,
@@ -181,7 +181,8 @@ class _Problem:
 
     def sparsity(self, col_w: float, with_one: bool = False):
         ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else [],
-                   self.side_idx, self.side_idx, self.width_idx].astype(int)
+                   self.side_idx, self.side_idx, self.width_idx,
+                   width_tracks(self)[1] if WIDTH_SD and len(self.width_idx) else []].astype(int)
         R, n1 = len(ob), int(with_one)
         S = lil_matrix((R + self.n_shape + self.J + n1, self.k_s + self.J + n1), dtype=np.int8)
         if with_one:     # the one-foot extent: the one-foot frames' residuals and its prior
@@ -327,13 +328,19 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     aff = _affine_start(K, sub.obs)
     if aff is not None:
         starts.insert(1, aff)
-    p, r, theta, s, _ = sub.fit(conf, starts, loss=conf.loss, max_nfev=100)
+    p, r, theta, s, cost = sub.fit(conf, starts, loss=conf.loss, max_nfev=100)
+    wide = wide_start(sub)      # people as boxes: also from disks as wide as the boxes
+    if wide is not None:
+        alt = sub.fit(conf, [(math.degrees(p), math.degrees(r))] + starts, wide,
+                      loss=conf.loss, max_nfev=100)
+        if alt[4] < cost:
+            p, r, theta, s, cost = alt
     # the rows' noise scale (gait, rough masks) sets the inlier threshold, never below inlier_px
     n = _normal(p, r)
     theta_all = _expand(prob, sub, theta)
     prob.take_feet(sub)
     s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
-    if auto_noise and prob.gait:   # walkers' gait seen in their masks: its residual scale
+    if auto_noise and (prob.gait or len(prob.width_idx)):   # walkers' gait (or boxes' widths)
         kappa = relative_noise_split(*_people_residuals(prob, n, theta_all, s, inl))
         e1, prob = prob.e1, _Problem(K, obs, kappa)
         prob.e1 = e1
