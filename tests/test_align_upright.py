@@ -177,3 +177,33 @@ def test_ground_the_network_did_not_recede_inside_the_walked_region_takes_the_pl
         from staticdepth.adaptation.config import build_config
 
         build_config({"align.walked_ratio": 0.5})
+
+
+def test_ground_known_by_another_cue_takes_the_plane_and_carries_the_wall():
+    """``extra_ground``: beyond the walked region (ground closer than 7 m) the network keeps the
+    ground flat from 7 to 11 m, which nothing in the depth tells from a wall; pixels another cue
+    says are ground (here the scene's true ground) take the plane, and the wall at 12 m finds its
+    contact on them. ``info`` reports each pixel's category."""
+    K, n, Z, ground, wall = scene(pitch_deg=30.0, cam_height=5.0)
+    pred = Z.copy()
+    flat = ground & (Z > 7) & (Z < 11)
+    pred[flat] = 7.0
+    pred[wall] *= 0.8                   # and the network has the wall 20% too near
+    walked = ground & (Z < 7)
+    info_off, info_on = {}, {}
+    off = align_depth(pred, K, n, 5.0, walked, mode="upright", walked_ratio=1.2, info=info_off)
+    on = align_depth(pred, K, n, 5.0, walked, mode="upright", walked_ratio=1.2,
+                     extra_ground=ground, info=info_on)
+    assert _absrel(off.depth, Z, flat) > 0.1 and _absrel(on.depth, Z, flat) < 1e-3
+    assert _absrel(on.depth, Z, wall) < 0.03
+    assert _absrel(on.depth, Z, ground & (Z < 7)) < 1e-3
+    # categories: the flat band was traced like a wall, now it is plane; the wall is re-anchored
+    # at a contact beyond 11 m (its error is the same without the cue: 1.2%)
+    assert info_off["traced"][flat].mean() > 0.9 and not info_on["traced"][flat].any()
+    took = info_on["planar"] | info_on["snapped"]          # snapped: the band's first metre
+    assert took[flat].all() and info_on["planar"][flat].mean() > 0.8
+    assert info_on["moved"][wall].mean() > 0.9
+    c = info_on["contact"][wall & info_on["moved"]]
+    assert np.median(Z.ravel()[c]) > 11.0
+    for key in ("snapped", "ground_mode", "ground"):
+        assert info_on[key].shape == Z.shape
