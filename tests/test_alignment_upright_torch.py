@@ -112,3 +112,19 @@ def test_pointer_doubling_reaches_each_chains_end():
     link = torch.tensor([1, 2, 3, 3, 4, 4, 5])
     assert follow(link, 2).tolist() == [3, 3, 3, 3, 4, 4, 4]
     assert follow(link, 1).tolist() == [2, 3, 3, 3, 4, 4, 4]   # too few doublings: not there
+
+
+def test_torch_upright_plane_bound_matches_numpy(frame):
+    """align.plane_bound in the graph: the structures 3x too far (beyond what max_pull lets a
+    contact pull back) are bounded by the plane's depth along their rays, as in numpy."""
+    Z, K, n, G, reg = frame
+    Zf = Z.copy()
+    Zf[reg["structures"]] *= 3.0
+    kw = {"max_pull": 2.0, "contact_range": 2.0, "recede_push": 2.0, "walked_ratio": 1.2,
+          "fill": False}
+    ref = align_depth(Zf, K, n, 1.0, G, mode="upright", plane_bound=True, **kw).depth
+    off = align_depth(Zf, K, n, 1.0, G, mode="upright", **kw).depth
+    assert np.mean(_rel(ref, off) > 1e-3) > 0.01           # the bound did bind
+    out = UprightAlignment(K, 320, 160, n, 1.0, G, plane_bound=True, **kw)(
+        torch.from_numpy(Zf)).numpy()
+    assert _rel(out, ref).max() < 1e-5, _rel(out, ref).max()

@@ -143,7 +143,8 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
                 shape: str = "network", recede: tuple[float, float] | None = (0.1, 8.0),
                 fill: bool = True, max_pull: float = np.inf, contact_range: float | None = None,
                 recede_push: float = np.inf, walked_ratio: float = np.inf,
-                extra_ground: np.ndarray | None = None, info: dict | None = None) -> Alignment:
+                plane_bound: bool = False, extra_ground: np.ndarray | None = None,
+                info: dict | None = None) -> Alignment:
     """Align a relative depth map (H, W) to the agents' ground plane ``n_g . P = d_g``.
 
     ground_mask: (H, W) bool where the ground is expected; ``agent_mask`` pixels are removed from
@@ -187,7 +188,8 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
         return align_upright(Z, K, n_g, d_g, G, snap_rel=snap_rel, jump_rel=jump_rel, shape=shape,
                              agent_mask=agent_mask, recede=recede, fill=fill, max_pull=max_pull,
                              contact_range=contact_range, recede_push=recede_push,
-                             walked_ratio=walked_ratio, extra_ground=extra_ground, info=info)
+                             walked_ratio=walked_ratio, plane_bound=plane_bound,
+                             extra_ground=extra_ground, info=info)
     n_p, d_p = fit_predicted_plane(Z, K, G)
     a, b, c = n_p
     s2 = a * a + b * b
@@ -271,11 +273,14 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
                   recede: tuple[float, float] | None = (0.1, 8.0), fill: bool = True,
                   max_pull: float = np.inf, contact_range: float | None = None,
                   recede_push: float = np.inf, walked_ratio: float = np.inf,
-                  extra_ground: np.ndarray | None = None, info: dict | None = None
-                  ) -> Alignment:
+                  plane_bound: bool = False, extra_ground: np.ndarray | None = None,
+                  info: dict | None = None) -> Alignment:
     """The ``ground`` mode, then every structure above the ground re-anchored at its contact with
     it (geometry/alignment_upright.py). The frame's agents (``agent_mask``) are never ground.
     ``n_fallback`` counts the pixels that were not re-anchored (neither ground nor traced to it).
+    ``plane_bound``: no pixel below the agents' horizon ends farther than the plane along its
+    ray (the ground is infinite: whatever a pixel sees below the horizon stands in front of the
+    ground there, or is it), ``min(depth, d_g / (n_g . r))``.
     ``extra_ground``/``info``: see ``upright_depth`` (pixels known to be ground by another cue;
     per-pixel categories for diagnostics, here also ``snapped`` and the ``ground_mode`` map).
     """
@@ -302,6 +307,9 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
                                not_ground=None if agent_mask is None else np.asarray(agent_mask, bool))
     valid = np.isfinite(g.depth)
     out = np.where(moved, new, g.depth)
+    if plane_bound:
+        with np.errstate(divide="ignore"):
+            out = np.where(q > 0, np.minimum(out, np.float32(1.0) / np.where(q > 0, q, 1)), out)
     out[~valid] = np.nan
     if info is not None:
         info.update(snapped=snap, ground_mode=g.depth)
