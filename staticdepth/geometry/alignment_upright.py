@@ -27,7 +27,8 @@ walked, the plane's depth is uncertain) or pulling the run nearer than its ``gro
 Inside the walked region (``walked``: the ground mask, where the agents' feet were), a traced pixel
 whose plane depth exceeds ``walked_ratio`` x its contact's is ground the network did not let recede
 (a structure standing there would be taller than ``1 - 1 / walked_ratio`` camera heights): it takes
-the plane, and the contacts are traced again over it.
+the plane, and the contacts are traced again over it. Afterwards (``align_upright``'s
+``plane_bound``) no pixel below the horizon ends farther than the plane along its ray.
 
 A pure function of (depth, K, plane, ground mask[, agent mask]); ``geometry/alignment.py``
 dispatches ``mode="upright"`` here. Sequential over rows (the march) and columns (the fill).

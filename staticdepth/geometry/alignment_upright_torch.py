@@ -17,7 +17,8 @@ The numpy version's sequential scans become fixed-size index gathers:
   walk, so their writes are equal);
 - the fill along rows (``fill_along_rows``): left then right links, pointer doubling over W.
 The trust rules (``fill``, ``max_pull``, ``contact_range``, ``recede_push``, ``walked_ratio``)
-are those of the numpy version (the walked region is the ground mask). The arithmetic runs in
+and the plane's bound (``plane_bound``: a constant map of the plane's depth, an elementwise
+minimum) are those of the numpy version (the walked region is the ground mask). The arithmetic runs in
 float64, as the numpy version's does, so that its threshold decisions (recession, depth steps)
 come out the same.
 """
