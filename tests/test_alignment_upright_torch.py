@@ -79,7 +79,8 @@ def test_upright_exports_to_onnx(frame, tmp_path):
     from staticdepth.geometry.alignment_torch import alignment_module
 
     Z, K, n, G, _ = frame
-    mod = alignment_module("upright", K, 320, 160, n, 1.0, G, snap_rel=0.1, jump_rel=0.08)
+    mod = alignment_module("upright", K, 320, 160, n, 1.0, G, snap_rel=0.1, jump_rel=0.08,
+                           plane_bound=True)      # adapt's default: the plane's bound too
     assert isinstance(mod, UprightAlignment)
     path = str(tmp_path / "u.onnx")
     with warnings.catch_warnings():
@@ -89,7 +90,7 @@ def test_upright_exports_to_onnx(frame, tmp_path):
     sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
     for s_f, t_f in [(1.0, 0.0), (3.0, 0.02)]:             # each frame its own scale and shift
         Zf = (1.0 / (s_f / Z + t_f)).astype(np.float32)
-        ref = align_depth(Zf, K, n, 1.0, G, mode="upright").depth
+        ref = align_depth(Zf, K, n, 1.0, G, mode="upright", plane_bound=True).depth
         got = sess.run(None, {"z": Zf})[0]
         assert _rel(got, ref).max() < 1e-4 and np.abs(got - ref).max() < 5e-3, (
             _rel(got, ref).max(), np.abs(got - ref).max())
