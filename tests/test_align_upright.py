@@ -238,3 +238,25 @@ def test_plane_bound_keeps_every_pixel_below_the_horizon_nearer_than_the_ground(
     from staticdepth.adaptation.config import build_config
 
     assert build_config({}).align.plane_bound is True
+
+
+def test_the_align_stage_applies_the_plane_bound_and_the_labels_do_not():
+    """adapt's aligned_frame: the align stage passes plane_bound (its outputs, like the align
+    command and export-model, are bounded by the plane); the pseudo labels call it without."""
+    from staticdepth.adaptation.align import aligned_frame, upright_options
+    from staticdepth.adaptation.config import build_config
+    from staticdepth.dataset.schema import AGENT_DTYPE
+
+    K, n, Z, ground, wall = scene(pitch_deg=30.0, cam_height=5.0)
+    pred = Z.copy()
+    pred[wall] = 40.0                   # unseen by the network, beyond max_pull's reach
+    conf = build_config({})
+    none, rows = np.zeros(Z.shape, np.int32), np.zeros(0, AGENT_DTYPE)
+    stage = aligned_frame(conf, K, n, ground, none, rows, pred, plane_bound=True)
+    label = aligned_frame(conf, K, n, ground, none, rows, pred)
+    opts = upright_options(conf.align)
+    assert opts["plane_bound"] is True
+    ref = align_depth(pred, K, n, 1.0, ground, mode="upright", snap_rel=conf.align.snap_rel,
+                      **opts).depth
+    np.testing.assert_allclose(stage, ref, rtol=1e-6)
+    assert _absrel(stage * 5.0, Z, wall) < 0.35 < 2.0 < _absrel(label * 5.0, Z, wall)
