@@ -6,7 +6,9 @@ sequence file's stored prediction ``<name>`` (``--sequence``, written back as th
 the plane JSON written by ``staticdepth ground-plane``; and a ground mask: an image/.npy (``--ground-mask``), a polygon (``--ground-polygon "u1,v1 u2,v2 ..."`` or a JSON/TXT
 file of vertices) or, for a sequence, a ground-truth semantic map per frame (``--ground-aux
 ground``, e.g. the CARLA importer's). ``--agent-mask`` pixels are removed from the plane fit and
-always aligned (METHOD.md section 4). Aligned maps are float32 (NaN = unknown), written
+always aligned (Eq. 2) or never ground (``upright``). ``--mode`` (default the config's
+``align.mode``, ``upright``) and ``--set align.KEY=VALUE`` choose the alignment exactly as adapt's
+align stage does (``adaptation.align.upright_options``; METHOD.md section 4). Aligned maps are float32 (NaN = unknown), written
 atomically. With a camera height (``--camera-height``, or the plane's ``camera_height_m``) the
 output is in metres and the anchor scale of section 5 is reported; otherwise it is in units of the
 camera height.
@@ -107,10 +109,14 @@ def save_npy_atomic(path: str | os.PathLike, array: np.ndarray) -> None:
 
 def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: np.ndarray, *,
               inverse: bool = False, camera_height_m: float | None = None,
-              near_plane_rel: float | None = None, agent_mask: np.ndarray | None = None
-              ) -> tuple[np.ndarray, dict[str, Any]]:
+              near_plane_rel: float | None = None, agent_mask: np.ndarray | None = None,
+              align_conf=None) -> tuple[np.ndarray, dict[str, Any]]:
     """Align one predicted map; returns the map and its info (plane fit, fallback, anchor scale).
-    ``agent_mask`` (H, W) pixels leave the plane fit, are always aligned and skip the anchor."""
+    ``agent_mask`` (H, W) pixels leave the plane fit, are always aligned (eq2) or never ground
+    (upright) and skip the anchor. ``align_conf``: an adaptation ``AlignConfig`` (default: the
+    config's defaults) whose mode and settings are used as adapt's align stage uses them."""
+    from staticdepth.adaptation.align import upright_options
+    from staticdepth.adaptation.config import AlignConfig
     from staticdepth.geometry.alignment import align_depth, depth_from_inverse
 
     pred = np.asarray(pred, dtype=np.float32)
@@ -118,11 +124,22 @@ def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: n
         raise InputError(f"a prediction must be a 2-D (H, W) map, got shape {pred.shape}")
     Z = depth_from_inverse(pred) if inverse else pred
     d_g = camera_height_m if camera_height_m is not None else 1.0
+    conf = AlignConfig() if align_conf is None else align_conf
+    if near_plane_rel is not None and conf.mode != "eq2":
+        raise InputError(f"--near-plane selects pixels for Eq. 2: it needs --mode eq2, not "
+                         f"{conf.mode!r}")
     res = align_depth(Z, K, plane.normal, d_g, ground_mask, near_plane_rel=near_plane_rel,
-                      agent_mask=agent_mask)
-    info: dict[str, Any] = {"pred_plane_normal": res.plane_normal.tolist(),
-                            "pred_plane_d": res.plane_d, "fallback_ratio": res.fallback_ratio,
-                            "fallback_pixels": res.n_fallback, "skipped_nadir": res.skipped}
+                      agent_mask=agent_mask, mode=conf.mode, snap_rel=conf.snap_rel,
+                      **upright_options(conf))
+    info: dict[str, Any] = {"mode": conf.mode}
+    if conf.mode == "eq2":
+        info.update(pred_plane_normal=res.plane_normal.tolist(), pred_plane_d=res.plane_d,
+                    fallback_ratio=res.fallback_ratio, fallback_pixels=res.n_fallback,
+                    skipped_nadir=res.skipped)
+    else:   # the ground fit's inverse-depth scale and shift (alignment.align_ground)
+        s, t, scale_only = (float(x) for x in res.plane_normal)
+        info.update(inverse_scale=s, inverse_shift=t, scale_only=bool(scale_only),
+                    far_limit=res.plane_d, not_reanchored_pixels=res.n_fallback)
     if camera_height_m is not None:
         a = scale_from_anchor(Z, K, plane.normal, camera_height_m, agent_mask=agent_mask)
         info.update(anchor_depth_m=a.anchor_depth_m,
@@ -131,10 +148,27 @@ def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: n
     return res.depth, info
 
 
+def align_config(mode: str | None, sets: list[str]):
+    """The adaptation's ``AlignConfig`` from its defaults, ``--set align.KEY=VALUE`` and
+    ``--mode`` (built by adapt's own config builder: one set of defaults and checks)."""
+    from staticdepth.adaptation.config import build_config
+
+    settings: dict[str, str] = {}
+    for kv in sets:
+        key, eq, value = kv.partition("=")
+        if not eq or not key.startswith("align."):
+            raise InputError(f"--set takes align.KEY=VALUE, got {kv!r}")
+        settings[key] = value
+    if mode is not None:
+        settings["align.mode"] = mode
+    return build_config(settings).align
+
+
 def register(sub) -> None:
     p = sub.add_parser("align", help="align predicted depth to the agents' ground plane",
-                       description="Scene alignment (Eq. 2 and re-projection, METHOD.md section "
-                                   "4); metric output with a camera height (section 5).")
+                       description="Scene alignment (METHOD.md section 4; --mode upright, ground "
+                                   "or the paper's Eq. 2, as adapt aligns); metric output with a "
+                                   "camera height (section 5).")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--pred", help=".npy (H x W) prediction or a folder of them")
     src.add_argument("--sequence", help="sequence file (.h5): align its stored prediction "
@@ -157,8 +191,14 @@ def register(sub) -> None:
                                         "fit, always aligned")
     p.add_argument("--camera-height", type=float,
                    help="camera height in metres (default: the plane's, else relative output)")
+    p.add_argument("--mode", default=None, metavar="upright|ground|eq2",
+                   help="alignment mode, as adapt's align stage (default: the config's align.mode"
+                        ", upright): upright, ground or the paper's Eq. 2 (eq2)")
+    p.add_argument("--set", action="append", default=[], metavar="align.KEY=VALUE",
+                   help="an align.* setting over the config's defaults (e.g. align.jump_rel=0.1)")
     p.add_argument("--near-plane", type=float, metavar="REL",
-                   help="align only pixels within REL x d of the predicted plane; rescale others")
+                   help="with --mode eq2: align only pixels within REL x d of the predicted "
+                        "plane; rescale others")
     p.add_argument("--out", help=".npy file (or folder for a folder of inputs); not with "
                                  "--sequence")
     p.add_argument("--json", help="write per-frame information here")
@@ -219,6 +259,10 @@ def _align_cmd(args: argparse.Namespace) -> int:
         raise InputError(f"camera height must be positive, got {height}")
     if args.ground_aux and not args.sequence:
         raise InputError("--ground-aux reads a sequence's per-frame maps: it needs --sequence")
+    args.align_conf = align_config(args.mode, args.set)
+    if args.near_plane is not None and args.align_conf.mode != "eq2":
+        raise InputError(f"--near-plane selects pixels for Eq. 2: it needs --mode eq2, not "
+                         f"{args.align_conf.mode!r}")
     masks = _Masks(args)
     if args.sequence:
         frames, out_desc = _align_sequence(args, plane, height, masks)
@@ -261,7 +305,7 @@ def _align_files(args, plane: AgentPlane, height, masks: _Masks):
         try:
             out, info = align_map(pred, camera.K, plane, ground, inverse=args.inverse,
                                   camera_height_m=height, near_plane_rel=args.near_plane,
-                                  agent_mask=agents)
+                                  agent_mask=agents, align_conf=args.align_conf)
         except InputError as e:
             raise InputError(e.problem, i) from None
         save_npy_atomic(o, out)
@@ -295,7 +339,8 @@ def _align_sequence(args, plane: AgentPlane, height, masks: _Masks):
                 out, info = align_map(pred, K, plane, masks.ground(pred.shape, r, i),
                                       inverse=args.inverse, camera_height_m=height,
                                       near_plane_rel=args.near_plane,
-                                      agent_mask=masks.agent(pred.shape))
+                                      agent_mask=masks.agent(pred.shape),
+                                      align_conf=args.align_conf)
             except InputError as e:
                 if e.path:
                     raise
@@ -304,6 +349,7 @@ def _align_sequence(args, plane: AgentPlane, height, masks: _Masks):
             return out
 
         attrs = {"source_prediction": f"pred/{args.pred_name}", "plane": os.fspath(args.plane),
+                 "align_mode": args.align_conf.mode,
                  "units": "m" if height is not None else "camera heights"}
         align_prediction(ws, {out_name: (args.pred_name, aligned)},
                          f"align-command-{os.urandom(6).hex()}", attrs, rewrite=True)

@@ -97,7 +97,8 @@ def upright_settings(cfg: dict) -> dict[str, Any]:
         max_pull=setting_from(cfg, "align.max_pull", None),
         recede_push=setting_from(cfg, "align.recede_push", None),
         contact_range=setting_from(cfg, "align.contact_range", None),
-        walked_ratio=setting_from(cfg, "align.walked_ratio", None)))
+        walked_ratio=setting_from(cfg, "align.walked_ratio", None),
+        plane_bound=bool(setting_from(cfg, "align.plane_bound", False))))
 
 
 def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:

@@ -177,3 +177,86 @@ def test_ground_the_network_did_not_recede_inside_the_walked_region_takes_the_pl
         from staticdepth.adaptation.config import build_config
 
         build_config({"align.walked_ratio": 0.5})
+
+
+def test_ground_known_by_another_cue_takes_the_plane_and_carries_the_wall():
+    """``extra_ground``: beyond the walked region (ground closer than 7 m) the network keeps the
+    ground flat from 7 to 11 m, which nothing in the depth tells from a wall; pixels another cue
+    says are ground (here the scene's true ground) take the plane, and the wall at 12 m finds its
+    contact on them. ``info`` reports each pixel's category."""
+    K, n, Z, ground, wall = scene(pitch_deg=30.0, cam_height=5.0)
+    pred = Z.copy()
+    flat = ground & (Z > 7) & (Z < 11)
+    pred[flat] = 7.0
+    pred[wall] *= 0.8                   # and the network has the wall 20% too near
+    walked = ground & (Z < 7)
+    info_off, info_on = {}, {}
+    off = align_depth(pred, K, n, 5.0, walked, mode="upright", walked_ratio=1.2, info=info_off)
+    on = align_depth(pred, K, n, 5.0, walked, mode="upright", walked_ratio=1.2,
+                     extra_ground=ground, info=info_on)
+    assert _absrel(off.depth, Z, flat) > 0.1 and _absrel(on.depth, Z, flat) < 1e-3
+    assert _absrel(on.depth, Z, wall) < 0.03
+    assert _absrel(on.depth, Z, ground & (Z < 7)) < 1e-3
+    # categories: the flat band was traced like a wall, now it is plane; the wall is re-anchored
+    # at a contact beyond 11 m (its error is the same without the cue: 1.2%)
+    assert info_off["traced"][flat].mean() > 0.9 and not info_on["traced"][flat].any()
+    took = info_on["planar"] | info_on["snapped"]          # snapped: the band's first metre
+    assert took[flat].all() and info_on["planar"][flat].mean() > 0.8
+    assert info_on["moved"][wall].mean() > 0.9
+    c = info_on["contact"][wall & info_on["moved"]]
+    assert np.median(Z.ravel()[c]) > 11.0
+    for key in ("snapped", "ground_mode", "ground"):
+        assert info_on[key].shape == Z.shape
+
+
+def test_plane_bound_keeps_every_pixel_below_the_horizon_nearer_than_the_ground():
+    """align.plane_bound: whatever a pixel below the agents' horizon sees stands in front of the
+    ground along its ray (or is it), so no aligned depth exceeds the plane's there. A network
+    that does not see the wall (a thin structure, as the poles) gives it the far background's
+    depth, 3.2x too far: the contact would pull it nearer than max_pull (2) allows, so the
+    ground mode keeps it there; the bound brings each of its pixels within the plane's depth
+    (measured: AbsRel 2.24 -> 0.30 on the wall)."""
+    from staticdepth.geometry.projection import ray_grid
+
+    K, n, Z, ground, wall = scene(pitch_deg=30.0, cam_height=5.0)
+    pred = Z.copy()
+    pred[wall] = 40.0
+    off = align_depth(pred, K, n, 5.0, ground, mode="upright", max_pull=2.0).depth
+    on = align_depth(pred, K, n, 5.0, ground, mode="upright", max_pull=2.0,
+                     plane_bound=True).depth
+    h, w = Z.shape
+    nr = ray_grid(K, w, h) @ n
+    with np.errstate(divide="ignore"):
+        plane = np.where(nr > 0, 5.0 / nr, np.inf)
+    below = nr > 0
+    assert np.all(on[below] <= plane[below] * (1 + 1e-5))
+    assert np.any(off[below] > plane[below] * 1.5)
+    assert _absrel(off, Z, wall) > 2.0 and _absrel(on, Z, wall) < 0.35
+    np.testing.assert_allclose(on[ground], off[ground], rtol=1e-6)   # the ground: unchanged
+    # above the horizon (the sky at 200) nothing bounds it
+    np.testing.assert_allclose(on[~below], off[~below], rtol=1e-6)
+    from staticdepth.adaptation.config import build_config
+
+    assert build_config({}).align.plane_bound is True
+
+
+def test_the_align_stage_applies_the_plane_bound_and_the_labels_do_not():
+    """adapt's aligned_frame: the align stage passes plane_bound (its outputs, like the align
+    command and export-model, are bounded by the plane); the pseudo labels call it without."""
+    from staticdepth.adaptation.align import aligned_frame, upright_options
+    from staticdepth.adaptation.config import build_config
+    from staticdepth.dataset.schema import AGENT_DTYPE
+
+    K, n, Z, ground, wall = scene(pitch_deg=30.0, cam_height=5.0)
+    pred = Z.copy()
+    pred[wall] = 40.0                   # unseen by the network, beyond max_pull's reach
+    conf = build_config({})
+    none, rows = np.zeros(Z.shape, np.int32), np.zeros(0, AGENT_DTYPE)
+    stage = aligned_frame(conf, K, n, ground, none, rows, pred, plane_bound=True)
+    label = aligned_frame(conf, K, n, ground, none, rows, pred)
+    opts = upright_options(conf.align)
+    assert opts["plane_bound"] is True
+    ref = align_depth(pred, K, n, 1.0, ground, mode="upright", snap_rel=conf.align.snap_rel,
+                      **opts).depth
+    np.testing.assert_allclose(stage, ref, rtol=1e-6)
+    assert _absrel(stage * 5.0, Z, wall) < 0.35 < 2.0 < _absrel(label * 5.0, Z, wall)

@@ -79,7 +79,8 @@ def test_upright_exports_to_onnx(frame, tmp_path):
     from staticdepth.geometry.alignment_torch import alignment_module
 
     Z, K, n, G, _ = frame
-    mod = alignment_module("upright", K, 320, 160, n, 1.0, G, snap_rel=0.1, jump_rel=0.08)
+    mod = alignment_module("upright", K, 320, 160, n, 1.0, G, snap_rel=0.1, jump_rel=0.08,
+                           plane_bound=True)      # adapt's default: the plane's bound too
     assert isinstance(mod, UprightAlignment)
     path = str(tmp_path / "u.onnx")
     with warnings.catch_warnings():
@@ -89,7 +90,7 @@ def test_upright_exports_to_onnx(frame, tmp_path):
     sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
     for s_f, t_f in [(1.0, 0.0), (3.0, 0.02)]:             # each frame its own scale and shift
         Zf = (1.0 / (s_f / Z + t_f)).astype(np.float32)
-        ref = align_depth(Zf, K, n, 1.0, G, mode="upright").depth
+        ref = align_depth(Zf, K, n, 1.0, G, mode="upright", plane_bound=True).depth
         got = sess.run(None, {"z": Zf})[0]
         assert _rel(got, ref).max() < 1e-4 and np.abs(got - ref).max() < 5e-3, (
             _rel(got, ref).max(), np.abs(got - ref).max())
@@ -112,3 +113,19 @@ def test_pointer_doubling_reaches_each_chains_end():
     link = torch.tensor([1, 2, 3, 3, 4, 4, 5])
     assert follow(link, 2).tolist() == [3, 3, 3, 3, 4, 4, 4]
     assert follow(link, 1).tolist() == [2, 3, 3, 3, 4, 4, 4]   # too few doublings: not there
+
+
+def test_torch_upright_plane_bound_matches_numpy(frame):
+    """align.plane_bound in the graph: the structures 3x too far (beyond what max_pull lets a
+    contact pull back) are bounded by the plane's depth along their rays, as in numpy."""
+    Z, K, n, G, reg = frame
+    Zf = Z.copy()
+    Zf[reg["structures"]] *= 3.0
+    kw = {"max_pull": 2.0, "contact_range": 2.0, "recede_push": 2.0, "walked_ratio": 1.2,
+          "fill": False}
+    ref = align_depth(Zf, K, n, 1.0, G, mode="upright", plane_bound=True, **kw).depth
+    off = align_depth(Zf, K, n, 1.0, G, mode="upright", **kw).depth
+    assert np.mean(_rel(ref, off) > 1e-3) > 0.01           # the bound did bind
+    out = UprightAlignment(K, 320, 160, n, 1.0, G, plane_bound=True, **kw)(
+        torch.from_numpy(Zf)).numpy()
+    assert _rel(out, ref).max() < 1e-5, _rel(out, ref).max()

@@ -172,7 +172,7 @@ def test_align_agent_mask_leaves_the_fit_and_is_aligned(tmp_path):
     cv2.imwrite(str(tmp_path / "agents.png"), agent.astype(np.uint8) * 255)
     assert _align(tmp_path, "--ground-mask", str(tmp_path / "mask.png"), "--agent-mask",
                   str(tmp_path / "agents.png"), "--near-plane", "0.01", "--json",
-                  str(tmp_path / "info.json")) == 0
+                  str(tmp_path / "info.json"), "--mode", "eq2") == 0
     out = np.load(tmp_path / "out.npy")
     g = ground & ~agent
     assert np.mean(np.abs(out - depth)[g] / depth[g]) < 0.01
@@ -181,7 +181,7 @@ def test_align_agent_mask_leaves_the_fit_and_is_aligned(tmp_path):
     ratio = json.loads((tmp_path / "info.json").read_text())["frames"][0]["fallback_ratio"]
     assert np.isfinite(out[agent]).all()
     assert np.all(np.abs(out[agent] / (0.2 * ratio) - 1) > 0.05)
-    assert _align(tmp_path, "--ground-mask", str(tmp_path / "mask.png")) == 0
+    assert _align(tmp_path, "--ground-mask", str(tmp_path / "mask.png"), "--mode", "eq2") == 0
     worse = np.load(tmp_path / "out.npy")
     assert np.mean(np.abs(worse - depth)[g] / depth[g]) > 0.02       # the fit saw the garbage
 
@@ -306,3 +306,47 @@ def test_ground_plane_gate_refuses_then_accepts(tmp_path, capsys):
     assert "warning: ground plane refused" in capsys.readouterr().out
     assert main(args + ["--classes", "vehicles", "--overwrite"]) == 2
     assert "no observation of the classes selected" in capsys.readouterr().err
+
+
+def test_align_command_modes_are_adapts(tmp_path, capsys):
+    """``--mode`` (default the config's align.mode, upright) aligns as adapt's align stage: the
+    same maps as align_depth with adapt's settings; on a wall the network puts 50% too far,
+    only upright re-anchors it at its contact (truth: the rendered scene)."""
+    from staticdepth.adaptation.align import upright_options
+    from staticdepth.adaptation.config import build_config
+    from staticdepth.geometry.alignment import align_depth, depth_from_inverse
+
+    K, n, depth, ground = _align_inputs(tmp_path)
+    wall = ~ground & (depth < 100)
+    pred = dpt_failure(depth)
+    pred[wall] /= 1.5                                  # inverse depth: the wall 1.5x too far
+    np.save(tmp_path / "pred.npy", pred)
+    conf = build_config({}).align
+    assert conf.mode == "upright"
+    err = {}
+    for mode in ("upright", "ground", "eq2", None):
+        extra = () if mode is None else ("--mode", mode)
+        assert _align(tmp_path, "--ground-mask", str(tmp_path / "mask.png"), "--json",
+                      str(tmp_path / "info.json"), *extra) == 0
+        out = np.load(tmp_path / "out.npy")
+        info = json.loads((tmp_path / "info.json").read_text())["frames"][0]
+        assert info["mode"] == (mode or "upright")
+        m = mode or conf.mode
+        ref = align_depth(depth_from_inverse(pred), K, n, 5.0, ground, mode=m,
+                          snap_rel=conf.snap_rel, **upright_options(conf)).depth
+        np.testing.assert_allclose(out, ref, rtol=1e-6)
+        err[mode] = float(np.mean(np.abs(out - depth)[wall] / depth[wall]))
+        assert np.mean(np.abs(out - depth)[ground] / depth[ground]) < 0.01, mode
+    assert err[None] == err["upright"] < 0.07
+    assert err["ground"] > 0.3 and err["eq2"] > 0.3
+    # an align.* setting reaches the alignment: a huge jump_rel joins the wall to the sky
+    assert _align(tmp_path, "--ground-mask", str(tmp_path / "mask.png"), "--set",
+                  "align.jump_rel=50") == 0
+    assert not np.allclose(np.load(tmp_path / "out.npy")[wall], depth[wall], rtol=0.07)
+    for extra, msg in ((("--mode", "plane"), "align.mode must be one of"),
+                       (("--set", "jump_rel=0.1"), "align.KEY=VALUE"),
+                       (("--set", "align.jump_rel=0"), "jump_rel must be > 0"),
+                       (("--near-plane", "0.1"), "needs --mode eq2")):
+        rc = _align(tmp_path, "--ground-mask", str(tmp_path / "mask.png"), *extra)
+        e = capsys.readouterr().err
+        assert rc == 2 and msg in e and len(e.strip().splitlines()) == 1, (extra, e)

@@ -60,17 +60,22 @@ def upright_options(align) -> dict:
             "fill": align.fill, "contact_range": align.contact_range,
             "max_pull": np.inf if align.max_pull is None else align.max_pull,
             "recede_push": np.inf if align.recede_push is None else align.recede_push,
-            "walked_ratio": np.inf if align.walked_ratio is None else align.walked_ratio}
+            "walked_ratio": np.inf if align.walked_ratio is None else align.walked_ratio,
+            "plane_bound": align.plane_bound}
 
 
 def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,
-                  instances: np.ndarray, rows: np.ndarray, Z: np.ndarray) -> np.ndarray:
-    """One frame's depth ``Z`` aligned as adapt does it (units of the camera height)."""
+                  instances: np.ndarray, rows: np.ndarray, Z: np.ndarray,
+                  plane_bound: bool = False) -> np.ndarray:
+    """One frame's depth ``Z`` aligned as adapt does it (units of the camera height).
+    ``plane_bound``: ``align.plane_bound`` applies (the align stage's outputs pass it; the pseudo
+    labels do not: labels with it made the fine-tuned U-Net's ft-align worse, README)."""
     m = instances > 0
     # the frame's agents leave the ground mask, unless they would leave too little of it
     agent_mask = m if np.count_nonzero(ground & ~m) >= 50 else None
+    opts = {**upright_options(conf.align), "plane_bound": plane_bound and conf.align.plane_bound}
     A = align_depth(Z, K, normal, 1.0, ground, agent_mask=agent_mask, mode=conf.align.mode,
-                    snap_rel=conf.align.snap_rel, **upright_options(conf.align)).depth
+                    snap_rel=conf.align.snap_rel, **opts).depth
     if conf.align.agents_at_contact:
         A = agents_at_contact(A, K, normal, 1.0, instances, rows, conf.pseudo_labels)[0]
     return A
@@ -82,7 +87,7 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, fee
 
     def aligned(i: int, Z: np.ndarray) -> np.ndarray:
         return aligned_frame(conf, ws.K, plane.normal, ground, agents.instances(i),
-                             agents.rows(i), Z)
+                             agents.rows(i), Z, plane_bound=True)
 
     align_prediction(ws, {out: (src, aligned) for out, src in OUTPUTS.items()}, config_hash,
                      {"stage": "adapt", "metric": False, "units": "camera heights"})

@@ -72,6 +72,9 @@ class AlignConfig:
     walked_ratio: float | None = 1.2     # upright: inside the walked region (the ground mask)
     #                                  a pixel farther than this x its contact's plane depth
     #                                  is ground, not a structure (null: off)
+    plane_bound: bool = True         # upright: no pixel below the agents' horizon farther than
+    #                                  the plane along its ray (align outputs, the align command,
+    #                                  export-model; not the pseudo labels)
 
     def __post_init__(self):
         from staticdepth.geometry.alignment import ALIGN_MODES

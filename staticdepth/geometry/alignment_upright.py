@@ -27,7 +27,8 @@ walked, the plane's depth is uncertain) or pulling the run nearer than its ``gro
 Inside the walked region (``walked``: the ground mask, where the agents' feet were), a traced pixel
 whose plane depth exceeds ``walked_ratio`` x its contact's is ground the network did not let recede
 (a structure standing there would be taller than ``1 - 1 / walked_ratio`` camera heights): it takes
-the plane, and the contacts are traced again over it.
+the plane, and the contacts are traced again over it. Afterwards (``align_upright``'s
+``plane_bound``) no pixel below the horizon ends farther than the plane along its ray.
 
 A pure function of (depth, K, plane, ground mask[, agent mask]); ``geometry/alignment.py``
 dispatches ``mode="upright"`` here. Sequential over rows (the march) and columns (the fill).
@@ -207,13 +208,19 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   not_ground: np.ndarray | None = None, native: np.ndarray | None = None,
                   fill: bool = True, max_pull: float = np.inf, max_contact: float = np.inf,
                   recede_push: float = np.inf, walked: np.ndarray | None = None,
-                  walked_ratio: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+                  walked_ratio: float = np.inf, extra_ground: np.ndarray | None = None,
+                  info: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
     ``q``: the plane's inverse depth ``n_g . r / d_g`` per pixel; ``not_ground``: pixels never
     ground (the frame's agents); ``native``: the depth whose shape a run keeps (default ``A``);
-    ``walked``: (H, W) bool the walked region of ``walked_ratio``. Returns the new map and the
-    (H, W) bool mask of re-anchored pixels."""
+    ``walked``: (H, W) bool the walked region of ``walked_ratio``; ``extra_ground``: (H, W) bool
+    pixels another cue says are ground (below the horizon, not ``not_ground``): they take the
+    plane and structures find their contacts on them (benchmarks/bench_align_regions.py feeds it
+    the true ground to bound what a better ground cue could give); ``info``: a dict that receives
+    the per-pixel categories ``ground``, ``planar`` (took the plane), ``traced`` (has a contact),
+    ``moved`` (re-anchored) and ``contact`` (flat index of each pixel's contact, -1: none).
+    Returns the new map and the (H, W) bool mask of re-anchored pixels."""
     if shape not in SHAPES:
         raise InputError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
     if not (np.isfinite(jump_rel) and jump_rel > 0):
@@ -242,6 +249,12 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
         if not_ground is not None:
             planar &= ~not_ground
         ground = (ground & ~flat) | planar
+    if extra_ground is not None:        # pixels another cue says are ground: the plane
+        extra = extra_ground & ~ground & (q > 0)
+        if not_ground is not None:
+            extra &= ~not_ground
+        planar |= extra
+        ground = ground | extra
     qc, idx = contact_ratios(A, ground, q, du, jump_rel)
     refine_contacts(A, ground, q, du, qc, idx, jump_rel, near_rel, max(2, h // 16))
     have = idx >= 0
@@ -282,6 +295,8 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     if fill:
         fill_along_rows(ratio, A, todo, jump_rel)
     moved = todo & np.isfinite(ratio)
+    if info is not None:    # per-pixel categories, for diagnostics (benchmarks/)
+        info.update(ground=ground, planar=planar, traced=have, moved=moved, contact=idx)
     ratio = np.clip(np.nan_to_num(ratio, nan=1.0), 1.0 / max_ratio, max_ratio)
     out = np.where(moved, src * ratio, A)
     with np.errstate(divide="ignore"):

@@ -17,7 +17,8 @@ The numpy version's sequential scans become fixed-size index gathers:
   walk, so their writes are equal);
 - the fill along rows (``fill_along_rows``): left then right links, pointer doubling over W.
 The trust rules (``fill``, ``max_pull``, ``contact_range``, ``recede_push``, ``walked_ratio``)
-are those of the numpy version (the walked region is the ground mask). The arithmetic runs in
+and the plane's bound (``plane_bound``: a constant map of the plane's depth, an elementwise
+minimum) are those of the numpy version (the walked region is the ground mask). The arithmetic runs in
 float64, as the numpy version's does, so that its threshold decisions (recession, depth steps)
 come out the same.
 """
@@ -106,7 +107,8 @@ class UprightAlignment(nn.Module):
                  max_ratio: float = 4.0, near_rel: float = 0.02, span: int = 3,
                  fill: bool = True, max_pull: float = float("inf"),
                  contact_range: float | None = None, recede_push: float = float("inf"),
-                 walked_ratio: float = float("inf"), max_points: int = 20000):
+                 walked_ratio: float = float("inf"), plane_bound: bool = False,
+                 max_points: int = 20000):
         super().__init__()
         if shape not in SHAPES:
             raise ValueError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
@@ -164,6 +166,10 @@ class UprightAlignment(nn.Module):
         self.max_walk = max(2, height // 16)
         self.walked_ratio = float(walked_ratio)
         self.register_buffer("walked", torch.tensor(np.asarray(ground_mask, bool).ravel()))
+        self.plane_bound = bool(plane_bound)
+        with np.errstate(divide="ignore"):       # align_upright's bound: the plane's depth
+            bound = np.where(q > 0, np.float32(1.0) / np.where(q > 0, q, 1), np.inf)
+        self.register_buffer("bound", torch.tensor(bound.astype(np.float32)))
 
     def _cont(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         return torch.abs(a - b) <= self.jump_rel * torch.minimum(a, b)
@@ -239,7 +245,10 @@ class UprightAlignment(nn.Module):
         out = torch.where(moved, src * ratio, A)
         out = torch.where(planar & ~moved, 1.0 / q, out)
         out = out.to(torch.float32).reshape(h, w)
-        return torch.where((moved | planar).reshape(h, w), out, g_out)
+        out = torch.where((moved | planar).reshape(h, w), out, g_out)
+        if self.plane_bound:
+            out = torch.minimum(out, self.bound)
+        return out
 
     def _contacts(self, A: torch.Tensor, ground: torch.Tensor):
         """contact_ratios + refine_contacts: (pixels with a contact, each one's walked contact
