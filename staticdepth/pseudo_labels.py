@@ -30,6 +30,7 @@ from staticdepth.errors import InputError
 
 CONTACTS = ("lowest", "bottom_rows")
 LABEL_SOURCES = ("prediction", "plane", "aligned")
+UNTRUSTED = ("label", "base", "ignore")
 
 
 @dataclass(frozen=True)
@@ -50,6 +51,11 @@ class PseudoLabelConfig:
     dense_spread: float = 0.03         # dense_mode: a pixel is stable when its depth's median
     #                                    absolute deviation over the split is <= this x its median
     dense_frames: int = 32             # dense_mode: frames (evenly spaced) measuring the spread
+    untrusted: str = "label"           # "aligned": the static pixels whose label is not stable
+    #                                    over the split (dense_spread, measured with dense_mode or
+    #                                    else align.mode): "label" keeps it, "base" takes the base
+    #                                    network's own value (its shape is kept there), "ignore"
+    #                                    leaves them out of the loss; agents keep their label
 
     def __post_init__(self):
         if self.contact not in CONTACTS:
@@ -60,6 +66,9 @@ class PseudoLabelConfig:
         if self.dense_mode not in ("", "ground", "eq2", "upright"):
             raise InputError(f"pseudo_labels.dense_mode must be '', ground, eq2 or upright, got "
                              f"{self.dense_mode!r}")
+        if self.untrusted not in UNTRUSTED:
+            raise InputError(f"pseudo_labels.untrusted must be one of {', '.join(UNTRUSTED)}, got "
+                             f"{self.untrusted!r}")
         if not (self.dense_spread > 0 and self.dense_frames >= 2):
             raise InputError(f"need pseudo_labels.dense_spread > 0 and dense_frames >= 2 (got "
                              f"{self.dense_spread}, {self.dense_frames})")
@@ -174,6 +183,17 @@ def aligned_pseudo_label(inv_depth: np.ndarray, aligned: np.ndarray, plane_inv: 
     with np.errstate(invalid="ignore"):
         mask = np.abs(label - inv) > 1e-3 * np.abs(inv)
     return label, mask
+
+
+def trusted_label(label: np.ndarray, inv_depth: np.ndarray, trusted: np.ndarray, untrusted: str
+                  ) -> np.ndarray:
+    """``label`` where ``trusted``; elsewhere the network's own ``inv_depth`` (``"base"``: the
+    scale-and-shift-invariant loss then keeps its shape there, relative to the labelled pixels),
+    NaN (``"ignore"``: out of the loss) or the label itself (``"label"``)."""
+    if untrusted == "label":
+        return label
+    other = np.asarray(inv_depth, np.float32) if untrusted == "base" else np.float32(np.nan)
+    return np.where(trusted, label, other).astype(np.float32)
 
 
 def stable_depth(depths: np.ndarray, static: np.ndarray, max_spread: float

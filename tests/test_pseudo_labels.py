@@ -140,3 +140,17 @@ def test_stable_depth_keeps_what_the_alignment_repeats():
     assert med[0, 1] == pytest.approx(12.5)        # the median of 5, 5, 20, 20
     _, loose = stable_depth(d, static, 2.0)
     assert loose[0, 1] and not loose[0, 2]
+
+
+def test_trusted_label_keeps_the_base_or_drops_untrusted_pixels():
+    from staticdepth.pseudo_labels import trusted_label
+
+    label = np.array([[1.0, 2.0], [3.0, 4.0]], np.float32)
+    inv = np.array([[10.0, 20.0], [30.0, 40.0]], np.float32)
+    trusted = np.array([[True, False], [False, True]])
+    np.testing.assert_array_equal(trusted_label(label, inv, trusted, "base"), [[1, 20], [30, 4]])
+    got = trusted_label(label, inv, trusted, "ignore")
+    assert got[0, 0] == 1 and got[1, 1] == 4 and np.isnan(got[0, 1]) and np.isnan(got[1, 0])
+    np.testing.assert_array_equal(trusted_label(label, inv, trusted, "label"), label)
+    with pytest.raises(InputError, match="untrusted must be one of"):
+        PseudoLabelConfig(untrusted="drop")
