@@ -185,15 +185,35 @@ def aligned_pseudo_label(inv_depth: np.ndarray, aligned: np.ndarray, plane_inv: 
     return label, mask
 
 
-def trusted_label(label: np.ndarray, inv_depth: np.ndarray, trusted: np.ndarray, untrusted: str
-                  ) -> np.ndarray:
-    """``label`` where ``trusted``; elsewhere the network's own ``inv_depth`` (``"base"``: the
-    scale-and-shift-invariant loss then keeps its shape there, relative to the labelled pixels),
-    NaN (``"ignore"``: out of the loss) or the label itself (``"label"``)."""
-    if untrusted == "label":
-        return label
-    other = np.asarray(inv_depth, np.float32) if untrusted == "base" else np.float32(np.nan)
-    return np.where(trusted, label, other).astype(np.float32)
+def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarray,
+                  untrusted: str, max_points: int = 20000) -> np.ndarray | None:
+    """Label one frame with its alignment on the ``trusted`` pixels only (agents, static pixels
+    whose alignment repeats over the split), in the network's inverse-depth space.
+
+    The map into that space is fitted over every trusted pixel (robust ``inv ~ s / aligned + t``,
+    not the ground alone), so the labels sit where the network already agrees with them; the
+    other pixels take the network's own ``inv_depth`` (``untrusted="base"``: the scale-and-shift-
+    invariant loss then keeps its shape there, relative to the labelled pixels) or NaN
+    (``"ignore"``: out of the loss). None when no map exists (fewer than 3 trusted pixels, or no
+    positive slope)."""
+    from staticdepth.geometry.alignment import fit_inverse_affine
+
+    inv = np.asarray(inv_depth, np.float32)
+    A = np.asarray(aligned, np.float32)
+    ok = np.isfinite(A) & (A > 0) & np.isfinite(inv)
+    sel = ok & np.asarray(trusted, bool)
+    n = np.count_nonzero(sel)
+    if n < 3:
+        return None
+    step = max(1, n // max_points)
+    try:
+        s, t = fit_inverse_affine(inv[sel][::step], 1.0 / A[sel][::step])
+    except InputError:
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        label = np.float32(s) / A + np.float32(t)
+    other = inv if untrusted == "base" else np.float32(np.nan)
+    return np.where(sel, label, other).astype(np.float32)
 
 
 def stable_depth(depths: np.ndarray, static: np.ndarray, max_spread: float

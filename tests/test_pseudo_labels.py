@@ -143,14 +143,25 @@ def test_stable_depth_keeps_what_the_alignment_repeats():
 
 
 def test_trusted_label_keeps_the_base_or_drops_untrusted_pixels():
+    """Trusted pixels: the network is 2 / A + 0.5 there except one outlier -> the robust map
+    recovers (2, 0.5) and labels every trusted pixel 2 / A + 0.5 (the outlier too); untrusted
+    pixels keep the network's value or become NaN."""
     from staticdepth.pseudo_labels import trusted_label
 
-    label = np.array([[1.0, 2.0], [3.0, 4.0]], np.float32)
-    inv = np.array([[10.0, 20.0], [30.0, 40.0]], np.float32)
-    trusted = np.array([[True, False], [False, True]])
-    np.testing.assert_array_equal(trusted_label(label, inv, trusted, "base"), [[1, 20], [30, 4]])
-    got = trusted_label(label, inv, trusted, "ignore")
-    assert got[0, 0] == 1 and got[1, 1] == 4 and np.isnan(got[0, 1]) and np.isnan(got[1, 0])
-    np.testing.assert_array_equal(trusted_label(label, inv, trusted, "label"), label)
+    rng = np.random.default_rng(0)
+    A = rng.uniform(2.0, 40.0, (6, 8)).astype(np.float32)
+    inv = (2.0 / A + 0.5).astype(np.float32)
+    inv[0, 0] += 3.0                                  # an outlier the fit drops
+    trusted = np.ones(A.shape, bool)
+    trusted[3:, 5:] = False
+    inv[~trusted] = rng.uniform(0.1, 1.0, np.count_nonzero(~trusted))
+    got = trusted_label(inv, A, trusted, "base")
+    np.testing.assert_allclose(got[trusted], 2.0 / A[trusted] + 0.5, rtol=1e-5)
+    np.testing.assert_array_equal(got[~trusted], inv[~trusted])
+    dropped = trusted_label(inv, A, trusted, "ignore")
+    assert np.isnan(dropped[~trusted]).all()
+    np.testing.assert_array_equal(dropped[trusted], got[trusted])
+    assert trusted_label(inv, A, np.zeros(A.shape, bool), "base") is None
+    assert trusted_label(-inv, A, trusted, "base") is None        # no positive slope
     with pytest.raises(InputError, match="untrusted must be one of"):
         PseudoLabelConfig(untrusted="drop")

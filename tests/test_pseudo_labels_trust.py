@@ -66,10 +66,15 @@ def test_untrusted_pixels_take_the_base_value_or_leave_the_loss(tmp_path, scene)
     assert stable.mean() > 0.2 and np.count_nonzero(~stable) > 50     # both kinds present
     adapt(seq, build_config({**base, "pseudo_labels.untrusted": "base"}), log=lambda m: None)
     kept = _labels(seq)
-    np.testing.assert_array_equal(kept[trusted], label[trusted])
     np.testing.assert_array_equal(kept[~trusted], inv[~trusted])
     assert not np.allclose(label[~trusted], inv[~trusted])  # the default labels did move them
+    for k in range(len(split)):         # trusted pixels: s / aligned + t, one (s, t) a frame
+        m = trusted[k] & np.isfinite(aligned[k]) & (aligned[k] > 0)
+        x = 1.0 / aligned[k][m].astype(np.float64)
+        (s, t), *_ = np.linalg.lstsq(np.stack([x, np.ones_like(x)], 1), kept[k][m], rcond=None)
+        assert s > 0
+        np.testing.assert_allclose(kept[k][m], s * x + t, rtol=1e-4, atol=1e-5)
     adapt(seq, build_config({**base, "pseudo_labels.untrusted": "ignore"}), log=lambda m: None)
     dropped = _labels(seq)
     assert np.isnan(dropped[~trusted]).all()
-    np.testing.assert_array_equal(dropped[trusted], label[trusted])
+    np.testing.assert_array_equal(dropped[trusted], kept[trusted])

@@ -63,8 +63,11 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
             label, m = aligned_pseudo_label(inv, A, plane_inv, ground & (inst == 0))
             if not m.any():     # the network's ground does not recede: its own contact values
                 return pseudo_label(inv, inst, agents.rows(i), pl)
-            if pl.untrusted != "label":     # agents and stable static pixels keep their label
-                label = trusted_label(label, inv, dense[1] | (inst > 0), pl.untrusted)
+            if pl.untrusted != "label":     # agents and stable static pixels only
+                trusted = dense[1] | (inst > 0)
+                t = trusted_label(inv, A, trusted, pl.untrusted)
+                label = t if t is not None else np.where(   # no map over them: the ground's
+                    trusted, label, inv if pl.untrusted == "base" else np.nan).astype(np.float32)
             return label, m
     else:
         def label_frame(i, inv):
