@@ -102,9 +102,10 @@ def label_error(seq: str) -> dict:
 
 
 def label_regions(seq: str) -> dict:
-    """Per region, over the adaptation split: AbsRel of the pseudo labels read as depth (1 /
-    label, median scaling per frame over the pixels with a positive label), of the base and of
-    the ft prediction (median scaling per frame, as ``evaluate``), and the share of the region's
+    """Per region, over the adaptation split: AbsRel of the pseudo labels read as depth, of the
+    base and of the ft prediction, each after the per-frame scale and shift in inverse depth
+    that fits it to the truth (``lsq``: what the scale-and-shift-invariant loss sees; labels
+    live in the network's space, so 1 / label alone is not a depth), and the share of the region's
     pixels whose label is the base network's own value (untrusted, or left as the network saw
     it). Where the labels beat base and ft does not, the network learns them wrong; where the
     labels are worse than base, they teach it wrong."""
@@ -121,16 +122,17 @@ def label_regions(seq: str) -> dict:
             gt, y = r.depth(i), lab[k]
             masks = region_masks(gt, r.instances(i), r.agents(i), r.camera.K, plane, 80.0)
             vm = valid_mask(gt)
-            pos = np.isfinite(y) & (y > 0)
+            pos = np.isfinite(y)
+            shift = np.float32(1.0 - np.nanmin(y))   # any shift: lsq fits its own
             with np.errstate(divide="ignore"):
-                preds = {"label": np.where(pos, 1.0 / np.where(pos, y, 1.0), np.nan),
+                preds = {"label": np.where(pos, 1.0 / (np.where(pos, y, 0.0) + shift), np.nan),
                          "base": r.prediction("base", i)}
             if "ft" in r.predictions():
                 preds["ft"] = r.prediction("ft", i)
             same = np.isclose(y, inv[i], rtol=1e-6, atol=0)
             for name, pred in preds.items():
-                scaled, _ = apply_protocol(pred, gt, "median", vm & (pos if name == "label"
-                                                                      else vm))
+                scaled, _ = apply_protocol(pred, gt, "lsq", vm & (pos if name == "label"
+                                                                   else vm))
                 for reg, m in masks.items():
                     m = m & vm & (pos if name == "label" else True)
                     if m.any():

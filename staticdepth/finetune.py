@@ -47,7 +47,8 @@ class FinetuneConfig:
     batch_size: int = 4
     seed: int = 0
     flip: bool = True
-    loss: str = "ssi"             # "ssi", "ssi_mae" (both + gradient matching) or "l1"
+    loss: str = "ssi"             # "ssi", "ssi_mae", "si" (scale only; all three + gradient
+    #                               matching) or "l1"
     grad_weight: float = 0.5
     layers: str = "decoder"       # "head", "decoder" or "all"
     weight_decay: float = 0.0

@@ -188,14 +188,15 @@ def aligned_pseudo_label(inv_depth: np.ndarray, aligned: np.ndarray, plane_inv: 
 def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarray,
                   untrusted: str, max_points: int = 20000) -> np.ndarray | None:
     """Label one frame with its alignment on the ``trusted`` pixels only (agents, static pixels
-    whose alignment repeats over the split), in the network's inverse-depth space.
+    whose alignment repeats over the split), as shift-free inverse depth in the network's units.
 
-    The map into that space is fitted over every trusted pixel (robust ``inv ~ s / aligned + t``,
-    not the ground alone), so the labels sit where the network already agrees with them; the
-    other pixels take the network's own ``inv_depth`` (``untrusted="base"``: the scale-and-shift-
-    invariant loss then keeps its shape there, relative to the labelled pixels) or NaN
-    (``"ignore"``: out of the loss). None when no map exists (fewer than 3 trusted pixels, or no
-    positive slope)."""
+    The network is fitted over every trusted pixel (robust ``inv ~ s / aligned + t``, not the
+    ground alone); trusted pixels take ``s / aligned``, the others the network's own value less
+    its shift, ``inv - t`` (``untrusted="base"``: its shape is kept there, relative to the
+    labelled pixels; NaN where that is not positive, beyond its horizon) or NaN (``"ignore"``:
+    out of the loss). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
+    teaches the network a ``1 / prediction`` right up to one scale. None when no map exists
+    (fewer than 3 trusted pixels, or no positive slope)."""
     from staticdepth.geometry.alignment import fit_inverse_affine
 
     inv = np.asarray(inv_depth, np.float32)
@@ -211,8 +212,9 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
     except InputError:
         return None
     with np.errstate(divide="ignore", invalid="ignore"):
-        label = np.float32(s) / A + np.float32(t)
-    other = inv if untrusted == "base" else np.float32(np.nan)
+        label = np.float32(s) / A
+        other = inv - np.float32(t) if untrusted == "base" else np.full(inv.shape, np.nan)
+    other = np.where(other > 0, other, np.nan)
     return np.where(sel, label, other).astype(np.float32)
 
 
