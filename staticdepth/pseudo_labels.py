@@ -191,13 +191,12 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
     whose alignment repeats over the split), as shift-free inverse depth in the network's units.
 
     The network is fitted over every trusted pixel (robust ``inv ~ s / aligned + t``, not the
-    ground alone); trusted pixels take ``s / aligned``, the others the network's own value times
-    ``c``, the median of ``s / (aligned inv)`` over the trusted pixels (``untrusted="base"``: the
-    base's depth there, in the labels' scale - median-scaled depth keeps the base's ratios
-    where no label is trusted) or NaN (``"ignore"``: out of the loss). Labels are 0 at infinity,
-    so a loss without shift (``finetune.loss=si``) teaches the network a ``1 / prediction``
-    right up to one scale. None when no map exists (fewer than 3 trusted pixels, or no positive
-    slope)."""
+    ground alone); trusted pixels take ``s / aligned``, the others the network's own value less
+    its shift, ``inv - t`` (``untrusted="base"``: its shape is kept there, relative to the
+    labelled pixels; NaN where that is not positive, beyond its horizon) or NaN (``"ignore"``:
+    out of the loss). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
+    teaches the network a ``1 / prediction`` right up to one scale. None when no map exists
+    (fewer than 3 trusted pixels, or no positive slope)."""
     from staticdepth.geometry.alignment import fit_inverse_affine
 
     inv = np.asarray(inv_depth, np.float32)
@@ -214,9 +213,8 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
         return None
     with np.errstate(divide="ignore", invalid="ignore"):
         label = np.float32(s) / A
-        c = np.median(label[sel] / inv[sel])
-        other = c * inv if untrusted == "base" else np.full(inv.shape, np.nan)
-    other = np.where(np.isfinite(other) & (other > 0), other, np.nan)
+        other = inv - np.float32(t) if untrusted == "base" else np.full(inv.shape, np.nan)
+    other = np.where(other > 0, other, np.nan)
     return np.where(sel, label, other).astype(np.float32)
 
 
