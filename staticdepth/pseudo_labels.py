@@ -51,11 +51,12 @@ class PseudoLabelConfig:
     dense_spread: float = 0.03         # dense_mode: a pixel is stable when its depth's median
     #                                    absolute deviation over the split is <= this x its median
     dense_frames: int = 32             # dense_mode: frames (evenly spaced) measuring the spread
-    untrusted: str = "label"           # "aligned": the static pixels whose label is not stable
+    untrusted: str = "base"            # "aligned": the static pixels whose label is not stable
     #                                    over the split (dense_spread, measured with dense_mode or
     #                                    else align.mode): "label" keeps it, "base" takes the base
-    #                                    network's own value (its shape is kept there), "ignore"
-    #                                    leaves them out of the loss; agents keep their label
+    #                                    network's own value less its shift (its shape is kept
+    #                                    there), "ignore" leaves them out of the loss; agents and
+    #                                    stable pixels take s / aligned depth (shift-free)
 
     def __post_init__(self):
         if self.contact not in CONTACTS:

@@ -83,3 +83,23 @@ def test_untrusted_pixels_take_the_base_value_or_leave_the_loss(tmp_path, scene)
     dropped = _labels(seq)
     assert np.isnan(dropped[~trusted]).all()
     np.testing.assert_array_equal(dropped[trusted], kept[trusted])
+
+
+def test_scale_only_loss_needs_shift_free_labels(tmp_path, scene):
+    """finetune.loss=si with labels that carry the network's shift is refused before any
+    prediction (no stage file is written)."""
+    import os
+
+    from staticdepth.adapt import adapt
+    from staticdepth.adaptation.config import build_config
+    from staticdepth.errors import InputError
+
+    clip, model = scene
+    seq = str(tmp_path / "s.h5")
+    shutil.copy(clip, seq)
+    conf = {"model": f"torch:{model}", "detector.name": "gt", "finetune.epochs": 1,
+            "tracking.min_height_px": 3, "plane.bootstrap": 0, "finetune.loss": "si"}
+    for bad in ({"pseudo_labels.untrusted": "label"}, {"pseudo_labels.source": "plane"}):
+        with pytest.raises(InputError, match="needs shift-free labels"):
+            adapt(seq, build_config({**conf, **bad}), log=lambda m: None)
+    assert not os.path.exists(seq + ".adapt/inverse-base.h5")
