@@ -16,7 +16,9 @@ The default, ``source="aligned"`` (:func:`aligned_pseudo_label`), labels every p
 frame's alignment mapped back into the network's space: agents and the rest of the image move
 together, so the fine-tuned network's agents improve against the truth on every independent scene
 with both test networks (plane labels, agents only, leave i2's agents worse: the image they sit in
-keeps the network's error; README, fine-tuning figures).
+keeps the network's error; README, fine-tuning figures). With ``untrusted`` (default ``base``)
+adapt keeps the aligned label only on the agents and the static pixels whose alignment repeats
+over the split, shift-free (:func:`trusted_label`); the rest take the base's own shape.
 """
 from __future__ import annotations
 
