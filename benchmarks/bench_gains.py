@@ -105,9 +105,7 @@ def label_regions(seq: str) -> dict:
     """Per region, over the adaptation split: AbsRel of the pseudo labels read as depth, of the
     base and of the ft prediction, each after the per-frame scale and shift in inverse depth
     that fits it to the truth (``lsq``: what the scale-and-shift-invariant loss sees; labels
-    live in the network's space, so 1 / label alone is not a depth), and the share of the region's
-    pixels whose label is the base network's own value (untrusted, or left as the network saw
-    it). Where the labels beat base and ft does not, the network learns them wrong; where the
+    live in the network's space, so 1 / label alone is not a depth). Where the labels beat base and ft does not, the network learns them wrong; where the
     labels are worse than base, they teach it wrong."""
     from staticdepth.adaptation.common import FrameFile
     from staticdepth.dataset.h5 import SequenceReader
@@ -115,8 +113,7 @@ def label_regions(seq: str) -> dict:
     from staticdepth.metrics import apply_protocol, depth_metrics, valid_mask
 
     rows: dict = {}
-    with SequenceReader(seq) as r, FrameFile(seq + ".adapt/labels.h5", None) as lab, \
-            FrameFile(seq + ".adapt/inverse-base.h5", None) as inv:
+    with SequenceReader(seq) as r, FrameFile(seq + ".adapt/labels.h5", None) as lab:
         plane = (r.meta.mounting.normal, r.meta.mounting.height_m)
         for k, i in enumerate(r.split("adapt")):
             gt, y = r.depth(i), lab[k]
@@ -129,7 +126,6 @@ def label_regions(seq: str) -> dict:
                          "base": r.prediction("base", i)}
             if "ft" in r.predictions():
                 preds["ft"] = r.prediction("ft", i)
-            same = np.isclose(y, inv[i], rtol=1e-6, atol=0)
             for name, pred in preds.items():
                 scaled, _ = apply_protocol(pred, gt, "lsq", vm & (pos if name == "label"
                                                                    else vm))
@@ -138,10 +134,6 @@ def label_regions(seq: str) -> dict:
                     if m.any():
                         rows.setdefault((reg, name), []).append(
                             depth_metrics(scaled, gt, mask=m)["abs_rel"])
-            for reg, m in masks.items():
-                if (m & vm).any():
-                    rows.setdefault((reg, "base_share"), []).append(
-                        np.count_nonzero(same & m & vm) / np.count_nonzero(m & vm))
     return {f"{reg}:{name}": float(np.mean(v)) for (reg, name), v in rows.items()}
 
 
@@ -347,11 +339,10 @@ def main() -> None:
             lr = got["labels_regions"]
             if lr:
                 print(f"{scene} {model}: adaptation frames per region, label / base / ft "
-                      "(share of pixels labelled with the base's own value): " + "; ".join(
+                      "(lsq): " + "; ".join(
                           f"{reg} {lr.get(reg + ':label', np.nan):.3f} / "
                           f"{lr.get(reg + ':base', np.nan):.3f} / {lr.get(reg + ':ft', np.nan):.3f}"
-                          f" ({lr.get(reg + ':base_share', np.nan):.0%})" for reg in REGIONS),
-                      flush=True)
+                          for reg in REGIONS), flush=True)
     print(markdown(results))
     print()
     print("\n".join(checks(results)))
