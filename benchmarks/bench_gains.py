@@ -101,6 +101,42 @@ def label_error(seq: str) -> dict:
     return res
 
 
+def label_regions(seq: str) -> dict:
+    """Per region, over the adaptation split: AbsRel of the pseudo labels read as depth, of the
+    base and of the ft prediction, each after the per-frame scale and shift in inverse depth
+    that fits it to the truth (``lsq``: what the scale-and-shift-invariant loss sees; labels
+    live in the network's space, so 1 / label alone is not a depth). Where the labels beat base and ft does not, the network learns them wrong; where the
+    labels are worse than base, they teach it wrong."""
+    from staticdepth.adaptation.common import FrameFile
+    from staticdepth.dataset.h5 import SequenceReader
+    from staticdepth.evaluate import region_masks
+    from staticdepth.metrics import apply_protocol, depth_metrics, valid_mask
+
+    rows: dict = {}
+    with SequenceReader(seq) as r, FrameFile(seq + ".adapt/labels.h5", None) as lab:
+        plane = (r.meta.mounting.normal, r.meta.mounting.height_m)
+        for k, i in enumerate(r.split("adapt")):
+            gt, y = r.depth(i), lab[k]
+            masks = region_masks(gt, r.instances(i), r.agents(i), r.camera.K, plane, 80.0)
+            vm = valid_mask(gt)
+            pos = np.isfinite(y)
+            shift = np.float32(1.0 - np.nanmin(y))   # any shift: lsq fits its own
+            with np.errstate(divide="ignore"):
+                preds = {"label": np.where(pos, 1.0 / (np.where(pos, y, 0.0) + shift), np.nan),
+                         "base": r.prediction("base", i)}
+            if "ft" in r.predictions():
+                preds["ft"] = r.prediction("ft", i)
+            for name, pred in preds.items():
+                scaled, _ = apply_protocol(pred, gt, "lsq", vm & (pos if name == "label"
+                                                                   else vm))
+                for reg, m in masks.items():
+                    m = m & vm & (pos if name == "label" else True)
+                    if m.any():
+                        rows.setdefault((reg, name), []).append(
+                            depth_metrics(scaled, gt, mask=m)["abs_rel"])
+    return {f"{reg}:{name}": float(np.mean(v)) for (reg, name), v in rows.items()}
+
+
 def agent_label_error(seq: str) -> dict:
     """Each agent's pseudo label against its true depth, in metres: the aligned labels give an
     agent the depth of the agents' plane at its contact (``align.agents_at_contact``; the label is
@@ -171,9 +207,11 @@ def run_scene(seq: str, model: str, args) -> dict:
                            if reg in res[name][prot]}
             if name == "stereo-baseline":
                 table[name]["a1"] = res[name][prot]["all"]["a1"]
-    labels = label_error(seq) if os.path.exists(seq + ".adapt/labels.h5") else {}
+    has = os.path.exists(seq + ".adapt/labels.h5")
+    labels = label_error(seq) if has else {}
     return {"table": table, "plane": summary["plane"], "finetune": summary["finetune"],
-            "labels_agents": labels, "metric_refused": summary.get("metric_refused")}
+            "labels_agents": labels, "labels_regions": label_regions(seq) if has else {},
+            "metric_refused": summary.get("metric_refused")}
 
 
 def train_stereo(seq: str, epochs: int, preset_name: str = "default") -> None:
@@ -298,6 +336,13 @@ def main() -> None:
                       f"{la.get('base_agent_median', np.nan):.3f} mean "
                       f"{la.get('base_agent_mean', np.nan):.3f} p90 "
                       f"{la.get('base_agent_p90', np.nan):.3f}", flush=True)
+            lr = got["labels_regions"]
+            if lr:
+                print(f"{scene} {model}: adaptation frames per region, label / base / ft "
+                      "(lsq): " + "; ".join(
+                          f"{reg} {lr.get(reg + ':label', np.nan):.3f} / "
+                          f"{lr.get(reg + ':base', np.nan):.3f} / {lr.get(reg + ':ft', np.nan):.3f}"
+                          for reg in REGIONS), flush=True)
     print(markdown(results))
     print()
     print("\n".join(checks(results)))

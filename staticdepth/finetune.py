@@ -17,7 +17,11 @@ labels, Adam 1e-3): against 21 steps (3 epochs) the built-in network's agents 0.
 scenes (``benchmarks/bench_gains.py``, 27 adaptation frames, 3 epochs, aligned labels) 1e-3 moves
 the agents' AbsRel by 0.02-0.05 where 1e-4 moved it by < 0.01 (it was chosen at 1e-4 from the
 fit to the labels on c1 with the network's own contact labels: |prediction - label| on agents
-0.0373 at 1e-4, 0.0427 at 1e-3).
+0.0373 at 1e-4, 0.0427 at 1e-3). The ``builtin`` preset's loss is ``si`` (scale only, no
+shift): adapt's labels (``pseudo_labels.untrusted=base``) are shift-free inverse depth, and a
+shift-invariant loss let the fine-tuned network keep any shift, which median-scaled depth
+``1 / prediction`` cannot undo (the U-Net's i2 structures: 0.186 base, 0.418 ft with ``ssi`` and
+every pixel labelled; 0.128 with trusted labels and ``si`` at 60 steps; README, fine-tuning).
 """
 from __future__ import annotations
 
@@ -47,7 +51,8 @@ class FinetuneConfig:
     batch_size: int = 4
     seed: int = 0
     flip: bool = True
-    loss: str = "ssi"             # "ssi", "ssi_mae" (both + gradient matching) or "l1"
+    loss: str = "ssi"             # "ssi", "ssi_mae", "si" (scale only; all three + gradient
+    #                               matching) or "l1"
     grad_weight: float = 0.5
     layers: str = "decoder"       # "head", "decoder" or "all"
     weight_decay: float = 0.0
@@ -71,7 +76,9 @@ class FinetuneConfig:
                              f"{self.batch_size}, {self.lr})")
 
 
-PRESETS = {"paper": FinetuneConfig(), "builtin": FinetuneConfig(lr=1e-3)}
+# builtin: Adam 1e-3 and the scale-only loss on adapt's shift-free trusted labels
+# (pseudo_labels.untrusted): see the module docstring
+PRESETS = {"paper": FinetuneConfig(), "builtin": FinetuneConfig(lr=1e-3, loss="si")}
 
 
 def compute_loss(pred: torch.Tensor, batch: dict[str, torch.Tensor], conf: FinetuneConfig

@@ -10,6 +10,9 @@
   over the mask, then the mean absolute difference (+ gradient matching on that residual). Its
   gradients do not vanish for an uncorrelated prediction (the least-squares scale does -> 0), so
   it is the one that trains a network from scratch (``staticdepth train-builtin``).
+- :func:`si_loss`: as ``ssi`` with the shift fixed at 0 (scale only): for shift-free labels
+  (``pseudo_labels.untrusted``), so the fine-tuned network's ``1 / prediction`` is a depth up to
+  one scale.
 - :func:`masked_l1`: mean absolute error over the mask, no alignment (the labels live in the
   network's own inverse-depth space, so no alignment is needed).
 Tensors: prediction, target (B, H, W) float; mask (B, H, W) bool, or float weights (``ssi`` and
@@ -48,6 +51,36 @@ def gradient_loss(res: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
     gx = torch.abs(diff[:, :, 1:] - diff[:, :, :-1]) * (m[:, :, 1:] * m[:, :, :-1])
     gy = torch.abs(diff[:, 1:, :] - diff[:, :-1, :]) * (m[:, 1:, :] * m[:, :-1, :])
     return (gx.sum() + gy.sum()) / torch.clamp(m.sum(), min=1.0)
+
+
+def scale_only(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Per-image s minimising ``sum(m (s p - y)^2)``; (B,) (0 when the prediction is 0)."""
+    m = mask.to(pred.dtype)
+    a = (m * pred * pred).sum((1, 2))
+    b = (m * pred * target).sum((1, 2))
+    ok = a > 1e-30
+    return torch.where(ok, b / torch.where(ok, a, torch.ones_like(a)), torch.zeros_like(a))
+
+
+def si_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None, *,
+            grad_weight: float = 0.5, scales: int = 4) -> torch.Tensor:
+    """Scale-invariant (no shift) loss + ``grad_weight`` x gradient matching: as :func:`ssi_loss`
+    with the per-image shift fixed at 0, so a network trained on shift-free inverse-depth labels
+    (0 at infinity) learns to predict with no shift, and its depth ``1 / prediction`` is right up
+    to one scale (what median scaling and a metric scale assume)."""
+    if mask is None:
+        mask = torch.isfinite(target)
+    m = mask.to(pred.dtype) * torch.isfinite(target).to(pred.dtype)
+    y = torch.nan_to_num(target, nan=0.0, posinf=0.0, neginf=0.0)
+    s = scale_only(pred, y, m)
+    res = s[:, None, None] * pred - y
+    loss = _mse_batch(res, m)
+    if grad_weight > 0:
+        mg = (m > 0).to(pred.dtype)
+        for k in range(scales):
+            step = 2 ** k
+            loss = loss + grad_weight * gradient_loss(res[:, ::step, ::step], mg[:, ::step, ::step])
+    return loss
 
 
 def ssi_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None, *,
@@ -110,4 +143,4 @@ def masked_l1(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | Non
     return (m * torch.abs(pred - y)).sum() / torch.clamp(m.sum(), min=1.0)
 
 
-LOSSES = {"ssi": ssi_loss, "ssi_mae": ssi_mae_loss, "l1": masked_l1}
+LOSSES = {"ssi": ssi_loss, "ssi_mae": ssi_mae_loss, "si": si_loss, "l1": masked_l1}

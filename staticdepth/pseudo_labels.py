@@ -16,7 +16,9 @@ The default, ``source="aligned"`` (:func:`aligned_pseudo_label`), labels every p
 frame's alignment mapped back into the network's space: agents and the rest of the image move
 together, so the fine-tuned network's agents improve against the truth on every independent scene
 with both test networks (plane labels, agents only, leave i2's agents worse: the image they sit in
-keeps the network's error; README, fine-tuning figures).
+keeps the network's error; README, fine-tuning figures). With ``untrusted`` (default ``base``)
+adapt keeps the aligned label only on the agents and the static pixels whose alignment repeats
+over the split, shift-free (:func:`trusted_label`); the rest take the base's own shape.
 """
 from __future__ import annotations
 
@@ -30,6 +32,7 @@ from staticdepth.errors import InputError
 
 CONTACTS = ("lowest", "bottom_rows")
 LABEL_SOURCES = ("prediction", "plane", "aligned")
+UNTRUSTED = ("label", "base", "ignore")
 
 
 @dataclass(frozen=True)
@@ -50,6 +53,12 @@ class PseudoLabelConfig:
     dense_spread: float = 0.03         # dense_mode: a pixel is stable when its depth's median
     #                                    absolute deviation over the split is <= this x its median
     dense_frames: int = 32             # dense_mode: frames (evenly spaced) measuring the spread
+    untrusted: str = "base"            # "aligned": the static pixels whose label is not stable
+    #                                    over the split (dense_spread, measured with dense_mode or
+    #                                    else align.mode): "label" keeps it, "base" takes the base
+    #                                    network's own value less its shift (its shape is kept
+    #                                    there), "ignore" leaves them out of the loss; agents and
+    #                                    stable pixels take s / aligned depth (shift-free)
 
     def __post_init__(self):
         if self.contact not in CONTACTS:
@@ -60,6 +69,9 @@ class PseudoLabelConfig:
         if self.dense_mode not in ("", "ground", "eq2", "upright"):
             raise InputError(f"pseudo_labels.dense_mode must be '', ground, eq2 or upright, got "
                              f"{self.dense_mode!r}")
+        if self.untrusted not in UNTRUSTED:
+            raise InputError(f"pseudo_labels.untrusted must be one of {', '.join(UNTRUSTED)}, got "
+                             f"{self.untrusted!r}")
         if not (self.dense_spread > 0 and self.dense_frames >= 2):
             raise InputError(f"need pseudo_labels.dense_spread > 0 and dense_frames >= 2 (got "
                              f"{self.dense_spread}, {self.dense_frames})")
@@ -174,6 +186,39 @@ def aligned_pseudo_label(inv_depth: np.ndarray, aligned: np.ndarray, plane_inv: 
     with np.errstate(invalid="ignore"):
         mask = np.abs(label - inv) > 1e-3 * np.abs(inv)
     return label, mask
+
+
+def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarray,
+                  untrusted: str, max_points: int = 20000) -> np.ndarray | None:
+    """Label one frame with its alignment on the ``trusted`` pixels only (agents, static pixels
+    whose alignment repeats over the split), as shift-free inverse depth in the network's units.
+
+    The network is fitted over every trusted pixel (robust ``inv ~ s / aligned + t``, not the
+    ground alone); trusted pixels take ``s / aligned``, the others the network's own value less
+    its shift, ``inv - t`` (``untrusted="base"``: its shape is kept there, relative to the
+    labelled pixels; NaN where that is not positive, beyond its horizon) or NaN (``"ignore"``:
+    out of the loss). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
+    teaches the network a ``1 / prediction`` right up to one scale. None when no map exists
+    (fewer than 3 trusted pixels, or no positive slope)."""
+    from staticdepth.geometry.alignment import fit_inverse_affine
+
+    inv = np.asarray(inv_depth, np.float32)
+    A = np.asarray(aligned, np.float32)
+    ok = np.isfinite(A) & (A > 0) & np.isfinite(inv)
+    sel = ok & np.asarray(trusted, bool)
+    n = np.count_nonzero(sel)
+    if n < 3:
+        return None
+    step = max(1, n // max_points)
+    try:
+        s, t = fit_inverse_affine(inv[sel][::step], 1.0 / A[sel][::step])
+    except InputError:
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        label = np.float32(s) / A
+        other = inv - np.float32(t) if untrusted == "base" else np.full(inv.shape, np.nan)
+    other = np.where(other > 0, other, np.nan)
+    return np.where(sel, label, other).astype(np.float32)
 
 
 def stable_depth(depths: np.ndarray, static: np.ndarray, max_spread: float

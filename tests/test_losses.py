@@ -127,3 +127,27 @@ def test_weighted_ssi_matches_a_weighted_reference():
                 + (np.abs(np.diff(d, axis=1)) * mk[:, 1:] * mk[:, :-1]).sum()) / mk.sum()
     assert grad == pytest.approx(0.5 * reg, rel=1e-9)
     assert abs(grad - ref) > 1e-6          # not the unweighted fit's residual
+
+
+def test_si_loss_is_scale_invariant_not_shift_invariant_and_matches_numpy():
+    from staticdepth.losses import si_loss
+
+    rng = np.random.default_rng(1)
+    pred = rng.random((2, 9, 13)) + 0.1
+    target = rng.random((2, 9, 13))
+    mask = rng.random((2, 9, 13)) > 0.2
+    res = np.zeros_like(pred)
+    for b in range(2):                 # independent reference: 1-D least squares through 0
+        m = mask[b]
+        s = (pred[b][m] @ target[b][m]) / (pred[b][m] @ pred[b][m])
+        res[b] = s * pred[b] - target[b]
+    mf = mask.astype(np.float64)
+    ref = (mf * res ** 2).sum() / (2 * mf.sum())
+    got = si_loss(torch.from_numpy(pred), torch.from_numpy(target), torch.from_numpy(mask),
+                  grad_weight=0.0)
+    assert float(got) == pytest.approx(ref, rel=1e-9)
+    t, p, m = (torch.from_numpy(x) for x in (target, pred, mask))
+    assert float(si_loss(3.0 * t, t, m)) == pytest.approx(0.0, abs=1e-12)
+    assert float(si_loss(t + 0.5, t, m)) > 1e-3           # a shift is an error
+    with_grad = si_loss(p, t, m)
+    assert float(with_grad) > float(got)

@@ -140,3 +140,32 @@ def test_stable_depth_keeps_what_the_alignment_repeats():
     assert med[0, 1] == pytest.approx(12.5)        # the median of 5, 5, 20, 20
     _, loose = stable_depth(d, static, 2.0)
     assert loose[0, 1] and not loose[0, 2]
+
+
+def test_trusted_label_keeps_the_base_or_drops_untrusted_pixels():
+    """Trusted pixels: the network is 2 / A + 0.5 there except one outlier -> the robust map
+    recovers (2, 0.5) and labels every trusted pixel 2 / A (the outlier too: shift-free);
+    untrusted pixels take the network's value less its shift 0.5 (NaN where that is <= 0) or
+    NaN."""
+    from staticdepth.pseudo_labels import trusted_label
+
+    rng = np.random.default_rng(0)
+    A = rng.uniform(2.0, 40.0, (6, 8)).astype(np.float32)
+    inv = (2.0 / A + 0.5).astype(np.float32)
+    inv[0, 0] += 3.0                                  # an outlier the fit drops
+    trusted = np.ones(A.shape, bool)
+    trusted[3:, 5:] = False
+    inv[~trusted] = rng.uniform(0.1, 1.0, np.count_nonzero(~trusted))
+    got = trusted_label(inv, A, trusted, "base")
+    np.testing.assert_allclose(got[trusted], 2.0 / A[trusted], rtol=1e-5)
+    above = ~trusted & (inv > 0.5)
+    assert 0 < np.count_nonzero(above) < np.count_nonzero(~trusted)
+    np.testing.assert_allclose(got[above], inv[above] - 0.5, atol=1e-5)
+    assert np.isnan(got[~trusted & ~above]).all()
+    dropped = trusted_label(inv, A, trusted, "ignore")
+    assert np.isnan(dropped[~trusted]).all()
+    np.testing.assert_array_equal(dropped[trusted], got[trusted])
+    assert trusted_label(inv, A, np.zeros(A.shape, bool), "base") is None
+    assert trusted_label(-inv, A, trusted, "base") is None        # no positive slope
+    with pytest.raises(InputError, match="untrusted must be one of"):
+        PseudoLabelConfig(untrusted="drop")

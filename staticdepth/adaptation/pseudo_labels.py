@@ -1,7 +1,9 @@
 """Stage pseudo_labels: each adaptation frame's label from the base inverse depth and its agents.
 
 With ``pseudo_labels.dense_mode`` the aligned labels take that mode's depth on the static pixels
-it keeps stable over the split (:func:`staticdepth.pseudo_labels.stable_depth`).
+it keeps stable over the split (:func:`staticdepth.pseudo_labels.stable_depth`); with
+``pseudo_labels.untrusted`` the static pixels it does not keep stable (measured with
+``dense_mode``, else ``align.mode``) take the base network's value or leave the loss.
 Written to ``<SEQ>.h5.adapt/labels.h5`` (one (H, W) float32 label per frame of the adaptation
 split, with the number of relabelled agent pixels per frame in its ``rows``).
 """
@@ -13,7 +15,8 @@ from staticdepth.adaptation.common import Agents, Workspace
 from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.geometry.agent_plane import AgentPlane
 from staticdepth.progress import progress
-from staticdepth.pseudo_labels import aligned_pseudo_label, plane_pseudo_label, pseudo_label
+from staticdepth.pseudo_labels import (aligned_pseudo_label, plane_pseudo_label, pseudo_label,
+                                       trusted_label)
 
 ROWS = np.dtype([("frame", np.int32), ("agent_pixels", np.int64)])
 
@@ -53,13 +56,18 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
             inst = agents.instances(i)
             A = aligned_frame(conf, ws.K, plane.normal, ground, inst, agents.rows(i),
                               depth_from_inverse(inv))
+            if (pl.dense_mode or pl.untrusted != "label") and not dense:
+                dense.extend(_dense(conf, ws, agents, plane, ground))
             if pl.dense_mode:           # stable pixels of the dense mode, off the frame's agents
-                if not dense:
-                    dense.extend(_dense(conf, ws, agents, plane, ground))
                 A = np.where(dense[1] & (inst == 0), dense[0], A)
             label, m = aligned_pseudo_label(inv, A, plane_inv, ground & (inst == 0))
             if not m.any():     # the network's ground does not recede: its own contact values
                 return pseudo_label(inv, inst, agents.rows(i), pl)
+            if pl.untrusted != "label":     # agents and stable static pixels only
+                trusted = dense[1] | (inst > 0)
+                t = trusted_label(inv, A, trusted, pl.untrusted)
+                label = t if t is not None else np.where(   # no map over them: the ground's
+                    trusted, label, inv if pl.untrusted == "base" else np.nan).astype(np.float32)
             return label, m
     else:
         def label_frame(i, inv):
@@ -92,7 +100,7 @@ def _dense(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, 
     from staticdepth.pseudo_labels import stable_depth
 
     pl = conf.pseudo_labels
-    dconf = replace(conf, align=replace(conf.align, mode=pl.dense_mode))
+    dconf = replace(conf, align=replace(conf.align, mode=pl.dense_mode or conf.align.mode))
     split = ws.adapt_split
     picks = np.unique(np.linspace(0, len(split) - 1, min(pl.dense_frames, len(split))).round()
                       .astype(int))
