@@ -89,3 +89,21 @@ def test_split_options_routes_fields_and_options():
         {"model": "m", "lr": "3"}, {"border": "full"})
     assert split_options(Outer, {"border": "none", "options.k": "3"}, strict=False) == (
         {}, {"border": "none", "k": 3})
+
+
+def test_a_stage_version_reruns_that_stage_and_those_after_it(monkeypatch):
+    """Raising a stage's method version (a code change that alters its output) changes its hash
+    and its downstream stages' hashes, never an upstream one: outputs an older version wrote are
+    not reused."""
+    import staticdepth.adaptation.config as ac
+
+    conf = ac.build_config({"model": "builtin", "pseudo_labels.source": "aligned"})
+    before = ac.stage_hashes(conf)
+    monkeypatch.setitem(ac.STAGE_VERSIONS, "pseudo_labels", ac.STAGE_VERSIONS["pseudo_labels"] + 1)
+    after = ac.stage_hashes(conf)
+    changed = {k for k in before if before[k] != after[k]}
+    assert changed == {"pseudo_labels", "finetune", "ft", "align", "scale"}
+    monkeypatch.setitem(ac.STAGE_VERSIONS, "ground_plane", ac.STAGE_VERSIONS["ground_plane"] + 1)
+    again = ac.stage_hashes(conf)
+    assert {k for k in after if after[k] != again[k]} == changed | {"ground_plane"}
+    assert again["base"] == before["base"] and again["agents"] == before["agents"]

@@ -175,29 +175,44 @@ def model_identity(spec: str) -> dict[str, Any]:
     return out
 
 
+# The version of each stage's method: raised whenever a code change alters what a stage writes
+# for the same settings, so that outputs an older version wrote are computed again instead of
+# being reused (the stage hashes name outputs by settings; without this an upgrade would
+# silently keep, e.g., the former pseudo labels). Raising one reruns that stage and the stages
+# after it, as a changed setting does.
+STAGE_VERSIONS = {"base": 1, "agents": 1, "ground_plane": 2, "pseudo_labels": 2, "finetune": 2,
+                  "align": 2, "scale": 1}
+
+
+def _versioned(stage: str, settings: dict) -> str:
+    return config_hash({**settings, "version": STAGE_VERSIONS[stage]})
+
+
 def stage_hashes(conf: AdaptConfig, model_id: Mapping[str, Any] | None = None) -> dict[str, str]:
-    """Hash of each stage's output: its own settings and its inputs' hashes."""
+    """Hash of each stage's output: its own settings, its inputs' hashes and its method's
+    version (:data:`STAGE_VERSIONS`)."""
     mid = model_id if model_id is not None else {"spec": conf.model}
     h: dict[str, str] = {}
-    h["base"] = config_hash({"model": mid, "eps": conf.predict.eps})
-    h["agents"] = config_hash({"detector": conf.detector})
-    h["ground_plane"] = config_hash({"tracking": conf.tracking, "plane": conf.plane,
-                                     "agents": h["agents"]})
+    h["base"] = _versioned("base", {"model": mid, "eps": conf.predict.eps})
+    h["agents"] = _versioned("agents", {"detector": conf.detector})
+    h["ground_plane"] = _versioned("ground_plane", {"tracking": conf.tracking,
+                                                    "plane": conf.plane, "agents": h["agents"]})
     labels: dict[str, Any] = {"conf": conf.pseudo_labels, "base": h["base"], "agents": h["agents"]}
     if conf.pseudo_labels.source == "plane":  # labels read from the plane over the feet's region
         labels.update(plane=h["ground_plane"], erode_px=conf.align.erode_px)
     elif conf.pseudo_labels.source == "aligned":   # labels are the base's alignment
         labels.update(plane=h["ground_plane"], align=conf.align)
-    h["pseudo_labels"] = config_hash(labels)
+    h["pseudo_labels"] = _versioned("pseudo_labels", labels)
     if conf.finetune.epochs > 0:
-        h["finetune"] = config_hash({"conf": conf.finetune, "labels": h["pseudo_labels"],
-                                     "model": mid})
+        h["finetune"] = _versioned("finetune", {"conf": conf.finetune,
+                                                "labels": h["pseudo_labels"], "model": mid})
         h["ft"] = config_hash({"finetune": h["finetune"], "eps": conf.predict.eps})
     else:
         h["finetune"] = config_hash({"epochs": 0})
         h["ft"] = config_hash({"copy_of": h["base"]})
-    h["align"] = config_hash({"conf": conf.align, "pl": conf.pseudo_labels, "base": h["base"],
-                              "ft": h["ft"], "plane": h["ground_plane"], "agents": h["agents"]})
-    h["scale"] = config_hash({"conf": conf.scale, "align": h["align"],
-                              "plane": h["ground_plane"]})
+    h["align"] = _versioned("align", {"conf": conf.align, "pl": conf.pseudo_labels,
+                                      "base": h["base"], "ft": h["ft"],
+                                      "plane": h["ground_plane"], "agents": h["agents"]})
+    h["scale"] = _versioned("scale", {"conf": conf.scale, "align": h["align"],
+                                      "plane": h["ground_plane"]})
     return h
