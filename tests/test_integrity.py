@@ -438,8 +438,21 @@ def test_disparity_out_keeps_the_previous_file_when_the_write_fails(tmp_path):
     assert np.load(out).shape == (160, 320)
 
 
+@pytest.fixture
+def interpreter_signal_handlers():
+    """The handlers a Python program starts with, whatever the test runner inherited: a command
+    started in the background by a shell without job control starts with SIGINT ignored, and
+    the writer rightly leaves an ignored signal ignored."""
+    old = {s: signal.signal(s, h) for s, h in ((signal.SIGTERM, signal.SIG_DFL),
+                                               (signal.SIGINT, signal.default_int_handler))}
+    yield
+    for s, h in old.items():
+        signal.signal(s, h)
+
+
 @pytest.mark.parametrize("sig, exc", [(signal.SIGTERM, SystemExit), (signal.SIGINT,
                                                                       KeyboardInterrupt)])
+@pytest.mark.usefixtures("interpreter_signal_handlers")
 def test_a_signal_inside_an_hdf5_write_waits_for_the_frame(tmp_path, monkeypatch, sig, exc):
     """SIGTERM / Ctrl-C arriving inside HDF5's write call (our file object) must not break the
     file: it takes effect once the frame is complete, and the partial resumes."""
