@@ -68,30 +68,28 @@ def si_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None 
     with the per-image shift fixed at 0, so a network trained on shift-free inverse-depth labels
     (0 at infinity) learns to predict with no shift, and its depth ``1 / prediction`` is right up
     to one scale (what median scaling and a metric scale assume)."""
-    if mask is None:
-        mask = torch.isfinite(target)
-    m = mask.to(pred.dtype) * torch.isfinite(target).to(pred.dtype)
-    y = torch.nan_to_num(target, nan=0.0, posinf=0.0, neginf=0.0)
-    s = scale_only(pred, y, m)
-    res = s[:, None, None] * pred - y
-    loss = _mse_batch(res, m)
-    if grad_weight > 0:
-        mg = (m > 0).to(pred.dtype)
-        for k in range(scales):
-            step = 2 ** k
-            loss = loss + grad_weight * gradient_loss(res[:, ::step, ::step], mg[:, ::step, ::step])
-    return loss
+    return _fitted_loss(pred, target, mask, False, grad_weight, scales)
 
 
 def ssi_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None, *,
              grad_weight: float = 0.5, scales: int = 4) -> torch.Tensor:
     """Scale-and-shift-invariant loss + ``grad_weight`` x multi-scale gradient matching."""
+    return _fitted_loss(pred, target, mask, True, grad_weight, scales)
+
+
+def _fitted_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None,
+                 shift: bool, grad_weight: float, scales: int) -> torch.Tensor:
+    """The residual of the per-image least-squares fit of ``pred`` to ``target`` (scale and
+    shift, or scale only): its mean square + ``grad_weight`` x multi-scale gradient matching."""
     if mask is None:
         mask = torch.isfinite(target)
     m = mask.to(pred.dtype) * torch.isfinite(target).to(pred.dtype)
     y = torch.nan_to_num(target, nan=0.0, posinf=0.0, neginf=0.0)
-    s, t = scale_shift(pred, y, m)
-    res = s[:, None, None] * pred + t[:, None, None] - y
+    if shift:
+        s, t = scale_shift(pred, y, m)
+        res = s[:, None, None] * pred + t[:, None, None] - y
+    else:
+        res = scale_only(pred, y, m)[:, None, None] * pred - y
     loss = _mse_batch(res, m)
     if grad_weight > 0:
         reg = pred.new_zeros(())
