@@ -152,13 +152,12 @@ def align_config(mode: str | None, sets: list[str]):
     """The adaptation's ``AlignConfig`` from its defaults, ``--set align.KEY=VALUE`` and
     ``--mode`` (built by adapt's own config builder: one set of defaults and checks)."""
     from staticdepth.adaptation.config import build_config
+    from staticdepth.config import parse_set
 
-    settings: dict[str, str] = {}
-    for kv in sets:
-        key, eq, value = kv.partition("=")
-        if not eq or not key.startswith("align."):
-            raise InputError(f"--set takes align.KEY=VALUE, got {kv!r}")
-        settings[key] = value
+    settings = parse_set(sets)      # the one --set grammar; only align.* keys belong here
+    for key in settings:
+        if not key.startswith("align."):
+            raise InputError(f"--set takes align.KEY=VALUE, got {key!r}")
     if mode is not None:
         settings["align.mode"] = mode
     return build_config(settings).align
