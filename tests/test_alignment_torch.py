@@ -39,7 +39,11 @@ def test_torch_alignment_matches_numpy(seed):
     mod = PlaneAlignment(K, Z.shape[1], Z.shape[0], n_g, 1.0, G)
     out = mod(torch.from_numpy(Z)).numpy()
     rel = np.abs(out - ref) / ref
-    assert np.median(rel) < 1e-4 and rel.max() < 2e-3, (np.median(rel), rel.max())
+    # Every pixel compared in inverse depth, where the alignment is linear: near the horizon Eq. 2's
+    # depth 1 / (a D + b) amplifies float32 rounding (seed 2: a 3714 m pixel 0.3% apart in depth,
+    # 4e-6 of the median in inverse depth; it passed or failed with the numpy build).
+    inv_err = np.abs(1 / out - 1 / ref) / np.median(1 / ref)
+    assert np.median(rel) < 1e-4 and inv_err.max() < 1e-4, (np.median(rel), inv_err.max())
 
 
 def test_tls_plane_matches_svd():
