@@ -11,7 +11,8 @@ Usage:
   python benchmarks/bench_gains.py --models builtin:out/builtin.pt,builtin:out/unet.pt \\
       [--scenes i1,i2,i3] [--frames 90] [--epochs 6] [--detector gt] [--stereo-epochs 0] \\
       [--label-source aligned|plane|prediction] [--work out/bench] [--json out/bench/gains.json] \\
-      [--set align.mode=ground] [--extra-modes eq2,ground] [--reuse] [--keep]
+      [--set align.mode=ground] [--extra-modes eq2,ground] [--reuse] [--keep] \\
+      [--scene-spec h1:4.2:30:11 --scenes i1,h1]
 """
 from __future__ import annotations
 
@@ -277,6 +278,23 @@ def markdown(results: dict) -> str:
     return "\n".join(out)
 
 
+def held_out_specs(items: list[str]) -> dict:
+    """``--scene-spec NAME:HEIGHT:PITCH:SEED`` -> {name: SceneSpec}; i1-i4 keep their specs."""
+    from tests.indep_scenes import SceneSpec
+
+    out = {}
+    for item in items:
+        parts = item.split(":")
+        try:
+            name, (height, pitch, seed) = parts[0], (float(parts[1]), float(parts[2]), int(parts[3]))
+        except (IndexError, ValueError):
+            sys.exit(f"--scene-spec {item!r}: expected NAME:HEIGHT_M:PITCH_DEG:SEED")
+        if len(parts) != 4 or name in {s.name for s in SCENES}:
+            sys.exit(f"--scene-spec {item!r}: expected NAME:HEIGHT_M:PITCH_DEG:SEED with a new name")
+        out[name] = SceneSpec(name, height, pitch, seed)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--models", required=True, help="comma-separated model specs")
@@ -300,11 +318,15 @@ def main() -> None:
     ap.add_argument("--keep", action="store_true",
                     help="keep an earlier run's sequence and stages: adapt reruns only the stages "
                          "whose settings changed (e.g. fine-tuning over the same labels)")
+    ap.add_argument("--scene-spec", action="append", default=[], metavar="NAME:HEIGHT:PITCH:SEED",
+                    help="another scene of tests/indep_scenes.py's generator (camera height in m, "
+                         "pitch in degrees, seed): scenes held out from those a rule was chosen on")
     ap.add_argument("--json")
     args = ap.parse_args()
     w, h = (int(x) for x in args.size.split("x"))
     os.makedirs(os.path.join(args.work, "scenes"), exist_ok=True)
     specs = {s.name: s for s in SCENES}
+    specs.update(held_out_specs(args.scene_spec))
     results: dict = {}
     for scene in args.scenes.split(","):
         src = os.path.join(args.work, "scenes", f"{scene}-{args.frames}-{args.size}.h5")

@@ -63,8 +63,9 @@ class AlignConfig:
     recede_max: float = 8.0          # fast relative to the plane's are ground (0 and 0: off)
     fill: bool = False               # upright: runs without a contact take a row neighbour's
     #                                  ratio (off: they keep the ground mode)
-    max_pull: float | None = 2.0     # upright: a run pulled nearer than its ground-mode depth
-    #                                  / max_pull keeps the ground mode (null: no limit)
+    max_pull: float | None = 1.1     # upright: a run pulled nearer than its ground-mode depth
+    #                                  / max_pull keeps the ground mode (null: no limit; a
+    #                                  traced contact is never behind the structure's foot)
     contact_range: float | None = 2.0    # upright: contacts beyond this x the farthest ground
     #                                  mask depth keep the ground mode (null: no limit)
     recede_push: float | None = 2.0  # upright: a receding pixel takes the plane only if that is
