@@ -1,6 +1,6 @@
 """Ground-plane accuracy per body model: the paper's Eq. 1, the fixed-shape exact model, the joint one.
 
-Usage: python benchmarks/bench_agent_plane.py [--cameras 8] [--outliers 0.0] [--detection mask]
+Usage: python benchmarks/bench_agent_plane.py [--cameras 8] [--first-camera 0] [--outliers 0.0] [--detection mask]
        [--generators thin,tapered,cylinder,ellipsoid,vehicles] [--models paper,exact,joint]
        [--bootstrap 0]
        python benchmarks/bench_agent_plane.py --scenes i1,i2,i3,i4 [--frames 27] [--bootstrap 20]
@@ -110,6 +110,9 @@ def scene_table(names: list[str], frames: int, min_height_px: float, bootstrap: 
 def main() -> None:
     ap_ = argparse.ArgumentParser(description=__doc__)
     ap_.add_argument("--cameras", type=int, default=8)
+    ap_.add_argument("--first-camera", type=int, default=0,
+                     help="seed of the first camera (e.g. 20 with --cameras 20: cameras held out "
+                          "from the ones a rule was chosen on)")
     ap_.add_argument("--outliers", type=float, default=0.0)
     ap_.add_argument("--detection", default="mask",
                      help="mask, box, or mask,box (both per generator: their s per fit compare)")
@@ -139,7 +142,7 @@ def main() -> None:
         stats = {m: ([], [], [], []) for m in models}
         refused = {m: 0 for m in models}
         ratios = []
-        for seed in range(args.cameras):
+        for seed in range(args.first_camera, args.first_camera + args.cameras):
             s = scene(kind, seed, detection=det, outliers=args.outliers)
             n_tracks = len(np.unique(s.obs["track"]))
             if n_tracks < 8:     # e.g. a low, steep camera where whole vehicles rarely fit
