@@ -2,7 +2,7 @@
 
 Usage: python benchmarks/bench_agent_plane.py [--cameras 8] [--first-camera 0] [--outliers 0.0] [--detection mask]
        [--generators thin,tapered,cylinder,ellipsoid,vehicles] [--models paper,exact,joint]
-       [--bootstrap 0]
+       [--bootstrap 0] [--verbose] [--truth foot|top|foot,top]
        python benchmarks/bench_agent_plane.py --scenes i1,i2,i3,i4 [--frames 27] [--bootstrap 20]
 
 Scenes from the independent generators of tests/plane_generators.py (cameras 3-12 m high, pitched
@@ -16,7 +16,10 @@ height distributions, maximum likelihood), of the anchor depth given the true ca
 seconds per fit; a fit that refuses (InputError,
 e.g. a near-nadir camera) is printed and counted, not in the statistics. ``--bootstrap N``: the
 joint model's bootstrap too, and the ratio of the true normal error to its reported uncertainty
-(median / max; <= 1 where the uncertainty covers the error).
+(median / max; <= 1 where the uncertainty covers the error). ``--truth foot``, ``top`` or
+``foot,top``: each observation's foot (top) point replaced by the projection of the agent's true
+axis foot (axis top, the foot plus its height along the up direction) with 1 px noise of its own
+(``feet`` 2: the axis is both feet's mean): which observed quantity carries a camera's error.
 
 ``--scenes``: the independent rendered scenes of tests/indep_scenes.py (people as ellipsoids,
 cars as body + cabin + wheel boxes, 320x160, the first ``--frames`` frames: adapt's split of 60),
@@ -62,6 +65,23 @@ def anchor_error(s, normal) -> float:
     except InputError:          # the anchor above the fitted horizon
         return float("inf")
     return abs(fit / anchor_depth(s.K, s.normal, s.height_m, u, v) - 1) * 100
+
+
+def with_truth(s, parts: set[str], seed: int):
+    """The scene with its observations' foot and/or top points (``parts``) replaced by the
+    projections of the agents' true axis foot / axis top, 1 px noise drawn from ``seed``."""
+    o = s.obs.copy()
+    e = np.random.default_rng([seed, 7]).normal(0.0, 1.0, (4, len(o)))
+    up = np.array([s.agent_heights[int(t)] for t in o["track"]])[:, None] * -s.normal
+    for name, P, k in (("foot", s.foot_true, 0), ("top", s.foot_true + up, 2)):
+        if name in parts:
+            q = P @ s.K.T
+            cu, cv = ("foot_u", "foot_v") if name == "foot" else ("top_u", "top_v")
+            o[cu], o[cv] = q[:, 0] / q[:, 2] + e[k], q[:, 1] / q[:, 2] + e[k + 1]
+    if "foot" in parts:
+        o["feet"] = 2
+    o["height_px"] = o["foot_v"] - o["top_v"]
+    return replace(s, obs=o)
 
 
 def camera_height(plane, model: str, vehicles: bool) -> float:
@@ -120,6 +140,8 @@ def main() -> None:
     ap_.add_argument("--models", default="paper,exact,joint")
     ap_.add_argument("--bootstrap", type=int, default=0)
     ap_.add_argument("--verbose", action="store_true", help="every camera's error")
+    ap_.add_argument("--truth", default="", help="foot, top or foot,top: observed points "
+                     "replaced by the generator's true axis points (see the module doc)")
     ap_.add_argument("--scenes", default="", help="e.g. i1,i2,i3,i4: the rendered scenes instead")
     ap_.add_argument("--frames", type=int, default=27)
     ap_.add_argument("--min-height-px", type=float, default=10.0)
@@ -131,6 +153,9 @@ def main() -> None:
     detections = args.detection.split(",")
     if not set(detections) <= {"mask", "box"}:
         ap_.error(f"--detection: mask, box or mask,box, got {args.detection}")
+    truth = set(args.truth.split(",")) if args.truth else set()
+    if not truth <= {"foot", "top"} or (truth and detections != ["mask"]):
+        ap_.error(f"--truth: foot, top or foot,top, with --detection mask; got {args.truth}")
     if args.bootstrap:
         CONFIGS["joint"] = replace(CONFIGS["joint"], bootstrap=args.bootstrap)
     print(f"{args.cameras} cameras per generator, detections: {args.detection}, outliers "
@@ -144,6 +169,8 @@ def main() -> None:
         ratios = []
         for seed in range(args.first_camera, args.first_camera + args.cameras):
             s = scene(kind, seed, detection=det, outliers=args.outliers)
+            if truth:
+                s = with_truth(s, truth, seed)
             n_tracks = len(np.unique(s.obs["track"]))
             if n_tracks < 8:     # e.g. a low, steep camera where whole vehicles rarely fit
                 print(f"  {kind} camera {seed}: only {n_tracks} tracks in view (the gate refuses "
@@ -163,7 +190,8 @@ def main() -> None:
                 stats[m][3].append(anchor_error(s, p.normal))
                 if args.verbose:
                     print(f"  {kind} camera {seed} {m}: {stats[m][0][-1]:.2f} deg, anchor "
-                          f"{stats[m][3][-1]:.2f}%, "
+                          f"{stats[m][3][-1]:.2f}%, camera height "
+                          f"{h / s.height_m * 100 - 100:+.1f}%, "
                           f"{n_tracks} tracks, uncertainty {p.normal_std_deg:.2f}", flush=True)
                 if m == "joint" and args.bootstrap:
                     ratios.append(stats[m][0][-1] / p.normal_std_deg)

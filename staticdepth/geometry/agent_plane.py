@@ -48,6 +48,7 @@ from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import (_BIG, AgentObservations, extreme_rim,  # noqa: F401
                                                  head_pixels, head_residuals, head_rows,
                                                  observation_residual, solve_track_scales)
+from staticdepth.geometry.agent_plane_checks import check_fitted_plane, check_nadir
 from staticdepth.geometry.agent_plane_exact import bootstrap_normal, fit_robust
 from staticdepth.geometry.agent_plane_joint import fit_joint
 from staticdepth.geometry.agent_plane_linear import (LINEAR_MODELS, fit_linear,  # noqa: F401
@@ -81,7 +82,7 @@ class AgentPlaneConfig:
     pitch_starts_deg: tuple[float, ...] = (10.0, 25.0, 40.0, 60.0)
     pitch_bounds_deg: tuple[float, float] = (0.0, 89.0)
     max_roll_deg: float = 30.0
-    max_pitch_deg: float = 65.0      # refuse a (near-)nadir camera above it (see _check_nadir;
+    max_pitch_deg: float = 65.0      # refuse a (near-)nadir camera above it (see check_nadir;
     #                                  the fitted pitch for joint and exact, not for Eq. 1, whose
     #                                  bias reaches 30 degrees)
     bootstrap: int = 20              # resamples over tracks (0 = no uncertainty)
@@ -304,7 +305,7 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     axes_n = vertical_from_axes(K, np.stack([obs.u, obs.v], 1)[ppl],
                                 np.stack([obs.top_u, obs.top_v], 1)[ppl])
     if axes_n is not None:
-        _check_nadir(axes_n, conf, "the head-foot axes' vanishing point")
+        check_nadir(axes_n, conf, "the head-foot axes' vanishing point")
     if conf.model in LINEAR_MODELS:
         n, d_over_h = fit_linear(K, obs.u, obs.v, obs.h, conf.model)
         inl = np.ones(len(obs.ids), bool)
@@ -315,7 +316,7 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
         left_out = _disagreeing_group(boot, conf)
         if left_out is not None:
             return _without_group(K, observations, obs, conf, left_out, boot)
-        _check_fitted_plane(n, conf, obs, inl)
+        check_fitted_plane(n, conf, obs, inl)
         d_over_h = 1.0 / float(np.median(s[inl]))
         rms = float(np.sqrt(np.mean(res[inl[obs.idx]] ** 2)))
         return AgentPlane(n, horizon_line(K, n), d_over_h, obs.ids.copy(), s, inl, rms,
@@ -331,7 +332,7 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     else:
         n, s, inl, res = fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))
-        _check_fitted_plane(n, conf, obs, inl)
+        check_fitted_plane(n, conf, obs, inl)
     if conf.model in LINEAR_MODELS and (math.hypot(n[0], n[1]) < 1e-6 or pitch_roll_from_normal(
             n)[0] >= conf.pitch_bounds_deg[1] - 0.5):
         raise InputError("the camera looks straight down (nadir): pixel heights cannot fix the "
@@ -367,36 +368,6 @@ def _without_group(K, observations, obs, conf: AgentPlaneConfig, gs: tuple[int, 
                                "misfit_deg": boot["class_misfit_deg"],
                                "bootstrap_std_deg": boot.get("bootstrap_std_deg")}
     return plane
-
-
-def _check_nadir(n: np.ndarray, conf: AgentPlaneConfig, what: str = "the fit") -> None:
-    """Refuse a (near-)nadir camera: from above, upright agents' head-foot axes are short and
-    converge near the image centre, the pitch/roll parametrisation degenerates and the fit lands
-    tens of degrees off (tapered walkers at 86-90 degrees: 38-70 degrees off, measured)."""
-    pitch = pitch_roll_from_normal(n)[0]
-    if pitch > conf.max_pitch_deg or math.hypot(n[0], n[1]) < 1e-6:
-        raise InputError(f"near-nadir camera (or a failed fit): {what} puts the pitch at "
-                         f"{pitch:.0f} deg, above max_pitch_deg {conf.max_pitch_deg:g}; seen from "
-                         "above, the agents' head-foot axes cannot fix the ground plane's tilt")
-
-
-def _check_fitted_plane(n: np.ndarray, conf: AgentPlaneConfig, obs: AgentObservations,
-                        inliers: np.ndarray) -> None:
-    """The near-nadir checks of a fitted (``joint``/``exact``) plane: its pitch, and its inlier
-    tracks' feet below its horizon."""
-    _check_nadir(n, conf)
-    _check_feet_below_horizon(obs.rays[inliers[obs.idx]] @ n)
-
-
-def _check_feet_below_horizon(depression: np.ndarray, share: float = 0.05) -> None:
-    """Refuse a plane that puts more than ``share`` of the inlier feet on or above its horizon
-    (``depression``: foot rays dotted with the normal; a standing agent's foot is on the ground,
-    below the horizon). Near-nadir box fits do this: a thin-walker camera at 90 degrees was fitted
-    at 2 degrees, 88 off, with a third of the feet above the horizon (measured)."""
-    above = float(np.mean(depression <= 0)) if len(depression) else 0.0
-    if above > share:
-        raise InputError(f"no ground plane fits the agents (near-nadir camera?): the fit puts "
-                         f"{100 * above:.0f}% of the inlier feet above its horizon")
 
 
 def camera_height_from_prior(plane: AgentPlane, agent_height_m: float = 1.7) -> float:
