@@ -29,7 +29,10 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
     into the network's space by a fit over the ground region of ``feet``); ``"aligned"`` labels
     every pixel with the frame's alignment (``align.mode``, agents at their contact) mapped back
     into the network's space the same way (a frame where that map does not exist - the network's
-    ground does not recede against the plane - gets the paper's labels, as with "plane")."""
+    ground does not recede against the plane - gets the paper's labels, as with "plane"). With
+    ``untrusted`` other than ``label`` the map is fitted over the trusted pixels instead
+    (:func:`staticdepth.pseudo_labels.trusted_label`), and a frame without one leaves the loss:
+    the paper's labels carry the network's shift, which the scale-only loss cannot take."""
     pl = conf.pseudo_labels
     if pl.source == "plane":
         from staticdepth.adaptation.align import ground_region
@@ -60,14 +63,16 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
                 dense.extend(_dense(conf, ws, agents, plane, ground))
             if pl.dense_mode:           # stable pixels of the dense mode, off the frame's agents
                 A = np.where(dense[1] & (inst == 0), dense[0], A)
+            if pl.untrusted != "label":     # agents and stable static pixels, shift-free
+                trusted = dense[1] | (inst > 0)
+                label = trusted_label(inv, A, trusted, pl.untrusted)
+                if label is None:   # no map over them: the frame leaves the loss (the paper's
+                    #                 labels carry the network's shift, wrong for loss=si)
+                    return np.full(inv.shape, np.nan, np.float32), np.zeros(inv.shape, bool)
+                return label, trusted & np.isfinite(label)
             label, m = aligned_pseudo_label(inv, A, plane_inv, ground & (inst == 0))
             if not m.any():     # the network's ground does not recede: its own contact values
                 return pseudo_label(inv, inst, agents.rows(i), pl)
-            if pl.untrusted != "label":     # agents and stable static pixels only
-                trusted = dense[1] | (inst > 0)
-                t = trusted_label(inv, A, trusted, pl.untrusted)
-                label = t if t is not None else np.where(   # no map over them: the ground's
-                    trusted, label, inv if pl.untrusted == "base" else np.nan).astype(np.float32)
             return label, m
     else:
         def label_frame(i, inv):
