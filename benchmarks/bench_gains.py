@@ -24,7 +24,7 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-from tests.indep_scenes import SCENES, write_scene  # noqa: E402
+from tests.indep_scenes import SCENES, SceneSpec, write_scene  # noqa: E402
 
 REGIONS = ("all", "ground", "agents", "structures", "0-10m", "10-20m", "20-40m", "40-80m")
 def prediction_names(extra_modes: list[str]) -> tuple[str, ...]:
@@ -301,10 +301,16 @@ def main() -> None:
                     help="keep an earlier run's sequence and stages: adapt reruns only the stages "
                          "whose settings changed (e.g. fine-tuning over the same labels)")
     ap.add_argument("--json")
+    ap.add_argument("--held-out", action="append", default=[], metavar="NAME:HEIGHT:PITCH:SEED",
+                    help="a further scene of the same generator (e.g. h1:4.2:30:11), to check a "
+                         "rule on a scene it was not chosen on")
     args = ap.parse_args()
     w, h = (int(x) for x in args.size.split("x"))
     os.makedirs(os.path.join(args.work, "scenes"), exist_ok=True)
     specs = {s.name: s for s in SCENES}
+    for spec in args.held_out:          # held-out scenes: same generator, other mount and seed
+        name, hm, pitch, seed = spec.split(":")
+        specs[name] = SceneSpec(name, float(hm), float(pitch), int(seed))
     results: dict = {}
     for scene in args.scenes.split(","):
         src = os.path.join(args.work, "scenes", f"{scene}-{args.frames}-{args.size}.h5")
