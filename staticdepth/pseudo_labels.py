@@ -32,7 +32,7 @@ from staticdepth.errors import InputError
 
 CONTACTS = ("lowest", "bottom_rows")
 LABEL_SOURCES = ("prediction", "plane", "aligned")
-UNTRUSTED = ("label", "base", "ignore")
+UNTRUSTED = ("label", "base", "ignore", "aligned")
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,9 @@ class PseudoLabelConfig:
     #                                    else align.mode): "label" keeps it, "base" takes the base
     #                                    network's own value less its shift (its shape is kept
     #                                    there), "ignore" leaves them out of the loss; agents and
-    #                                    stable pixels take s / aligned depth (shift-free)
+    #                                    stable pixels take s / aligned depth (shift-free);
+    #                                    "aligned": no stability test, every pixel takes
+    #                                    s / aligned (fitted over all of them), shift-free
 
     def __post_init__(self):
         if self.contact not in CONTACTS:
@@ -196,8 +198,9 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
     The network is fitted over every trusted pixel (robust ``inv ~ s / aligned + t``, not the
     ground alone); trusted pixels take ``s / aligned``, the others the network's own value less
     its shift, ``inv - t`` (``untrusted="base"``: its shape is kept there, relative to the
-    labelled pixels; NaN where that is not positive, beyond its horizon) or NaN (``"ignore"``:
-    out of the loss). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
+    labelled pixels; NaN where that is not positive, beyond its horizon; ``"aligned"`` too, for
+    the pixels without an alignment, as adapt trusts every pixel then) or NaN (``"ignore"``: out
+    of the loss). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
     teaches the network a ``1 / prediction`` right up to one scale. None when no map exists
     (fewer than 3 trusted pixels, or no positive slope)."""
     from staticdepth.geometry.alignment import fit_inverse_affine
@@ -216,7 +219,8 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
         return None
     with np.errstate(divide="ignore", invalid="ignore"):
         label = np.float32(s) / A
-        other = inv - np.float32(t) if untrusted == "base" else np.full(inv.shape, np.nan)
+        other = (inv - np.float32(t) if untrusted in ("base", "aligned")
+                 else np.full(inv.shape, np.nan))
     other = np.where(other > 0, other, np.nan)
     return np.where(sel, label, other).astype(np.float32)
 

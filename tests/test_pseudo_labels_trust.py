@@ -1,6 +1,7 @@
 """adapt's aligned pseudo labels with ``pseudo_labels.untrusted``: agents and the static pixels
 whose alignment repeats over the adaptation split keep their label, the others take the base
-network's value (``base``) or leave the loss (``ignore``); checked against the stable mask
+network's value (``base``), leave the loss (``ignore``) or keep it too (``aligned``, every pixel
+shift-free); checked against the stable mask
 recomputed from adapt's own ``align`` output (the base prediction aligned, every frame)."""
 from __future__ import annotations
 
@@ -86,6 +87,17 @@ def test_untrusted_pixels_take_the_base_value_or_leave_the_loss(tmp_path, scene)
     dropped = _labels(seq)
     assert np.isnan(dropped[~trusted]).all()
     np.testing.assert_array_equal(dropped[trusted], kept[trusted])
+    # aligned: no stability test, every pixel with an alignment takes s / aligned (one s a
+    # frame, fitted over all of them): shift-free, and the untrusted pixels move with the rest
+    adapt(seq, build_config({**base, "pseudo_labels.untrusted": "aligned"}), log=lambda m: None)
+    every = _labels(seq)
+    for k in range(len(split)):
+        m = np.isfinite(aligned[k]) & (aligned[k] > 0)
+        assert m.mean() > 0.9
+        s = every[k][m] * aligned[k][m]
+        np.testing.assert_allclose(s, np.median(s), rtol=1e-4)
+    u = ~trusted & np.isfinite(aligned)
+    assert not np.allclose(every[u], kept[u], rtol=1e-3)      # not the base's value there
 
 
 def test_scale_only_loss_needs_shift_free_labels(tmp_path, scene):

@@ -59,12 +59,13 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
             inst = agents.instances(i)
             A = aligned_frame(conf, ws.K, plane.normal, ground, inst, agents.rows(i),
                               depth_from_inverse(inv))
-            if (pl.dense_mode or pl.untrusted != "label") and not dense:
+            if (pl.dense_mode or pl.untrusted in ("base", "ignore")) and not dense:
                 dense.extend(_dense(conf, ws, agents, plane, ground))
             if pl.dense_mode:           # stable pixels of the dense mode, off the frame's agents
                 A = np.where(dense[1] & (inst == 0), dense[0], A)
             if pl.untrusted != "label":     # agents and stable static pixels, shift-free
-                trusted = dense[1] | (inst > 0)
+                trusted = np.ones(inst.shape, bool) if pl.untrusted == "aligned" else (
+                    dense[1] | (inst > 0))
                 label = trusted_label(inv, A, trusted, pl.untrusted)
                 if label is None:   # no map over them: the frame leaves the loss (the paper's
                     #                 labels carry the network's shift, wrong for loss=si)
