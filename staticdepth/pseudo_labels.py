@@ -19,6 +19,10 @@ with both test networks (plane labels, agents only, leave i2's agents worse: the
 keeps the network's error; README, fine-tuning figures). With ``untrusted`` (default ``base``)
 adapt keeps the aligned label only on the agents and the static pixels whose alignment repeats
 over the split, shift-free (:func:`trusted_label`); the rest take the base's own shape.
+``untrusted="aligned"`` labels every pixel with the alignment, shift-free: with the U-Net that
+fails on the view ft-align 0.139 / 0.069 / 0.146 / 0.255 -> 0.118 / 0.070 / 0.136 / 0.230 on
+i1-i4 (chosen on i1, i3) but 0.127 -> 0.132 on a held-out scene, and its fine-tuned agents
+worse on four of five scenes (i4 0.389 -> 0.464, base 0.460): not the default (README, issue 19).
 """
 from __future__ import annotations
 
