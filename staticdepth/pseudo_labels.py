@@ -195,7 +195,8 @@ def aligned_pseudo_label(inv_depth: np.ndarray, aligned: np.ndarray, plane_inv: 
 
 
 def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarray,
-                  untrusted: str, max_points: int = 20000) -> np.ndarray | None:
+                  untrusted: str, max_points: int = 20000,
+                  fit: tuple[float, float] | None = None) -> np.ndarray | None:
     """Label one frame with its alignment on the ``trusted`` pixels only (agents, static pixels
     whose alignment repeats over the split), as shift-free inverse depth in the network's units.
 
@@ -206,7 +207,8 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
     the pixels without an alignment, as adapt trusts every pixel then) or NaN (``"ignore"``: out
     of the loss). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
     teaches the network a ``1 / prediction`` right up to one scale. None when no map exists
-    (fewer than 3 trusted pixels, or no positive slope)."""
+    (fewer than 3 trusted pixels, or no positive slope). ``fit``: a given (s, t) instead (adapt:
+    the ground's, when the trusted pixels give none)."""
     from staticdepth.geometry.alignment import fit_inverse_affine
 
     inv = np.asarray(inv_depth, np.float32)
@@ -214,13 +216,16 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
     ok = np.isfinite(A) & (A > 0) & np.isfinite(inv)
     sel = ok & np.asarray(trusted, bool)
     n = np.count_nonzero(sel)
-    if n < 3:
+    if fit is not None:
+        s, t = fit
+    elif n < 3:
         return None
-    step = max(1, n // max_points)
-    try:
-        s, t = fit_inverse_affine(inv[sel][::step], 1.0 / A[sel][::step])
-    except InputError:
-        return None
+    else:
+        step = max(1, n // max_points)
+        try:
+            s, t = fit_inverse_affine(inv[sel][::step], 1.0 / A[sel][::step])
+        except InputError:
+            return None
     with np.errstate(divide="ignore", invalid="ignore"):
         label = np.float32(s) / A
         other = (inv - np.float32(t) if untrusted in ("base", "aligned")

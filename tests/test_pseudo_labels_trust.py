@@ -133,7 +133,7 @@ class Inverted(torch.nn.Module):
 def test_frames_without_a_receding_ground_keep_shift_free_labels(tmp_path, scene):
     """Where the network's ground does not recede, the labels still come from the fit over the
     trusted pixels (``s / aligned`` there, one s a frame; untrusted ones left out with
-    ``ignore``), never the paper's labels, which carry the network's shift (wrong for loss=si)."""
+    ``ignore``), not the paper's labels, which carry the network's shift (wrong for loss=si)."""
     from staticdepth.adapt import adapt
     from staticdepth.adaptation.config import build_config
     from staticdepth.geometry.alignment import ground_mask_from_feet
