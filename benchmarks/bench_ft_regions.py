@@ -10,7 +10,8 @@ beside base, ft, align and ft-align on the same pixels; then the same prediction
 evaluation frames, with two more on the adaptation frames: ``label-align``, the labels read as
 depth and aligned as adapt's align stage does (what ft-align would be if the network learned its
 labels exactly), and ``align-twice``, adapt's ``align`` output aligned again (whether the
-alignment is idempotent: ft-align aligns a network trained on aligned labels). Every prediction is median-scaled per frame over all its valid pixels, as
+alignment is idempotent: ft-align aligns a network trained on aligned labels). Every
+prediction is median-scaled per frame over all its valid pixels, as
 ``evaluate`` does; labels over their labelled pixels.
 
 Usage:
@@ -93,7 +94,8 @@ def region_rows(seq: str) -> dict:
                                 gt, vm)
                     # the alignment applied twice: is it idempotent? (ft-align aligns a network
                     # trained on aligned labels)
-                    a2 = scaled(align(r.instances(i), r.agents(i), r.prediction("align", i)), gt, vm)
+                    a2 = scaled(align(r.instances(i), r.agents(i), r.prediction("align", i)),
+                                gt, vm)
                 for reg, m in masks.items():
                     m = m & vm
                     n = np.count_nonzero(m)
