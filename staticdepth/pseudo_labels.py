@@ -19,6 +19,10 @@ with both test networks (plane labels, agents only, leave i2's agents worse: the
 keeps the network's error; README, fine-tuning figures). With ``untrusted`` (default ``base``)
 adapt keeps the aligned label only on the agents and the static pixels whose alignment repeats
 over the split, shift-free (:func:`trusted_label`); the rest take the base's own shape.
+``untrusted="aligned"`` labels every pixel with the alignment, shift-free: with the U-Net that
+fails on the view ft-align 0.139 / 0.069 / 0.146 / 0.255 -> 0.118 / 0.070 / 0.136 / 0.230 on
+i1-i4 (chosen on i1, i3) but 0.127 -> 0.132 on a held-out scene, and its fine-tuned agents
+worse on four of five scenes (i4 0.389 -> 0.464, base 0.460): not the default (README, issue 19).
 """
 from __future__ import annotations
 
@@ -32,7 +36,7 @@ from staticdepth.errors import InputError
 
 CONTACTS = ("lowest", "bottom_rows")
 LABEL_SOURCES = ("prediction", "plane", "aligned")
-UNTRUSTED = ("label", "base", "ignore")
+UNTRUSTED = ("label", "base", "ignore", "aligned")
 
 
 @dataclass(frozen=True)
@@ -58,7 +62,9 @@ class PseudoLabelConfig:
     #                                    else align.mode): "label" keeps it, "base" takes the base
     #                                    network's own value less its shift (its shape is kept
     #                                    there), "ignore" leaves them out of the loss; agents and
-    #                                    stable pixels take s / aligned depth (shift-free)
+    #                                    stable pixels take s / aligned depth (shift-free);
+    #                                    "aligned": no stability test, every pixel takes
+    #                                    s / aligned (fitted over all of them), shift-free
 
     def __post_init__(self):
         if self.contact not in CONTACTS:
@@ -189,17 +195,20 @@ def aligned_pseudo_label(inv_depth: np.ndarray, aligned: np.ndarray, plane_inv: 
 
 
 def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarray,
-                  untrusted: str, max_points: int = 20000) -> np.ndarray | None:
+                  untrusted: str, max_points: int = 20000,
+                  fit: tuple[float, float] | None = None) -> np.ndarray | None:
     """Label one frame with its alignment on the ``trusted`` pixels only (agents, static pixels
     whose alignment repeats over the split), as shift-free inverse depth in the network's units.
 
     The network is fitted over every trusted pixel (robust ``inv ~ s / aligned + t``, not the
     ground alone); trusted pixels take ``s / aligned``, the others the network's own value less
     its shift, ``inv - t`` (``untrusted="base"``: its shape is kept there, relative to the
-    labelled pixels; NaN where that is not positive, beyond its horizon) or NaN (``"ignore"``:
-    out of the loss). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
+    labelled pixels; NaN where that is not positive, beyond its horizon; ``"aligned"`` too, for
+    the pixels without an alignment, as adapt trusts every pixel then) or NaN (``"ignore"``: out
+    of the loss). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
     teaches the network a ``1 / prediction`` right up to one scale. None when no map exists
-    (fewer than 3 trusted pixels, or no positive slope)."""
+    (fewer than 3 trusted pixels, or no positive slope). ``fit``: a given (s, t) instead (adapt:
+    the ground's, when the trusted pixels give none)."""
     from staticdepth.geometry.alignment import fit_inverse_affine
 
     inv = np.asarray(inv_depth, np.float32)
@@ -207,16 +216,20 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
     ok = np.isfinite(A) & (A > 0) & np.isfinite(inv)
     sel = ok & np.asarray(trusted, bool)
     n = np.count_nonzero(sel)
-    if n < 3:
+    if fit is not None:
+        s, t = fit
+    elif n < 3:
         return None
-    step = max(1, n // max_points)
-    try:
-        s, t = fit_inverse_affine(inv[sel][::step], 1.0 / A[sel][::step])
-    except InputError:
-        return None
+    else:
+        step = max(1, n // max_points)
+        try:
+            s, t = fit_inverse_affine(inv[sel][::step], 1.0 / A[sel][::step])
+        except InputError:
+            return None
     with np.errstate(divide="ignore", invalid="ignore"):
         label = np.float32(s) / A
-        other = inv - np.float32(t) if untrusted == "base" else np.full(inv.shape, np.nan)
+        other = (inv - np.float32(t) if untrusted in ("base", "aligned")
+                 else np.full(inv.shape, np.nan))
     other = np.where(other > 0, other, np.nan)
     return np.where(sel, label, other).astype(np.float32)
 

@@ -77,8 +77,8 @@ def prepare(conf: AdaptConfig, ws: Workspace, *, device=None, summary_path: str,
         pl = conf.pseudo_labels
         if conf.finetune.loss == "si" and (pl.source != "aligned" or pl.untrusted == "label"):
             raise InputError("finetune.loss=si (no shift) needs shift-free labels: "
-                             "pseudo_labels.source=aligned with pseudo_labels.untrusted=base or "
-                             "ignore (or finetune.loss=ssi)")
+                             "pseudo_labels.source=aligned with pseudo_labels.untrusted=base, "
+                             "ignore or aligned (or finetune.loss=ssi)")
         if layers != conf.finetune.layers:
             ws.log(f"model {conf.model!r} names no layer groups: fine-tuning all its parameters")
     if device is not None and isinstance(model, TorchDepthModel):

@@ -15,8 +15,8 @@ from staticdepth.adaptation.common import Agents, Workspace
 from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.geometry.agent_plane import AgentPlane
 from staticdepth.progress import progress
-from staticdepth.pseudo_labels import (aligned_pseudo_label, plane_pseudo_label, pseudo_label,
-                                       trusted_label)
+from staticdepth.pseudo_labels import (_network_space, aligned_pseudo_label, plane_pseudo_label,
+                                       pseudo_label, trusted_label)
 
 ROWS = np.dtype([("frame", np.int32), ("agent_pixels", np.int64)])
 
@@ -29,7 +29,12 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
     into the network's space by a fit over the ground region of ``feet``); ``"aligned"`` labels
     every pixel with the frame's alignment (``align.mode``, agents at their contact) mapped back
     into the network's space the same way (a frame where that map does not exist - the network's
-    ground does not recede against the plane - gets the paper's labels, as with "plane")."""
+    ground does not recede against the plane - gets the paper's labels, as with "plane"). With
+    ``untrusted`` other than ``label`` the map is fitted over the trusted pixels instead
+    (:func:`staticdepth.pseudo_labels.trusted_label`; the ground's when they give none), so a
+    frame whose ground does not recede still gets shift-free labels (the paper's labels carry the
+    network's shift, which the scale-only loss cannot take); only a frame with neither map falls
+    back to them."""
     pl = conf.pseudo_labels
     if pl.source == "plane":
         from staticdepth.adaptation.align import ground_region
@@ -56,18 +61,25 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
             inst = agents.instances(i)
             A = aligned_frame(conf, ws.K, plane.normal, ground, inst, agents.rows(i),
                               depth_from_inverse(inv))
-            if (pl.dense_mode or pl.untrusted != "label") and not dense:
+            if (pl.dense_mode or pl.untrusted in ("base", "ignore")) and not dense:
                 dense.extend(_dense(conf, ws, agents, plane, ground))
             if pl.dense_mode:           # stable pixels of the dense mode, off the frame's agents
                 A = np.where(dense[1] & (inst == 0), dense[0], A)
+            if pl.untrusted != "label":     # agents and stable static pixels, shift-free
+                trusted = np.ones(inst.shape, bool) if pl.untrusted == "aligned" else (
+                    dense[1] | (inst > 0))
+                label = trusted_label(inv, A, trusted, pl.untrusted)
+                if label is None:   # no map over them: the ground's, as aligned_pseudo_label
+                    _, fit = _network_space(inv, plane_inv, ground & (inst == 0), "aligned")
+                    label = None if fit is None else trusted_label(inv, A, trusted,
+                                                                   pl.untrusted, fit=fit)
+                if label is not None:
+                    return label, trusted & np.isfinite(label)
+                # neither (an untrained network): the paper's labels below, which carry its
+                # shift (no frame of the independent scenes i1-i4, h1, either network)
             label, m = aligned_pseudo_label(inv, A, plane_inv, ground & (inst == 0))
             if not m.any():     # the network's ground does not recede: its own contact values
                 return pseudo_label(inv, inst, agents.rows(i), pl)
-            if pl.untrusted != "label":     # agents and stable static pixels only
-                trusted = dense[1] | (inst > 0)
-                t = trusted_label(inv, A, trusted, pl.untrusted)
-                label = t if t is not None else np.where(   # no map over them: the ground's
-                    trusted, label, inv if pl.untrusted == "base" else np.nan).astype(np.float32)
             return label, m
     else:
         def label_frame(i, inv):
