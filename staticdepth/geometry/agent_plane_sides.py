@@ -134,10 +134,21 @@ def _ring_start(prob, n, rays, sk, obs_w, j) -> np.ndarray:
         z = rays[:, 2] / nr - WIDTH_AT * sk * n[2]
         r = obs_w * z / (2.0 * prob.K[0, 0])
     ok = np.isfinite(r) & (r > 0)
-    out = np.full(prob.J, 0.02)
-    for t in np.unique(j[ok]):
-        out[t] = np.median(r[ok & (j == t)])
-    return np.clip(out, 0.0, 0.2)
+    return np.clip(track_medians(r[ok], j[ok], prob.J, 0.02), 0.0, 0.2)
+
+
+def track_medians(x: np.ndarray, j: np.ndarray, J: int, empty: float) -> np.ndarray:
+    """(J,) the median of ``x`` per track ``j`` (``empty`` for tracks without values), sorted
+    once instead of one median call per track (the residuals call this at every evaluation)."""
+    out = np.full(J, empty, np.float64)
+    if not len(x):
+        return out
+    order = np.lexsort((x, j))
+    xs, js = x[order], j[order]
+    tracks, first, count = np.unique(js, return_index=True, return_counts=True)
+    lo, hi = first + (count - 1) // 2, first + count // 2
+    out[tracks] = 0.5 * (xs[lo] + xs[hi])
+    return out
 
 
 def wide_start(prob) -> np.ndarray | None:
