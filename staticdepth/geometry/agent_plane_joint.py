@@ -18,7 +18,7 @@ from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
 from staticdepth.geometry.agent_plane_problem import _normal, _Problem
-from staticdepth.geometry.agent_plane_sides import wide_start
+from staticdepth.geometry.agent_plane_sides import wide_start, width_spread
 from staticdepth.geometry.agent_shape import GROUPS
 from staticdepth.geometry.agent_walker import relative_noise_split
 from staticdepth.geometry.camera import pitch_roll_from_normal
@@ -95,6 +95,9 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
         e1, prob = prob.e1, _Problem(K, obs, kappa)
         prob.e1 = e1
         s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
+    if len(prob.width_idx):     # people as boxes: the spread of their widths
+        prob.width_sd = width_spread(prob, n, theta_all, s, inl,
+                                     GROUPS[0].typical_height[1])
     err = prob.errors(n, theta_all, s, 0.0)
     thr = max(conf.inlier_px, 2.5 * 1.4826 * float(np.median(err)))
     inl = _track_inliers(obs.idx, err < thr, J)

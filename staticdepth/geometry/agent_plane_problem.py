@@ -99,6 +99,7 @@ class _Problem:
                      >= MIN_ONE_FOOT and np.count_nonzero(self.people & (obs.feet >= 2))
                      >= MIN_ONE_FOOT)
         self.e1, self._with_one = 0.0, False      # the one-foot extent, fitted or not
+        self.width_sd = WIDTH_SD      # the ring radii's spread (agent_plane_sides.width_spread)
 
     def params(self, theta: np.ndarray, e1: float | None = None) -> list:
         out = [np.asarray(GROUPS[g].prior) for g in range(len(GROUPS))]
@@ -173,7 +174,8 @@ class _Problem:
     def sparsity(self, col_w: float, with_one: bool = False):
         ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else [],
                    self.side_idx, self.side_idx, self.width_idx,
-                   width_tracks(self)[1] if WIDTH_SD and len(self.width_idx) else []].astype(int)
+                   width_tracks(self)[1] if self.width_sd and len(self.width_idx) else []
+                   ].astype(int)
         R, n1 = len(ob), int(with_one)
         S = lil_matrix((R + self.n_shape + self.J + n1, self.k_s + self.J + n1), dtype=np.int8)
         if with_one:     # the one-foot extent: the one-foot frames' residuals and its prior
@@ -263,5 +265,7 @@ class _Problem:
         return best[:5]
 
     def take_feet(self, other: "_Problem") -> None:
-        """The one-foot extent of ``other`` (a problem on a subset of the observations)."""
+        """The one-foot extent and the ring radii's spread of ``other`` (a problem on a subset of
+        the observations)."""
         self.e1 = other.e1 if self.one_free else 0.0
+        self.width_sd = other.width_sd

@@ -58,7 +58,7 @@ def anchored(prob, n, theta, s, dev=None, iters: int = 3):
                 (right - prob.obs.right[k]) / prob.sigma[k]]
     k = prob.width_idx
     if len(k):
-        rays[k], wres = _people_widths(prob, n, theta, s, dev)
+        rays[k], wres = _people_widths(prob, n, theta, s, dev)[:2]
         out.append(wres)
     return rays, np.nan_to_num(np.concatenate(out), nan=_BIG) if out else np.zeros(0)
 
@@ -93,8 +93,8 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
             w, dw = (hi - lo) / sig, (hi2 - lo2 - hi + lo) / 1e-3 / sig
             num = np.bincount(j, dw * (w - obs_w / sig), minlength=prob.J)
             den = np.bincount(j, dw * dw, minlength=prob.J)
-            if WIDTH_SD:     # the shared-width prior's Gauss-Newton terms
-                pr, dpr = _width_prior(radius, tracks)
+            if prob.width_sd:     # the shared-width prior's Gauss-Newton terms
+                pr, dpr = _width_prior(radius, tracks, prob.width_sd)
                 num[tracks] += pr * dpr
                 den[tracks] += dpr * dpr
             radius = np.clip(radius - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0),
@@ -103,9 +103,9 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
         if it < iters:
             u = u - (0.5 * (lo + hi) - mid)
     out = (hi - lo - obs_w) / sig
-    if WIDTH_SD:
-        out = np.r_[out, _width_prior(radius, tracks)[0]]
-    return rays, out
+    if prob.width_sd:
+        out = np.r_[out, _width_prior(radius, tracks, prob.width_sd)[0]]
+    return rays, out, radius
 
 
 def width_tracks(prob) -> tuple[np.ndarray, np.ndarray]:
@@ -116,12 +116,26 @@ def width_tracks(prob) -> tuple[np.ndarray, np.ndarray]:
     return tracks, prob.width_idx[first]
 
 
-def _width_prior(radius: np.ndarray, tracks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _width_prior(radius: np.ndarray, tracks: np.ndarray, sd: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """(residuals, their derivatives in the radius) of the tracks' ring radii about their
-    median, in log units over :data:`WIDTH_SD`."""
+    median, in log units over ``sd``."""
     r = np.maximum(radius[tracks], 1e-6)
-    z = (np.log(r) - np.median(np.log(r))) / WIDTH_SD
-    return z, 1.0 / (r * WIDTH_SD)
+    z = (np.log(r) - np.median(np.log(r))) / sd
+    return z, 1.0 / (r * sd)
+
+
+def width_spread(prob, n, theta, s, inl, floor: float) -> float:
+    """The spread (log sd) of the inlier tracks' ring radii about their median (1.4826 MAD),
+    between ``floor`` and :data:`WIDTH_SD`: people of one class alike in width have a tight prior,
+    walkers seen from their side and from their front a loose one."""
+    tracks = width_tracks(prob)[0]
+    tracks = tracks[inl[tracks]]
+    if len(tracks) < 5 or not prob.width_sd:
+        return prob.width_sd
+    r = np.log(np.maximum(_people_widths(prob, n, theta, s, None)[2][tracks], 1e-6))
+    mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    return float(np.clip(mad, floor, WIDTH_SD))
 
 
 def _ring_start(prob, n, rays, sk, obs_w, j) -> np.ndarray:
