@@ -9,11 +9,16 @@ of :data:`staticdepth.tracking.OBS_DTYPE`).
   closed form), the axis slid along the foot row likewise. Each track's ring radius is solved
   inside the residuals (Gauss-Newton), starting where the ring alone spans the box and never
   inside the widest disk: from a narrow start the hull's width does not move with the ring, and
-  the fit widened the foot disk instead (tapered bodies 1.56 deg off). The radii share a weak
-  prior about their median (:data:`WIDTH_SD`). Ring and disks explain a wide body alike, so the
-  joint fit also starts from disks as wide as the boxes (:func:`wide_start`) and keeps the lower
-  cost. Generators' boxes (+-2 px, 8 cameras, benchmarks/bench_agent_plane.py) went from
-  0.29-1.08 / 0.97-1.56 deg (median / max) to 0.17-0.59 / 0.40-0.91.
+  the fit widened the foot disk instead (tapered bodies 1.56 deg off). The radii share a prior
+  about their median whose spread is estimated from the tracks after the first fit
+  (:func:`width_spread`, at most :data:`WIDTH_SD`): bodies alike in width tie the tracks' depths
+  together as their heights do, which far, small people need (tapered camera 9, 10 m high at
+  21.5 deg, 30-90 px tall: 1.37 deg with the fixed 0.15, 0.84 with the estimated 0.053). Ring
+  and disks explain a wide body alike, so the joint fit also starts from disks as wide as the
+  boxes (:func:`wide_start`) and keeps the lower cost. Generators' boxes (+-2 px, 8 cameras,
+  benchmarks/bench_agent_plane.py) went from 0.29-1.08 / 0.97-1.56 deg (median / max) to
+  0.17-0.59 / 0.40-0.91 (box6); on 20 cameras the estimated spread took tapered, cylinder and
+  ellipsoid from 1.37 / 1.17 / 1.49 deg max to 0.84 / 0.77 / 1.38.
 """
 from __future__ import annotations
 
@@ -24,8 +29,8 @@ from staticdepth.geometry.agent_shape import (WIDTH_AT, box_columns, disk_column
                                               foot_centres, ring_columns)
 from staticdepth.geometry.projection import rays_from_pixels
 
-# people seen as boxes: the spread (log sd) of their widest ring's radius about the tracks'
-# median (people of one class are alike in width as in height; 0 = each track's own, unrelated)
+# people seen as boxes: the largest spread (log sd) of their widest ring's radius about the
+# tracks' median, the prior's until width_spread estimates it (0 = each track's own, unrelated)
 WIDTH_SD = 0.15
 
 
