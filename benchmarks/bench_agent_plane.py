@@ -163,7 +163,7 @@ def main() -> None:
                 stats[m][3].append(anchor_error(s, p.normal))
                 if args.verbose:
                     print(f"  {kind} camera {seed} {m}: {stats[m][0][-1]:.2f} deg, anchor "
-                          f"{stats[m][3][-1]:.2f}%, "
+                          f"{stats[m][3][-1]:.2f}%, camera height {stats[m][1][-1]:.1f}%, "
                           f"{n_tracks} tracks, uncertainty {p.normal_std_deg:.2f}", flush=True)
                 if m == "joint" and args.bootstrap:
                     ratios.append(stats[m][0][-1] / p.normal_std_deg)
