@@ -1,37 +1,10 @@
-"""The ``joint`` ground-plane model: plane, per-track heights and per-class extent fitted together.
-
-Unknowns: the normal (pitch, roll), one extent vector per class group present
-(:mod:`staticdepth.geometry.agent_shape`: people are foot and head disks ``(e_f, e_h)``,
-two-wheelers and vehicles boxes ``(a, b)``; each with a weak Gaussian prior,
-``shape_prior_weight`` pixels per prior standard deviation; a group with fewer than 3 tracks
-keeps the prior means), where masks show walkers' feet both apart and overlapping the one-foot
-frames' extra foot extent ``e_1`` (:mod:`staticdepth.geometry.agent_walker`), the log of 1 /
-camera height (tying every track's height to its class's typical height, robustly: children and
-outliers weigh little) and per track ``s_j = H_j / d``.
-Residuals: each observation's top row predicted from its foot ray minus the observed one, and
-where the top column is known (masks) its column, in pixels; people's over
-``sqrt(1 + (kappa h)^2)`` (h: the pixel height; ``relative_noise``; by default kappa is estimated
-from the first fit's residuals where the masks show walkers' feet both apart and overlapping,
-else 0): a walker is not rigid (it bobs by ~3% of its height, its stride moves the feet), so a
-near walker's residuals are larger in pixels, not more informative; at 1 px the robust loss and
-the inlier rules cut a near walker's extreme frames and keep a far one's, a bias that grows with
-the size in the image, i.e. a pitch bias.
-
-Why the columns: an extent moves the top point along the line of sight, which to first order is
-the same as leaning the agent towards the camera, i.e. a change of pitch; from rows alone the
-extent and the pitch are nearly degenerate (thin walkers seen from 11.5 m at 48 degrees: the cost
-stays flat over +7 degrees of pitch). The line of sight's image passes through the vertical
-vanishing point, so the extent does not move the head-foot axis: the columns (the axes meeting at
-the image of n) separate the two. A track's foot and head lines meeting on the horizon is implied
-by the same row residuals. The columns' weight is scaled by the rows' over the columns' residual
-scale (a walker's lowest mask row is often one foot, off the axis); the inlier threshold is at
-least ``inlier_px`` and 2.5 robust standard deviations of the rows (a walker's gait moves its
-lowest point by +-0.3 m along its heading: several pixels).
+"""The ``joint`` ground-plane model's robust fit: plane, per-track heights and per-class extent
+fitted together (the unknowns and residuals: :mod:`staticdepth.geometry.agent_plane_problem`).
 
 Robust pipeline: RANSAC over tracks (3 tracks, extents at their prior means, every other track's
 ``s_j`` solved with the normal fixed, observations within ``inlier_px`` counted), a soft-L1 fit of
-all unknowns on the inlier tracks from the RANSAC and the affine (Eq. 1) normals, the residual
-scales, then a fit on the inlier observations; its uncertainty
+all unknowns on the inlier tracks from the RANSAC and the affine (Eq. 1) normals (people seen as
+boxes: each also with disks as wide as the boxes, the lowest cost kept), the residual scales, then a fit on the inlier observations; its uncertainty
 (:mod:`staticdepth.geometry.agent_plane_boot`) refits from that solution.
 """
 from __future__ import annotations
@@ -40,240 +13,17 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
 
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
-from staticdepth.geometry.agent_plane_sides import WIDTH_SD, anchored, wide_start, width_tracks
-from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
-                                              track_headings)
-from staticdepth.geometry.agent_walker import (MIN_ONE_FOOT, ONE_FOOT_BOUNDS, ONE_FOOT_PRIOR,
-                                               relative_noise_split, residual_scale)
-from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
+from staticdepth.geometry.agent_plane_problem import _normal, _Problem
+from staticdepth.geometry.agent_plane_sides import wide_start, width_spread
+from staticdepth.geometry.agent_shape import GROUPS
+from staticdepth.geometry.agent_walker import relative_noise_split
+from staticdepth.geometry.camera import pitch_roll_from_normal
 
-
-MIN_SHAPE_TRACKS = 3
-
-
-def _normal(pitch: float, roll: float) -> np.ndarray:
-    return normal_from_pitch_roll(math.degrees(pitch), math.degrees(roll))
-
-
-class _Problem:
-    """The observations with their class groups; packs and unpacks the parameter vector
-    ``[pitch, roll, extents of the groups present..., s_1..s_J]``."""
-
-    def __init__(self, K: np.ndarray, obs: AgentObservations, relative_noise: float = 0.0):
-        self.K, self.obs, self.kappa = K, obs, relative_noise
-        self.J, self.N = len(obs.ids), len(obs.top_v)
-        self.track_group = group_of_class(obs.cls)
-        self.group = self.track_group[obs.idx]
-        self.present = [g for g in range(len(GROUPS)) if np.any(self.group == g)]
-        # a group's extents are free with at least MIN_SHAPE_TRACKS tracks, else at the prior
-        self.free = [g for g in self.present
-                     if np.count_nonzero(self.track_group == g) >= MIN_SHAPE_TRACKS]
-        self.slices, k = {}, 2
-        for g in self.present:
-            m = len(GROUPS[g].prior)
-            self.slices[g] = slice(k, k + m)
-            k += m
-        self.n_shape = k - 2
-        # a box's highest mask row is often an edge (its median column between two corners):
-        # only the disk outlines' top columns are used
-        box_obs = np.array([GROUPS[g].outline == "box" for g in range(len(GROUPS))])[self.group]
-        self.top_u = np.where(box_obs, np.nan, obs.top_u)
-        self.has_u = np.isfinite(self.top_u)
-        # a box outline's extreme columns (a box detection's sides, a mask's extreme columns)
-        self.sides = box_obs & np.isfinite(obs.left) & np.isfinite(obs.right)
-        self.side_idx = np.flatnonzero(self.sides)
-        # people seen as boxes (no top column): their widths, each track's body radius free
-        self.width_idx = np.flatnonzero(~box_obs & ~self.has_u & np.isfinite(obs.left)
-                                        & np.isfinite(obs.right))
-        self.k_s = k + 1                  # index of s_1 (k: log of 1 / camera height in metres)
-        mh = np.array([GROUPS[g].typical_height for g in self.track_group])
-        self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
-        self.boxes = any(GROUPS[g].outline == "box" for g in self.present)
-        # residual scale per observation (1 px + a share of the pixel height: gait, bobbing)
-        self.people = np.array([GROUPS[g].outline == "disk" for g in self.group], bool)
-        # a walker's one-foot frames (feet overlapping in the image): its nearer foot, half a
-        # stride towards the camera; an extent of their own where other frames show two feet
-        self.one = self.people & (obs.feet == 1)
-        self.sigma = residual_scale(relative_noise, obs.h, self.people, self.one)
-        self.one_free = (np.count_nonzero(self.one) >= MIN_ONE_FOOT
-                         and np.count_nonzero(self.people & (obs.feet >= 2)) >= MIN_ONE_FOOT)
-        # a gait shown (one-foot frames, kept or interpolated, beside two-foot ones): kappa
-        self.gait = (np.count_nonzero(self.people & (obs.feet != 0) & (obs.feet != 2))
-                     >= MIN_ONE_FOOT and np.count_nonzero(self.people & (obs.feet >= 2))
-                     >= MIN_ONE_FOOT)
-        self.e1, self._with_one = 0.0, False      # the one-foot extent, fitted or not
-
-    def params(self, theta: np.ndarray, e1: float | None = None) -> list:
-        out = [np.asarray(GROUPS[g].prior) for g in range(len(GROUPS))]
-        for g, sl in self.slices.items():
-            out[g] = theta[sl.start - 2:sl.stop - 2]
-        e1 = self.e1 if e1 is None else e1
-        for g in self.present:
-            if GROUPS[g].outline == "disk" and e1 != 0:   # one-foot frames: e_f + e_1
-                m = self.group == g
-                out[g] = [out[g][0] + e1 * self.one[m], out[g][1]]
-        return out
-
-    def prior_theta(self) -> np.ndarray:
-        return np.concatenate([GROUPS[g].prior for g in self.present] or [np.zeros(0)])
-
-    def shape_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        lo = np.concatenate([GROUPS[g].lower for g in self.present] or [np.zeros(0)])
-        hi = np.concatenate([GROUPS[g].upper for g in self.present] or [np.zeros(0)])
-        return lo, hi
-
-    def headings(self, n: np.ndarray) -> np.ndarray | None:
-        if not self.boxes:
-            return None
-        nr = self.obs.rays @ n
-        with np.errstate(divide="ignore", invalid="ignore"):
-            F = self.obs.rays / nr[:, None]
-        return track_headings(n, F, self.obs.idx, self.J)[self.obs.idx]
-
-    def anchored(self, n, theta, s, e1=None):
-        """(foot rays (N, 3), column residuals of the boxes' sides and the people-as-boxes'
-        widths): :func:`staticdepth.geometry.agent_plane_sides.anchored`."""
-        return anchored(self, n, theta, s, e1)
-
-    def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, e1=None, rays=None):
-        rays = self.anchored(n, theta, s, e1)[0] if rays is None else rays
-        return predict_top(self.K, n, rays, s[self.obs.idx], self.group,
-                           self.params(theta, e1), self.headings(n))
-
-    def top_rows(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
-        return self.top(n, theta, s)[1]
-
-    def errors(self, n, theta, s, col_w: float) -> np.ndarray:
-        """(N,) the larger of |row| and weighted |column| residual (impossible: _BIG)."""
-        u, v = self.top(n, theta, s)
-        e = np.abs(np.nan_to_num(v - self.obs.top_v, nan=_BIG))
-        if col_w > 0:
-            e = np.maximum(e, col_w * np.nan_to_num(np.abs(u - self.top_u), nan=0.0))
-        return e / self.sigma
-
-    def residuals(self, x: np.ndarray, prior_w: float, height_w: float,
-                  col_w: float) -> np.ndarray:
-        n = _normal(x[0], x[1])
-        theta, lam, s = x[2:2 + self.n_shape], x[self.k_s - 1], x[self.k_s:self.k_s + self.J]
-        e1 = float(x[-1]) if self._with_one else None
-        rays, cols = self.anchored(n, theta, s, e1)
-        u, v = self.top(n, theta, s, e1, rays)
-        r = np.nan_to_num((v - self.obs.top_v) / self.sigma, nan=_BIG)
-        if col_w > 0:
-            r = np.r_[r, col_w * np.nan_to_num((u - self.top_u)[self.has_u]
-                                               / self.sigma[self.has_u], nan=_BIG)]
-        r = np.r_[r, cols]
-        sd = np.concatenate([GROUPS[g].prior_sd for g in self.present] or [np.zeros(0)])
-        # heights: log s_j = log H_class - log d + eps, robust (children, outliers)
-        z = (np.log(s) - self.log_h - lam) / self.log_sd
-        zr = np.sign(z) * np.sqrt(2.0 * (np.sqrt(1.0 + z * z) - 1.0))
-        out = np.r_[r, prior_w * (theta - self.prior_theta()) / np.maximum(sd, 1e-9),
-                    height_w * zr]
-        if e1 is not None:
-            out = np.r_[out, prior_w * (e1 - ONE_FOOT_PRIOR[0]) / ONE_FOOT_PRIOR[1]]
-        return out
-
-    def sparsity(self, col_w: float, with_one: bool = False):
-        ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else [],
-                   self.side_idx, self.side_idx, self.width_idx,
-                   width_tracks(self)[1] if WIDTH_SD and len(self.width_idx) else []].astype(int)
-        R, n1 = len(ob), int(with_one)
-        S = lil_matrix((R + self.n_shape + self.J + n1, self.k_s + self.J + n1), dtype=np.int8)
-        if with_one:     # the one-foot extent: the one-foot frames' residuals and its prior
-            S[np.flatnonzero(self.one[ob]), self.k_s + self.J] = 1
-            S[R + self.n_shape + self.J, self.k_s + self.J] = 1
-        rows = np.arange(R)
-        S[rows, 0] = 1
-        S[rows, 1] = 1
-        for g, sl in self.slices.items():
-            for c in range(sl.start, sl.stop):
-                S[rows[self.group[ob] == g], c] = 1
-        S[rows, self.k_s + self.obs.idx[ob]] = 1
-        for k in range(self.n_shape):
-            S[R + k, 2 + k] = 1
-        tr = R + self.n_shape + np.arange(self.J)
-        S[tr, self.k_s - 1] = 1
-        S[tr, self.k_s + np.arange(self.J)] = 1
-        return S.tocsr()
-
-    def solve_scales(self, n: np.ndarray, theta: np.ndarray, iters: int = 8,
-                     huber_px: float = 3.0) -> np.ndarray:
-        """Per-track s_j (J,) with the normal and extents fixed: Gauss-Newton per track, the later
-        half Huber-reweighted."""
-        o, J = self.obs, self.J
-        nr = o.rays @ n
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s_obs = o.h / (self.K[1, 1] * nr)
-        s_obs = np.where(np.isfinite(s_obs) & (s_obs > 0), s_obs, np.nan)
-        s = np.full(J, 0.3)
-        for j in range(J):
-            vals = s_obs[o.idx == j]
-            vals = vals[np.isfinite(vals)]
-            if len(vals):
-                s[j] = np.median(vals)
-        for it in range(iters):
-            r0 = (self.top_rows(n, theta, s) - o.top_v) / self.sigma
-            eps = 1e-4 * np.maximum(s, 1e-3)
-            jac = ((self.top_rows(n, theta, s + eps) - o.top_v) / self.sigma - r0) / eps[o.idx]
-            ok = np.isfinite(r0) & np.isfinite(jac)
-            wt = np.ones_like(r0)
-            if it >= iters // 2:
-                wt = np.minimum(1.0, huber_px / np.maximum(np.abs(np.nan_to_num(r0)), 1e-12))
-            num = np.bincount(o.idx[ok], (wt * r0 * jac)[ok], minlength=J)
-            den = np.bincount(o.idx[ok], (wt * jac * jac)[ok], minlength=J)
-            s = np.clip(s - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0), 1e-4, 100.0)
-        return s
-
-    def fit(self, conf, starts, theta0=None, loss="linear", max_nfev=200, free_shape=True):
-        """Best of several (pitch, roll) starts in degrees: (pitch, roll (rad), theta, s, cost);
-        with ``free_shape`` the free groups' extents and, where fitted, the one-foot extent
-        (``self.e1``) are unknowns, else fixed."""
-        lo_p, hi_p = (math.radians(b) for b in conf.pitch_bounds_deg)
-        mr = math.radians(conf.max_roll_deg)
-        th0 = self.prior_theta() if theta0 is None else np.asarray(theta0, np.float64)
-        t_lo, t_hi = self.shape_bounds()
-        th0 = np.clip(th0, t_lo, t_hi)
-        fixed = np.ones(len(th0), bool)
-        for g in (self.free if free_shape else []):
-            fixed[self.slices[g].start - 2:self.slices[g].stop - 2] = False
-        t_lo, t_hi = np.where(fixed, th0 - 1e-9, t_lo), np.where(fixed, th0 + 1e-9, t_hi)
-        lower = np.r_[lo_p, -mr, t_lo, -10.0, np.full(self.J, 1e-4)]
-        upper = np.r_[hi_p, mr, t_hi, 10.0, np.full(self.J, 100.0)]
-        with_one = self._with_one = free_shape and conf.one_foot and self.one_free
-        if with_one:
-            lower, upper = np.r_[lower, ONE_FOOT_BOUNDS[0]], np.r_[upper, ONE_FOOT_BOUNDS[1]]
-        elif not (conf.one_foot and self.one_free):
-            self.e1 = 0.0
-        cw = conf.fit_column_weight
-        sparsity, best = self.sparsity(cw, with_one), None
-        for p0, r0 in starts:
-            p0 = float(np.clip(math.radians(p0), lo_p + 1e-3, hi_p - 1e-3))
-            r0 = float(np.clip(math.radians(r0), -mr + 1e-3, mr - 1e-3))
-            s0 = np.clip(self.solve_scales(_normal(p0, r0), th0, iters=4), 2e-4, 99.0)
-            lam0 = float(np.median(np.log(s0) - self.log_h))
-            x0 = np.r_[p0, r0, th0, lam0, s0, [self.e1 or ONE_FOOT_PRIOR[0]] if with_one else []]
-            x0 = np.clip(x0, lower + 1e-12, upper - 1e-12)
-            hw = conf.height_prior_weight
-            res = least_squares(lambda x: self.residuals(x, conf.shape_prior_weight, hw, cw), x0,
-                                bounds=(lower, upper), loss=loss, f_scale=conf.f_scale_px,
-                                jac_sparsity=sparsity, x_scale="jac", max_nfev=max_nfev)
-            if best is None or res.cost < best[4]:
-                k = 2 + self.n_shape
-                best = (float(res.x[0]), float(res.x[1]), res.x[2:k].copy(),
-                        res.x[self.k_s:self.k_s + self.J].copy(), float(res.cost),
-                        float(res.x[-1]) if with_one else self.e1)
-        self.e1 = best[5]
-        return best[:5]
-
-    def take_feet(self, other: "_Problem") -> None:
-        """The one-foot extent of ``other`` (a problem on a subset of the observations)."""
-        self.e1 = other.e1 if self.one_free else 0.0
+__all__ = ["fit_joint", "_Problem", "_normal", "_expand"]   # _Problem, _normal: for the bootstrap
 
 
 def _track_inliers(idx: np.ndarray, good: np.ndarray, J: int) -> np.ndarray:
@@ -331,7 +81,7 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     p, r, theta, s, cost = sub.fit(conf, starts, loss=conf.loss, max_nfev=100)
     wide = wide_start(sub)      # people as boxes: also from disks as wide as the boxes
     if wide is not None:
-        alt = sub.fit(conf, [(math.degrees(p), math.degrees(r))] + starts, wide,
+        alt = sub.fit(conf, starts, wide,
                       loss=conf.loss, max_nfev=100)
         if alt[4] < cost:
             p, r, theta, s, cost = alt
@@ -345,6 +95,9 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
         e1, prob = prob.e1, _Problem(K, obs, kappa)
         prob.e1 = e1
         s = prob.solve_scales(n, theta_all, huber_px=conf.inlier_px)
+    if len(prob.width_idx):     # people as boxes: the spread of their widths
+        prob.width_sd = width_spread(prob, n, theta_all, s, inl,
+                                     GROUPS[0].typical_height[1])
     err = prob.errors(n, theta_all, s, 0.0)
     thr = max(conf.inlier_px, 2.5 * 1.4826 * float(np.median(err)))
     inl = _track_inliers(obs.idx, err < thr, J)

@@ -9,11 +9,16 @@ of :data:`staticdepth.tracking.OBS_DTYPE`).
   closed form), the axis slid along the foot row likewise. Each track's ring radius is solved
   inside the residuals (Gauss-Newton), starting where the ring alone spans the box and never
   inside the widest disk: from a narrow start the hull's width does not move with the ring, and
-  the fit widened the foot disk instead (tapered bodies 1.56 deg off). The radii share a weak
-  prior about their median (:data:`WIDTH_SD`). Ring and disks explain a wide body alike, so the
-  joint fit also starts from disks as wide as the boxes (:func:`wide_start`) and keeps the lower
-  cost. Generators' boxes (+-2 px, 8 cameras, benchmarks/bench_agent_plane.py) went from
-  0.29-1.08 / 0.97-1.56 deg (median / max) to 0.17-0.59 / 0.40-0.91.
+  the fit widened the foot disk instead (tapered bodies 1.56 deg off). The radii share a prior
+  about their median whose spread is estimated from the tracks after the first fit
+  (:func:`width_spread`, at most :data:`WIDTH_SD`): bodies alike in width tie the tracks' depths
+  together as their heights do, which far, small people need (tapered camera 9, 10 m high at
+  21.5 deg, 30-90 px tall: 1.37 deg with the fixed 0.15, 0.84 with the estimated 0.053). Ring
+  and disks explain a wide body alike, so the joint fit also starts from disks as wide as the
+  boxes (:func:`wide_start`) and keeps the lower cost. Generators' boxes (+-2 px, 8 cameras,
+  benchmarks/bench_agent_plane.py) went from 0.29-1.08 / 0.97-1.56 deg (median / max) to
+  0.17-0.59 / 0.40-0.91 (box6); on 20 cameras the estimated spread took tapered, cylinder and
+  ellipsoid from 1.37 / 1.17 / 1.49 deg max to 0.84 / 0.77 / 1.38.
 """
 from __future__ import annotations
 
@@ -24,8 +29,8 @@ from staticdepth.geometry.agent_shape import (WIDTH_AT, box_columns, disk_column
                                               foot_centres, ring_columns)
 from staticdepth.geometry.projection import rays_from_pixels
 
-# people seen as boxes: the spread (log sd) of their widest ring's radius about the tracks'
-# median (people of one class are alike in width as in height; 0 = each track's own, unrelated)
+# people seen as boxes: the largest spread (log sd) of their widest ring's radius about the
+# tracks' median, the prior's until width_spread estimates it (0 = each track's own, unrelated)
 WIDTH_SD = 0.15
 
 
@@ -58,7 +63,7 @@ def anchored(prob, n, theta, s, dev=None, iters: int = 3):
                 (right - prob.obs.right[k]) / prob.sigma[k]]
     k = prob.width_idx
     if len(k):
-        rays[k], wres = _people_widths(prob, n, theta, s, dev)
+        rays[k], wres = _people_widths(prob, n, theta, s, dev)[:2]
         out.append(wres)
     return rays, np.nan_to_num(np.concatenate(out), nan=_BIG) if out else np.zeros(0)
 
@@ -93,8 +98,8 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
             w, dw = (hi - lo) / sig, (hi2 - lo2 - hi + lo) / 1e-3 / sig
             num = np.bincount(j, dw * (w - obs_w / sig), minlength=prob.J)
             den = np.bincount(j, dw * dw, minlength=prob.J)
-            if WIDTH_SD:     # the shared-width prior's Gauss-Newton terms
-                pr, dpr = _width_prior(radius, tracks)
+            if prob.width_sd:     # the shared-width prior's Gauss-Newton terms
+                pr, dpr = _width_prior(radius, tracks, prob.width_sd)
                 num[tracks] += pr * dpr
                 den[tracks] += dpr * dpr
             radius = np.clip(radius - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0),
@@ -103,9 +108,9 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
         if it < iters:
             u = u - (0.5 * (lo + hi) - mid)
     out = (hi - lo - obs_w) / sig
-    if WIDTH_SD:
-        out = np.r_[out, _width_prior(radius, tracks)[0]]
-    return rays, out
+    if prob.width_sd:
+        out = np.r_[out, _width_prior(radius, tracks, prob.width_sd)[0]]
+    return rays, out, radius
 
 
 def width_tracks(prob) -> tuple[np.ndarray, np.ndarray]:
@@ -116,12 +121,26 @@ def width_tracks(prob) -> tuple[np.ndarray, np.ndarray]:
     return tracks, prob.width_idx[first]
 
 
-def _width_prior(radius: np.ndarray, tracks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _width_prior(radius: np.ndarray, tracks: np.ndarray, sd: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """(residuals, their derivatives in the radius) of the tracks' ring radii about their
-    median, in log units over :data:`WIDTH_SD`."""
+    median, in log units over ``sd``."""
     r = np.maximum(radius[tracks], 1e-6)
-    z = (np.log(r) - np.median(np.log(r))) / WIDTH_SD
-    return z, 1.0 / (r * WIDTH_SD)
+    z = (np.log(r) - np.median(np.log(r))) / sd
+    return z, 1.0 / (r * sd)
+
+
+def width_spread(prob, n, theta, s, inl, floor: float) -> float:
+    """The spread (log sd) of the inlier tracks' ring radii about their median (1.4826 MAD),
+    between ``floor`` and :data:`WIDTH_SD`: people of one class alike in width have a tight prior,
+    walkers seen from their side and from their front a loose one."""
+    tracks = width_tracks(prob)[0]
+    tracks = tracks[inl[tracks]]
+    if len(tracks) < 5 or not prob.width_sd:
+        return prob.width_sd
+    r = np.log(np.maximum(_people_widths(prob, n, theta, s, None)[2][tracks], 1e-6))
+    mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    return float(np.clip(mad, floor, WIDTH_SD))
 
 
 def _ring_start(prob, n, rays, sk, obs_w, j) -> np.ndarray:
@@ -134,10 +153,21 @@ def _ring_start(prob, n, rays, sk, obs_w, j) -> np.ndarray:
         z = rays[:, 2] / nr - WIDTH_AT * sk * n[2]
         r = obs_w * z / (2.0 * prob.K[0, 0])
     ok = np.isfinite(r) & (r > 0)
-    out = np.full(prob.J, 0.02)
-    for t in np.unique(j[ok]):
-        out[t] = np.median(r[ok & (j == t)])
-    return np.clip(out, 0.0, 0.2)
+    return np.clip(track_medians(r[ok], j[ok], prob.J, 0.02), 0.0, 0.2)
+
+
+def track_medians(x: np.ndarray, j: np.ndarray, J: int, empty: float) -> np.ndarray:
+    """(J,) the median of ``x`` per track ``j`` (``empty`` for tracks without values), sorted
+    once instead of one median call per track (the residuals call this at every evaluation)."""
+    out = np.full(J, empty, np.float64)
+    if not len(x):
+        return out
+    order = np.lexsort((x, j))
+    xs, js = x[order], j[order]
+    tracks, first, count = np.unique(js, return_index=True, return_counts=True)
+    lo, hi = first + (count - 1) // 2, first + count // 2
+    out[tracks] = 0.5 * (xs[lo] + xs[hi])
+    return out
 
 
 def wide_start(prob) -> np.ndarray | None:
