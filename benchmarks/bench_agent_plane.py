@@ -168,7 +168,11 @@ def main() -> None:
         refused = {m: 0 for m in models}
         ratios = []
         for seed in range(args.first_camera, args.first_camera + args.cameras):
-            s = scene(kind, seed, detection=det, outliers=args.outliers)
+            try:
+                s = scene(kind, seed, detection=det, outliers=args.outliers)
+            except ValueError as e:     # the generator could not place a whole agent: no scene
+                print(f"  {kind} camera {seed}: no scene ({e}); not counted", flush=True)
+                continue
             if truth:
                 s = with_truth(s, truth, seed)
             n_tracks = len(np.unique(s.obs["track"]))
