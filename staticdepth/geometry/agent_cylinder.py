@@ -175,36 +175,48 @@ def observation_residual(r_v: np.ndarray, r_u: np.ndarray) -> np.ndarray:
     return np.maximum(r, np.where(np.isfinite(r_u), np.abs(r_u), 0.0))
 
 
-def solve_track_scales(K, obs: AgentObservations, n: np.ndarray, ratio: Ratio,
-                       s0: np.ndarray | None = None, iters: int = 6,
-                       huber_px: float = 3.0) -> np.ndarray:
-    """Per-track s_j (J,) with the normal fixed: Gauss-Newton on each track's head-row residuals,
-    the later half of the iterations Huber-reweighted (``huber_px``) against bad detections."""
+def median_track_scales(K, obs: AgentObservations, n: np.ndarray) -> np.ndarray:
+    """Per-track start s_j (J,) of a thin, untilted agent, h = fy s (n . r): each track's median
+    (0.3 where a track gives none)."""
     J = len(obs.ids)
-    nr = obs.rays @ n
-    if s0 is None:                              # thin, untilted start: h = fy s (n . r)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s_obs = obs.h / (K[1, 1] * nr)
-        s_obs = np.where(np.isfinite(s_obs) & (s_obs > 0), s_obs, np.nan)
-        s = np.full(J, 0.3)
-        for j in range(J):
-            vals = s_obs[obs.idx == j]
-            vals = vals[np.isfinite(vals)]
-            if len(vals):
-                s[j] = np.median(vals)
-    else:
-        s = s0.copy()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s_obs = obs.h / (K[1, 1] * (obs.rays @ n))
+    s_obs = np.where(np.isfinite(s_obs) & (s_obs > 0), s_obs, np.nan)
+    s = np.full(J, 0.3)
+    for j in range(J):
+        vals = s_obs[obs.idx == j]
+        vals = vals[np.isfinite(vals)]
+        if len(vals):
+            s[j] = np.median(vals)
+    return s
+
+
+def gauss_newton_track_scales(residual, idx: np.ndarray, s: np.ndarray, iters: int,
+                              huber_px: float) -> np.ndarray:
+    """Per-track s_j refined by Gauss-Newton on ``residual(s)`` (per observation of track
+    ``idx``; a forward-difference Jacobian per track), the later half of the iterations
+    Huber-reweighted (``huber_px``) against bad detections."""
+    J = len(s)
     for it in range(iters):
-        r0 = head_rows(K, n, obs.rays, s[obs.idx], ratio) - obs.top_v
+        r0 = residual(s)
         eps = 1e-4 * np.maximum(s, 1e-3)
-        r1 = head_rows(K, n, obs.rays, (s + eps)[obs.idx], ratio) - obs.top_v
-        jac = (r1 - r0) / eps[obs.idx]
+        jac = (residual(s + eps) - r0) / eps[idx]
         ok = np.isfinite(r0) & np.isfinite(jac)
         wt = np.ones_like(r0)
         if it >= iters // 2:
             wt = np.minimum(1.0, huber_px / np.maximum(np.abs(np.nan_to_num(r0)), 1e-12))
-        num = np.bincount(obs.idx[ok], (wt * r0 * jac)[ok], minlength=J)
-        den = np.bincount(obs.idx[ok], (wt * jac * jac)[ok], minlength=J)
-        step = np.where(den > 0, num / np.maximum(den, 1e-300), 0.0)
-        s = np.clip(s - step, 1e-4, 100.0)
+        num = np.bincount(idx[ok], (wt * r0 * jac)[ok], minlength=J)
+        den = np.bincount(idx[ok], (wt * jac * jac)[ok], minlength=J)
+        s = np.clip(s - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0), 1e-4, 100.0)
     return s
+
+
+def solve_track_scales(K, obs: AgentObservations, n: np.ndarray, ratio: Ratio,
+                       s0: np.ndarray | None = None, iters: int = 6,
+                       huber_px: float = 3.0) -> np.ndarray:
+    """Per-track s_j (J,) with the normal fixed: Gauss-Newton on each track's head-row residuals
+    (:func:`gauss_newton_track_scales`), from ``s0`` or the thin, untilted start."""
+    s = median_track_scales(K, obs, n) if s0 is None else s0.copy()
+    return gauss_newton_track_scales(
+        lambda sv: head_rows(K, n, obs.rays, sv[obs.idx], ratio) - obs.top_v,
+        obs.idx, s, iters, huber_px)

@@ -37,7 +37,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 
-from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
+from staticdepth.geometry.agent_cylinder import (_BIG, AgentObservations, gauss_newton_track_scales,
+                                                 median_track_scales)
 from staticdepth.geometry.agent_plane_sides import WIDTH_SD, anchored, width_tracks
 from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
                                               track_headings)
@@ -199,29 +200,10 @@ class _Problem:
                      huber_px: float = 3.0) -> np.ndarray:
         """Per-track s_j (J,) with the normal and extents fixed: Gauss-Newton per track, the later
         half Huber-reweighted."""
-        o, J = self.obs, self.J
-        nr = o.rays @ n
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s_obs = o.h / (self.K[1, 1] * nr)
-        s_obs = np.where(np.isfinite(s_obs) & (s_obs > 0), s_obs, np.nan)
-        s = np.full(J, 0.3)
-        for j in range(J):
-            vals = s_obs[o.idx == j]
-            vals = vals[np.isfinite(vals)]
-            if len(vals):
-                s[j] = np.median(vals)
-        for it in range(iters):
-            r0 = (self.top_rows(n, theta, s) - o.top_v) / self.sigma
-            eps = 1e-4 * np.maximum(s, 1e-3)
-            jac = ((self.top_rows(n, theta, s + eps) - o.top_v) / self.sigma - r0) / eps[o.idx]
-            ok = np.isfinite(r0) & np.isfinite(jac)
-            wt = np.ones_like(r0)
-            if it >= iters // 2:
-                wt = np.minimum(1.0, huber_px / np.maximum(np.abs(np.nan_to_num(r0)), 1e-12))
-            num = np.bincount(o.idx[ok], (wt * r0 * jac)[ok], minlength=J)
-            den = np.bincount(o.idx[ok], (wt * jac * jac)[ok], minlength=J)
-            s = np.clip(s - np.where(den > 0, num / np.maximum(den, 1e-300), 0.0), 1e-4, 100.0)
-        return s
+        o = self.obs
+        return gauss_newton_track_scales(
+            lambda sv: (self.top_rows(n, theta, sv) - o.top_v) / self.sigma, o.idx,
+            median_track_scales(self.K, o, n), iters, huber_px)
 
     def fit(self, conf, starts, theta0=None, loss="linear", max_nfev=200, free_shape=True):
         """Best of several (pitch, roll) starts in degrees: (pitch, roll (rad), theta, s, cost);
