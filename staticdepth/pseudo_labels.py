@@ -150,7 +150,7 @@ def plane_pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.
     inv = np.asarray(inv_depth, dtype=np.float32)
     q = np.asarray(plane_inv, dtype=np.float32)
     G = np.asarray(ground_mask, bool) & (np.asarray(instances) == 0)
-    G, fit = _network_space(inv, q, G, "plane")
+    G, fit = network_space(inv, q, G, "plane")
     if fit is None:         # the network's ground does not recede here: its own contact values
         return pseudo_label(inv, instances, agents, conf)
     s, t = fit
@@ -182,7 +182,7 @@ def aligned_pseudo_label(inv_depth: np.ndarray, aligned: np.ndarray, plane_inv: 
     if inv.shape != q.shape or A.shape != q.shape:
         raise InputError(f"prediction {inv.shape}, alignment {A.shape} and plane {q.shape} "
                          "differ in size")
-    _, fit = _network_space(inv, q, np.asarray(ground_mask, bool), "aligned")
+    _, fit = network_space(inv, q, np.asarray(ground_mask, bool), "aligned")
     if fit is None:
         return inv.copy(), np.zeros(inv.shape, bool)
     s, t = fit
@@ -209,23 +209,16 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
     teaches the network a ``1 / prediction`` right up to one scale. None when no map exists
     (fewer than 3 trusted pixels, or no positive slope). ``fit``: a given (s, t) instead (adapt:
     the ground's, when the trusted pixels give none)."""
-    from staticdepth.geometry.alignment import fit_inverse_affine
-
     inv = np.asarray(inv_depth, np.float32)
     A = np.asarray(aligned, np.float32)
     ok = np.isfinite(A) & (A > 0) & np.isfinite(inv)
     sel = ok & np.asarray(trusted, bool)
     n = np.count_nonzero(sel)
-    if fit is not None:
-        s, t = fit
-    elif n < 3:
-        return None
-    else:
-        step = max(1, n // max_points)
-        try:
-            s, t = fit_inverse_affine(inv[sel][::step], 1.0 / A[sel][::step])
-        except InputError:
+    if fit is None:
+        fit = _strided_fit(inv[sel], 1.0 / A[sel], max_points) if n >= 3 else None
+        if fit is None:
             return None
+    s, t = fit
     with np.errstate(divide="ignore", invalid="ignore"):
         label = np.float32(s) / A
         other = (inv - np.float32(t) if untrusted in ("base", "aligned")
@@ -254,20 +247,25 @@ def stable_depth(depths: np.ndarray, static: np.ndarray, max_spread: float
     return med.astype(np.float32), ok
 
 
-def _network_space(inv: np.ndarray, q: np.ndarray, ground: np.ndarray, what: str,
+def network_space(inv: np.ndarray, q: np.ndarray, ground: np.ndarray, what: str,
                    max_points: int = 20000):
     """The map from the plane's inverse depth ``q`` into the network's ``inv`` on the ground
     pixels below the horizon: (those pixels, (s, t) of ``inv ~ s q + t``, or None when the
     network's ground does not recede against the plane). Raises with fewer than 3 pixels."""
-    from staticdepth.geometry.alignment import fit_inverse_affine
-
     G = ground & (q > 0) & np.isfinite(inv)
-    n = np.count_nonzero(G)
-    if n < 3:
+    if np.count_nonzero(G) < 3:
         raise InputError("the ground mask holds fewer than 3 pixels below the agents' horizon: "
                          f"no {what} pseudo labels")
-    step = max(1, n // max_points)
+    return G, _strided_fit(inv[G], q[G], max_points)
+
+
+def _strided_fit(inv: np.ndarray, q: np.ndarray, max_points: int):
+    """(s, t) of the robust ``inv ~ s q + t`` over paired pixel values (at most ``max_points``
+    of them, evenly strided), or None when there is no positive slope."""
+    from staticdepth.geometry.alignment import fit_inverse_affine
+
+    step = max(1, len(inv) // max_points)
     try:
-        return G, fit_inverse_affine(inv[G][::step], q[G][::step])
+        return fit_inverse_affine(inv[::step], q[::step])
     except InputError:
-        return G, None
+        return None

@@ -15,7 +15,7 @@ from staticdepth.adaptation.common import Agents, Workspace
 from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.geometry.agent_plane import AgentPlane
 from staticdepth.progress import progress
-from staticdepth.pseudo_labels import (_network_space, aligned_pseudo_label, plane_pseudo_label,
+from staticdepth.pseudo_labels import (aligned_pseudo_label, network_space, plane_pseudo_label,
                                        pseudo_label, trusted_label)
 
 ROWS = np.dtype([("frame", np.int32), ("agent_pixels", np.int64)])
@@ -70,13 +70,12 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
                     dense[1] | (inst > 0))
                 label = trusted_label(inv, A, trusted, pl.untrusted)
                 if label is None:   # no map over them: the ground's, as aligned_pseudo_label
-                    _, fit = _network_space(inv, plane_inv, ground & (inst == 0), "aligned")
-                    label = None if fit is None else trusted_label(inv, A, trusted,
-                                                                   pl.untrusted, fit=fit)
-                if label is not None:
-                    return label, trusted & np.isfinite(label)
-                # neither (an untrained network): the paper's labels below, which carry its
-                # shift (no frame of the independent scenes i1-i4, h1, either network)
+                    _, fit = network_space(inv, plane_inv, ground & (inst == 0), "aligned")
+                    if fit is None:     # neither (an untrained network): the paper's labels,
+                        # which carry its shift (no frame of the independent scenes i1-i4, h1)
+                        return pseudo_label(inv, inst, agents.rows(i), pl)
+                    label = trusted_label(inv, A, trusted, pl.untrusted, fit=fit)
+                return label, trusted & np.isfinite(label)
             label, m = aligned_pseudo_label(inv, A, plane_inv, ground & (inst == 0))
             if not m.any():     # the network's ground does not recede: its own contact values
                 return pseudo_label(inv, inst, agents.rows(i), pl)
