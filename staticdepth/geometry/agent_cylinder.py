@@ -178,17 +178,24 @@ def observation_residual(r_v: np.ndarray, r_u: np.ndarray) -> np.ndarray:
 def median_track_scales(K, obs: AgentObservations, n: np.ndarray) -> np.ndarray:
     """Per-track start s_j (J,) of a thin, untilted agent, h = fy s (n . r): each track's median
     (0.3 where a track gives none)."""
-    J = len(obs.ids)
     with np.errstate(divide="ignore", invalid="ignore"):
         s_obs = obs.h / (K[1, 1] * (obs.rays @ n))
-    s_obs = np.where(np.isfinite(s_obs) & (s_obs > 0), s_obs, np.nan)
-    s = np.full(J, 0.3)
-    for j in range(J):
-        vals = s_obs[obs.idx == j]
-        vals = vals[np.isfinite(vals)]
-        if len(vals):
-            s[j] = np.median(vals)
-    return s
+    ok = np.isfinite(s_obs) & (s_obs > 0)
+    return track_medians(s_obs[ok], obs.idx[ok], len(obs.ids), 0.3)
+
+
+def track_medians(x: np.ndarray, j: np.ndarray, J: int, empty: float) -> np.ndarray:
+    """(J,) the median of ``x`` per track ``j`` (``empty`` for tracks without values), sorted
+    once instead of one median call per track (the residuals call this at every evaluation)."""
+    out = np.full(J, empty, np.float64)
+    if not len(x):
+        return out
+    order = np.lexsort((x, j))
+    xs, js = x[order], j[order]
+    tracks, first, count = np.unique(js, return_index=True, return_counts=True)
+    lo, hi = first + (count - 1) // 2, first + count // 2
+    out[tracks] = 0.5 * (xs[lo] + xs[hi])
+    return out
 
 
 def gauss_newton_track_scales(residual, idx: np.ndarray, s: np.ndarray, iters: int,

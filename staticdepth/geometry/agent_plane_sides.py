@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from staticdepth.geometry.agent_cylinder import _BIG
+from staticdepth.geometry.agent_cylinder import _BIG, track_medians
 from staticdepth.geometry.agent_shape import (WIDTH_AT, box_columns, disk_columns,
                                               foot_centres, ring_columns)
 from staticdepth.geometry.projection import rays_from_pixels
@@ -154,20 +154,6 @@ def _ring_start(prob, n, rays, sk, obs_w, j) -> np.ndarray:
         r = obs_w * z / (2.0 * prob.K[0, 0])
     ok = np.isfinite(r) & (r > 0)
     return np.clip(track_medians(r[ok], j[ok], prob.J, 0.02), 0.0, 0.2)
-
-
-def track_medians(x: np.ndarray, j: np.ndarray, J: int, empty: float) -> np.ndarray:
-    """(J,) the median of ``x`` per track ``j`` (``empty`` for tracks without values), sorted
-    once instead of one median call per track (the residuals call this at every evaluation)."""
-    out = np.full(J, empty, np.float64)
-    if not len(x):
-        return out
-    order = np.lexsort((x, j))
-    xs, js = x[order], j[order]
-    tracks, first, count = np.unique(js, return_index=True, return_counts=True)
-    lo, hi = first + (count - 1) // 2, first + count // 2
-    out[tracks] = 0.5 * (xs[lo] + xs[hi])
-    return out
 
 
 def wide_start(prob) -> np.ndarray | None:
