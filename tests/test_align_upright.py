@@ -196,10 +196,14 @@ def test_ground_the_network_did_not_recede_inside_the_walked_region_takes_the_pl
     assert _absrel(off, Z, far) > 0.15
     assert _absrel(on, Z, far) < 1e-3
     assert _absrel(on, Z, flat) < 0.5 * _absrel(off, Z, flat)
-    # the wall at 12 m stands on that ground: without the rule its run has no contact and
-    # keeps the ground mode (whose fit the flat band broke), with it the wall is re-anchored
-    assert _absrel(off, Z, wall) > 0.5
-    assert _absrel(on, Z, wall) < 0.02
+    # the wall at 12 m stands on the ground beyond the band: the ground mode, whose fit the flat
+    # band broke, clamps it flat, but it recedes in the network's own shape and takes the plane,
+    # so the wall is re-anchored with or without the rule (0.069; 0.02 before the recession was
+    # measured on the network's shape too: the wall's lowest row, whose recession reaches into
+    # the ground below it, now takes the plane, and the contact is one row higher)
+    g = align_depth(pred, K, n, 5.0, walked, mode="ground").depth
+    assert _absrel(on, Z, wall) < 0.08 and _absrel(off, Z, wall) < 0.08
+    assert _absrel(g, Z, wall) > 0.5
     assert _absrel(on, Z, ground & (Z < 7)) < 1e-3
     with pytest.raises(InputError, match="walked_ratio"):
         from staticdepth.adaptation.config import build_config

@@ -129,3 +129,20 @@ def test_torch_upright_plane_bound_matches_numpy(frame):
     out = UprightAlignment(K, 320, 160, n, 1.0, G, plane_bound=True, **kw)(
         torch.from_numpy(Zf)).numpy()
     assert _rel(out, ref).max() < 1e-5, _rel(out, ref).max()
+
+
+def test_torch_upright_second_pass_matches_numpy(frame):
+    """An aligned map aligned again (ft-align's case, tests/test_align_idempotent.py), with
+    adapt's defaults: the runs that walk on over their snapped lowest pixels to the contact they
+    stand on (keep_rel) are the same in the graph."""
+    from staticdepth.adaptation.align import upright_options
+    from staticdepth.adaptation.config import build_config
+
+    Z, K, n, G, reg = frame
+    kw = upright_options(build_config({}).align)
+    once = align_depth(Z, K, n, 1.0, G, mode="upright", **kw).depth
+    ref = align_depth(once, K, n, 1.0, G, mode="upright", **kw).depth
+    off = align_depth(once, K, n, 1.0, G, mode="upright", keep_rel=None, **kw).depth
+    assert np.mean(_rel(ref, off) > 1e-3) > 0.01           # the walk on decided something
+    out = UprightAlignment(K, 320, 160, n, 1.0, G, **kw)(torch.from_numpy(once)).numpy()
+    assert _rel(out, ref).max() < 1e-5, _rel(out, ref).max()

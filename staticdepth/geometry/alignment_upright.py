@@ -9,11 +9,16 @@ correction. The upright-world prior the method uses for agents extends to them:
    lines through the vertical vanishing point ``K n``) ``recede`` times as fast as the plane's
    (0.1-8x: a squashed far ground still recedes, a structure gets nearer or stays); a snapped pixel
    that does not recede, nor the pixels above it, is a structure the network put at the plane's
-   depth. Those unsnapped ground pixels take the plane's depth.
+   depth (it keeps its unsnapped depth unless re-anchored). Those unsnapped ground pixels take the
+   plane's depth. The recession is measured on the ``ground`` map and on the shape a traced run
+   keeps (``native``): ground where either recedes, so that a run re-anchored here is not taken
+   for ground when the result is aligned again.
 2. Every other pixel is traced down its vertical, row by row, while the aligned depth has no step
    (relative ``jump_rel``); the first ground pixel below is the structure's contact, moved down to
    the structure's foot where the foot fell within the snapping tolerance (the network nearer than
-   the plane there) and placed between rows where that run's depth meets the plane's.
+   the plane there) and placed between rows where that run's depth meets the plane's. A run that
+   already stands at the plane's depth there (within ``keep_rel``: an aligned map's structure,
+   whose lowest pixels snap) walks on to that contact and keeps its depth.
 3. With ``shape="network"`` every pixel of the run takes the network's own depth (brought to the
    aligned map's units by one global factor) times the run's ratio (plane depth at the contact) /
    (network depth there): the network's shape is kept inside, the scale is fixed at the base. With
@@ -42,6 +47,7 @@ from staticdepth.geometry.projection import ray_grid
 
 SHAPES = ("network", "vertical")
 RECEDE = (0.1, 8.0)     # ground: the network's depth grows up the vertical 0.1-8x as fast as the plane's
+KEEP_REL = 0.02         # a run standing within this of the plane's depth at its contact keeps it
 
 
 def down_step(K: np.ndarray, n: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -88,22 +94,14 @@ def contact_ratios(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndar
     return qc, idx
 
 
-def refine_contacts(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndarray,
-                    qc: np.ndarray, idx: np.ndarray, jump_rel: float, near_rel: float,
-                    max_walk: int) -> None:
-    """In place: move each contact down its vertical line over ground pixels that the network
-    sees nearer than the plane (by more than ``near_rel``) and continuous with it, at most
-    ``max_walk`` rows: the foot of a wall whose depth fell within the snapping tolerance. The
-    pixels walked over join the run; every pixel of the run takes the lower contact."""
+def _walk_down(A, ground, q, du, cv, cu, nearer: float, steps: int, jump_rel: float):
+    """Move each base pixel (cv, cu) down its vertical line over ground pixels with ``A q`` below
+    ``nearer`` (nearer than the plane) and continuous with it, at most ``steps`` rows. Returns the
+    new bases and, per step, the pixels walked over and the indices of the bases that walked."""
     h, w = A.shape
-    flat = np.arange(h * w).reshape(h, w)
-    C = np.unique(idx[idx >= 0])
-    if len(C) == 0:
-        return
-    cv, cu = np.divmod(C, w)
-    active = np.ones(len(C), bool)
+    active = np.ones(len(cv), bool)
     walked_pix, walked_c = [], []
-    for _ in range(max_walk):
+    for _ in range(steps):
         step = du[cv, cu]
         bv = cv + 1
         bu = np.rint(cu + np.nan_to_num(step)).astype(np.int64)
@@ -111,29 +109,66 @@ def refine_contacts(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.nda
         bv, bu = np.where(act, bv, 0), np.clip(bu, 0, w - 1)
         a, a_b, qb = A[cv, cu], A[bv, bu], q[bv, bu]
         with np.errstate(invalid="ignore", divide="ignore"):
-            act &= ground[bv, bu] & (qb > 0) & (a_b * qb < 1.0 - near_rel) \
+            act &= ground[bv, bu] & (qb > 0) & (a_b * qb < nearer) \
                 & (np.abs(a - a_b) <= jump_rel * np.minimum(a, a_b))
         if not act.any():
             break
         cv, cu = np.where(act, bv, cv), np.where(act, bu, cu)
-        walked_pix.append(flat[cv[act], cu[act]])
+        walked_pix.append(bv[act] * w + bu[act])
         walked_c.append(np.flatnonzero(act))
         active = act
-    base = flat[cv, cu]
-    # the contact: where the run's A q (1 on the plane, < 1 on a structure nearer than the plane)
-    # extrapolated from its two lowest pixels reaches 1, at most one row below the base pixel
-    bv = np.minimum(cv + 1, h - 1)
-    bu = np.clip(np.rint(cu + np.nan_to_num(du[cv, cu])), 0, w - 1).astype(np.int64)
+    return cv, cu, walked_pix, walked_c
+
+
+def _contact_q(A, q, du, cv, cu, S):
+    """The contact's plane inverse depth of runs based at (cv, cu): where the run's ``A q`` (1 on
+    the plane, < 1 on a structure nearer than the plane) extrapolated from its two lowest pixels
+    reaches 1, at most one row below the base (fraction ``x``), set so that the run scaled to
+    ``1 / qc`` at its base has ``S q`` reaching 1 at that same ``x`` (``S``: the shape the run
+    keeps): an aligned run, traced again, finds its contact where it was."""
+    w = A.shape[1]
     av = np.maximum(cv - 1, 0)
     au = np.clip(np.rint(cu - np.nan_to_num(du[av, cu])), 0, w - 1).astype(np.int64)
     r0, ra = A[cv, cu] * q[cv, cu], A[av, au] * q[av, au]
     with np.errstate(invalid="ignore", divide="ignore"):
         x = np.where((r0 - ra > 1e-6) & (av < cv), (1.0 - r0) / (r0 - ra), 0.5)
-    x = np.clip(np.nan_to_num(x, nan=0.5), 0.0, 1.0)
-    qb = np.where(q[bv, bu] > 0, q[bv, bu], q[cv, cu])
-    new_q = q[cv, cu] + x * (qb - q[cv, cu])
-    new_a = A[cv, cu] + x * (A[cv, cu] - A[av, au])
-    new_q = new_q * new_a / A[cv, cu]      # so that 1 / (qc A[base]) is the run's ratio
+        x = np.clip(np.nan_to_num(x, nan=0.5), 0.0, 1.0)
+        return q[cv, cu] * (1.0 + x) - x * q[av, au] * S[av, au] / S[cv, cu]
+
+
+def refine_contacts(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndarray,
+                    qc: np.ndarray, idx: np.ndarray, jump_rel: float, near_rel: float,
+                    max_walk: int, src: np.ndarray | None = None,
+                    keep_rel: float | None = None) -> None:
+    """In place: move each contact down its vertical line over ground pixels that the network
+    sees nearer than the plane (by more than ``near_rel``) and continuous with it, at most
+    ``max_walk`` rows: the foot of a wall whose depth fell within the snapping tolerance. With
+    ``keep_rel``, a run walks on (at most ``2 max_walk`` rows more) over ground nearer than the
+    plane by any amount when it then stands at the plane's depth at its contact within
+    ``keep_rel``: a structure already placed on its foot (an aligned map, whose lowest pixels
+    snap), kept there. The pixels walked over join the run; every pixel of the run takes the
+    lower contact, whose plane inverse depth is :func:`_contact_q`'s (``src``: the shape the
+    run keeps, default ``A``)."""
+    h, w = A.shape
+    S = A if src is None else src
+    C = np.unique(idx[idx >= 0])
+    if len(C) == 0:
+        return
+    cv, cu = np.divmod(C, w)
+    cv, cu, walked_pix, walked_c = _walk_down(A, ground, q, du, cv, cu, 1.0 - near_rel,
+                                              max_walk, jump_rel)
+    if keep_rel is not None:
+        lv, lu, lp, lc = _walk_down(A, ground, q, du, cv, cu, 1.0 - 1e-4, 2 * max_walk,
+                                    jump_rel)
+        with np.errstate(invalid="ignore"):
+            ok = (lv != cv) & (np.abs(_contact_q(A, q, du, lv, lu, S) * S[lv, lu] - 1.0)
+                               <= keep_rel)
+        cv, cu = np.where(ok, lv, cv), np.where(ok, lu, cu)
+        for pix, k in zip(lp, lc):
+            walked_pix.append(pix[ok[k]])
+            walked_c.append(k[ok[k]])
+    base = cv * w + cu
+    new_q = _contact_q(A, q, du, cv, cu, S)
     lut_i = np.full(h * w, -1, np.int64)
     lut_q = np.full(h * w, np.nan)
     lut_i[C], lut_q[C] = base, new_q
@@ -201,6 +236,22 @@ def fill_along_rows(ratio: np.ndarray, A: np.ndarray, todo: np.ndarray, jump_rel
             ratio[m, u] = ratio[m, prev]
 
 
+def _receding(M: np.ndarray, q: np.ndarray, du: np.ndarray, span: int, jump_rel: float,
+               recede: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) bool: ``flat`` (neither the pixel nor the pixels ``span`` rows above it recede:
+    a structure, if the plane's depth snapped it) and ``recedes`` (the depth of ``M`` grows up
+    the vertical ``recede`` times as fast as the plane's, measured from above at a step)."""
+    h, w = M.shape
+    k = recession(M, q, du, span, jump_rel)
+    vu = np.arange(h)[:, None] - span
+    uu = np.clip(np.rint(np.arange(w)[None, :] - span * np.nan_to_num(du)), 0, w - 1)
+    k_up = np.where(vu >= 0, k[np.maximum(vu, 0), uu.astype(np.int64)], np.nan)
+    k_any = np.where(np.isfinite(k), k, k_up)
+    with np.errstate(invalid="ignore"):
+        return ((k < recede[0]) & ~(k_up >= recede[0]),
+                (k_any >= recede[0]) & (k_any <= recede[1]))
+
+
 def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, ground: np.ndarray,
                   q: np.ndarray, *, jump_rel: float = 0.08, shape: str = "network",
                   max_ratio: float = 4.0, near_rel: float = 0.02,
@@ -209,6 +260,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   fill: bool = True, max_pull: float = np.inf, max_contact: float = np.inf,
                   recede_push: float = np.inf, walked: np.ndarray | None = None,
                   walked_ratio: float = np.inf, extra_ground: np.ndarray | None = None,
+                  keep_rel: float | None = KEEP_REL,
                   info: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
@@ -219,8 +271,10 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     plane and structures find their contacts on them (benchmarks/bench_align_regions.py feeds it
     the true ground to bound what a better ground cue could give); ``info``: a dict that receives
     the per-pixel categories ``ground``, ``planar`` (took the plane), ``traced`` (has a contact),
-    ``moved`` (re-anchored) and ``contact`` (flat index of each pixel's contact, -1: none).
-    Returns the new map and the (H, W) bool mask of re-anchored pixels."""
+    ``moved`` (re-anchored) and ``contact`` (flat index of each pixel's contact, -1: none);
+    ``keep_rel``: :func:`refine_contacts`' (None: off). Returns the new map and the (H, W) bool
+    mask of the pixels it set (re-anchored, planar, or snapped pixels found to be structures,
+    which keep ``A``)."""
     if shape not in SHAPES:
         raise InputError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
     if not (np.isfinite(jump_rel) and jump_rel > 0):
@@ -232,18 +286,27 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     n = np.asarray(n_g, dtype=np.float64)
     n = n / np.linalg.norm(n)
     du = down_step(K, n, w, h)
+    src = A if native is None else np.asarray(native, dtype=np.float64)
+    max_walk = max(2, h // 16)
+
+    def trace(g):
+        qc, idx = contact_ratios(A, g, q, du, jump_rel)
+        refine_contacts(A, g, q, du, qc, idx, jump_rel, near_rel, max_walk, src, keep_rel)
+        return qc, idx, idx >= 0
+
+    snapped = ground
     planar = np.zeros((h, w), bool)
     if recede is not None:
-        k = recession(A, q, du, span, jump_rel)
-        # snapped, but neither it nor the pixels above it recede: a structure on the plane's depth
-        vu = np.arange(h)[:, None] - span
-        uu = np.clip(np.rint(np.arange(w)[None, :] - span * np.nan_to_num(du)), 0, w - 1)
-        k_up = np.where(vu >= 0, k[np.maximum(vu, 0), uu.astype(np.int64)], np.nan)
+        # measured on the map the decisions are taken on and on the shape a traced run keeps:
+        # ground where either recedes, a structure on the plane's depth where neither does, so
+        # that a run this alignment re-anchored is not taken for ground when aligned again
+        flat, recedes = _receding(A, q, du, span, jump_rel, recede)
+        if native is not None:
+            f_src, r_src = _receding(src, q, du, span, jump_rel, recede)
+            flat &= f_src
+            recedes |= r_src
         with np.errstate(invalid="ignore"):
-            flat = (k < recede[0]) & ~(k_up >= recede[0])
-        k_any = np.where(np.isfinite(k), k, k_up)     # a step below: measured from above
-        with np.errstate(invalid="ignore"):
-            planar = (k_any >= recede[0]) & (k_any <= recede[1]) & ~ground
+            planar = recedes & ~ground
             # the plane at most recede_push x farther than the pixel's ground-mode depth
             planar &= q * (recede_push * A) >= 1.0
         if not_ground is not None:
@@ -255,9 +318,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
             extra &= ~not_ground
         planar |= extra
         ground = ground | extra
-    qc, idx = contact_ratios(A, ground, q, du, jump_rel)
-    refine_contacts(A, ground, q, du, qc, idx, jump_rel, near_rel, max(2, h // 16))
-    have = idx >= 0
+    qc, idx, have = trace(ground)
     if walked is not None and np.isfinite(walked_ratio):
         # inside the walked region, a pixel that would stand more than walked_ratio x its
         # contact's plane depth away is no structure there: ground the network did not recede
@@ -268,10 +329,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
         if wg.any():
             planar |= wg
             ground = ground | wg
-            qc, idx = contact_ratios(A, ground, q, du, jump_rel)
-            refine_contacts(A, ground, q, du, qc, idx, jump_rel, near_rel, max(2, h // 16))
-            have = idx >= 0
-    src = A if native is None else np.asarray(native, dtype=np.float64)
+            qc, idx, have = trace(ground)
     ratio = np.full((h, w), np.nan)
     if shape == "network":
         ratio[have] = (1.0 / qc[have]) / src.ravel()[idx[have]]
@@ -301,4 +359,5 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     out = np.where(moved, src * ratio, A)
     with np.errstate(divide="ignore"):
         out = np.where(planar & ~moved, 1.0 / q, out)
-    return out.astype(np.float32), moved | planar
+    # snapped pixels found to be structures keep their unsnapped depth where not re-anchored
+    return out.astype(np.float32), moved | planar | (snapped & ~ground)

@@ -31,7 +31,7 @@ import torch
 from torch import nn
 
 from staticdepth.geometry.alignment_torch import GroundAlignment, masked_median
-from staticdepth.geometry.alignment_upright import RECEDE, SHAPES, down_step, walk_up
+from staticdepth.geometry.alignment_upright import KEEP_REL, RECEDE, SHAPES, down_step, walk_up
 from staticdepth.geometry.projection import ray_grid
 
 
@@ -83,19 +83,14 @@ def _tables(K, n, w, h, q, span, jump_rel):
     uu = np.clip(np.rint(cols[None, :] - span * np.nan_to_num(du)), 0, w - 1).astype(np.int64)
     up = (np.maximum(vu, 0) * w + uu).ravel()
     up_ok = np.broadcast_to(vu >= 0, (h, w)).ravel()
-    # the pixel below and above a contact's final position (refine_contacts' interpolation)
+    # the pixel above a contact's final position (refine_contacts' interpolation)
     vv = np.repeat(np.arange(h), w)
     uf = np.tile(cols, h)
-    dn = du.ravel()
-    bv = np.minimum(vv + 1, h - 1)
-    bu = np.clip(np.rint(uf + np.nan_to_num(dn)), 0, w - 1).astype(np.int64)
     av = np.maximum(vv - 1, 0)
     au = np.clip(np.rint(uf - np.nan_to_num(du[av, uf])), 0, w - 1).astype(np.int64)
-    qb = qf[bv * w + bu]
-    qb = np.where(qb > 0, qb, qf)
     return dict(nxt=nxt, ok_n=ok_n, qv=qv, paths=paths, path_consts=consts,
                 rec_ok=okr.ravel(), g_pl=np.nan_to_num(g_pl, nan=1.0).ravel(), m=m, up=up,
-                up_ok=up_ok, above=av * w + au, has_above=vv > 0, q_below=qb)
+                up_ok=up_ok, above=av * w + au, has_above=vv > 0)
 
 
 class UprightAlignment(nn.Module):
@@ -108,7 +103,7 @@ class UprightAlignment(nn.Module):
                  fill: bool = True, max_pull: float = float("inf"),
                  contact_range: float | None = None, recede_push: float = float("inf"),
                  walked_ratio: float = float("inf"), plane_bound: bool = False,
-                 max_points: int = 20000):
+                 keep_rel: float | None = KEEP_REL, max_points: int = 20000):
         super().__init__()
         if shape not in SHAPES:
             raise ValueError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
@@ -140,7 +135,6 @@ class UprightAlignment(nn.Module):
         self.register_buffer("up_ok", torch.tensor(np.ascontiguousarray(t["up_ok"])))
         self.register_buffer("above", torch.tensor(t["above"], dtype=i64))
         self.register_buffer("has_above", torch.tensor(t["has_above"]))
-        self.register_buffer("q_below", torch.tensor(t["q_below"], dtype=f64))
         cols = np.tile(np.arange(width), height)
         ar = np.arange(N)
         self.register_buffer("left", torch.tensor(np.where(cols > 0, ar - 1, ar), dtype=i64))
@@ -165,6 +159,7 @@ class UprightAlignment(nn.Module):
                             and qg.size else float("inf"))
         self.max_walk = max(2, height // 16)
         self.walked_ratio = float(walked_ratio)
+        self.keep_rel = None if keep_rel is None else float(keep_rel)
         self.register_buffer("walked", torch.tensor(np.asarray(ground_mask, bool).ravel()))
         self.plane_bound = bool(plane_bound)
         with np.errstate(divide="ignore"):       # align_upright's bound: the plane's depth
@@ -192,6 +187,14 @@ class UprightAlignment(nn.Module):
         k = torch.where(ok, torch.log(a0 / a_prev) / self.g_pl, nan[: m * w])
         return torch.cat([k, nan[m * w:]])
 
+    def _receding(self, M: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """numpy's ``_receding``: (flat, recedes) of the map ``M``."""
+        lo, hi = self.recede
+        k = self._recession(M)
+        k_up = torch.where(self.up_ok, self._take(k, self.up), torch.full_like(k, float("nan")))
+        k_any = torch.where(torch.isnan(k), k_up, k)
+        return (k < lo) & ~(k_up >= lo), (k_any >= lo) & (k_any <= hi)
+
     def forward(self, Z: torch.Tensor) -> torch.Tensor:
         h, w, N = self.h, self.w, self.N
         g_out, snap, raw = self.ground.parts(Z)
@@ -201,27 +204,26 @@ class UprightAlignment(nn.Module):
         src = (z_flat * unit).to(torch.float64)
         A = raw_flat.to(torch.float64)
         q = self.q64
-        ground = snap.reshape(-1)
+        ground = snapped = snap.reshape(-1)
         nan = torch.full((N,), float("nan"), dtype=torch.float64)
         planar = torch.zeros_like(ground)
         if self.recede is not None:
-            lo, hi = self.recede
-            k = self._recession(A)
-            k_up = torch.where(self.up_ok, self._take(k, self.up), nan)
-            flat = (k < lo) & ~(k_up >= lo)
-            k_any = torch.where(torch.isnan(k), k_up, k)
-            planar = (k_any >= lo) & (k_any <= hi) & ~ground
+            # on the ground map and on the shape a run keeps (numpy: upright_depth)
+            flat, recedes = self._receding(A)
+            f_src, r_src = self._receding(src)
+            flat, recedes = flat & f_src, recedes | r_src
+            planar = recedes & ~ground
             if self.recede_push < float("inf"):
                 planar = planar & (q * (self.recede_push * A) >= 1.0)
             ground = (ground & ~flat) | planar
-        have, foot, qc = self._contacts(A, ground)
+        have, foot, qc = self._contacts(A, ground, src)
         if self.walked_ratio < float("inf"):
             # inside the walked region, a pixel more than walked_ratio x its contact's plane
             # depth away is ground the network did not recede (numpy: upright_depth)
             wg = self.walked & have & ~ground & (q > 0) & (q * self.walked_ratio < qc)
             planar = planar | wg
             ground = ground | wg
-            have, foot, qc = self._contacts(A, ground)
+            have, foot, qc = self._contacts(A, ground, src)
         # the run's ratio at every pixel with a contact
         if self.shape == "network":
             ratio = (1.0 / qc) / self._take(src, foot)
@@ -245,12 +247,13 @@ class UprightAlignment(nn.Module):
         out = torch.where(moved, src * ratio, A)
         out = torch.where(planar & ~moved, 1.0 / q, out)
         out = out.to(torch.float32).reshape(h, w)
-        out = torch.where((moved | planar).reshape(h, w), out, g_out)
+        # snapped pixels found to be structures keep their unsnapped depth (numpy: upright_depth)
+        out = torch.where((moved | planar | (snapped & ~ground)).reshape(h, w), out, g_out)
         if self.plane_bound:
             out = torch.minimum(out, self.bound)
         return out
 
-    def _contacts(self, A: torch.Tensor, ground: torch.Tensor):
+    def _contacts(self, A: torch.Tensor, ground: torch.Tensor, src: torch.Tensor):
         """contact_ratios + refine_contacts: (pixels with a contact, each one's walked contact
         pixel, the contact's plane inverse depth)."""
         h, N, q = self.h, self.N, self.q64
@@ -272,6 +275,22 @@ class UprightAlignment(nn.Module):
             nxt = self._take(step, pos)
             walks.append((contact & (nxt != pos), nxt))
             pos = nxt
+        new_q = self._contact_q(A, src)
+        if self.keep_rel is not None:
+            # walk on over ground nearer than the plane by any amount, kept where the run then
+            # stands at the plane's depth at its contact (numpy: refine_contacts)
+            edge = (self.walk_ok & below & (a_b * self.q_nxt < 1.0 - 1e-4)
+                    & self._cont(A, a_b))
+            step = torch.where(edge, self.nxt, self.ar)
+            pos_l, loose = pos, []
+            for _ in range(2 * self.max_walk):
+                nxt = self._take(step, pos_l)
+                loose.append((contact & (nxt != pos_l), nxt))
+                pos_l = nxt
+            ok = (pos_l != pos) & (torch.abs(self._take(new_q * src, pos_l) - 1.0)
+                                   <= self.keep_rel)
+            pos = torch.where(ok, pos_l, pos)
+            walks += [(act & ok, p) for act, p in loose]
         # a walked-over ground pixel takes the contact that reached it first: written last
         wk = -torch.ones(N + 1, dtype=torch.int64)
         dummy = torch.full_like(self.ar, N)
@@ -280,15 +299,19 @@ class UprightAlignment(nn.Module):
         cid = torch.where(wk[:N] >= 0, wk[:N], cid)
         have = cid >= 0
         foot = self._take(pos, torch.clamp(cid, min=0))      # each pixel's contact, walked
-        # the contact between rows (refine_contacts), as a field over every final position
+        return have, foot, self._take(new_q, foot)
+
+    def _contact_q(self, A: torch.Tensor, src: torch.Tensor) -> torch.Tensor:
+        """numpy's ``_contact_q`` as a field over every base position."""
+        q = self.q64
         a_up = self._take(A, self.above)
         r0, ra = A * q, a_up * self.q_above
         sel = (r0 - ra > 1e-6) & self.has_above
         x = torch.where(sel, (1.0 - r0) / torch.where(sel, r0 - ra, torch.ones_like(r0)),
                         torch.full_like(r0, 0.5))
         x = torch.clamp(torch.where(torch.isnan(x), torch.full_like(x, 0.5), x), 0.0, 1.0)
-        new_q = (q + x * (self.q_below - q)) * (A + x * (A - a_up)) / A
-        return have, foot, self._take(new_q, foot)
+        # src q extrapolated to x reaches 1 once the run is scaled to 1 / new_q at its base
+        return q * (1.0 + x) - x * self.q_above * self._take(src, self.above) / src
 
     def _fill(self, ratio: torch.Tensor, A: torch.Tensor, todo: torch.Tensor) -> torch.Tensor:
         """fill_along_rows: a pixel to fill links to its left (then right) neighbour; every
