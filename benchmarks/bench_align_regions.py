@@ -47,31 +47,45 @@ def categories(info: dict, walked: np.ndarray, agents: np.ndarray) -> np.ndarray
     return cat
 
 
-def analyse(seq: str, sets: dict, oracle: str | None) -> dict:
-    from staticdepth.adaptation.align import upright_options
+def run_settings(seq: str, sets: dict):
+    """adapt's settings of a kept run (``sets``: ``align.KEY=VALUE`` over them) and its plane's
+    normal."""
     from staticdepth.adaptation.config import build_config
-    from staticdepth.dataset.h5 import SequenceReader
-    from staticdepth.evaluate import region_masks
-    from staticdepth.geometry.alignment import (agents_at_contact, align_upright,
-                                                ground_mask_from_feet)
-    from staticdepth.metrics import apply_protocol, valid_mask
 
     with open(seq + ".adapt.json") as f:
         summary = json.load(f)
-    conf = build_config({**summary["config"], **sets})
-    n_g = np.asarray(summary["plane"]["normal"])
+    return build_config({**summary["config"], **sets}), np.asarray(summary["plane"]["normal"])
+
+
+def walked_region(r, conf):
+    """Of an open SequenceReader: the agents' rows per frame and the walked region (the feet's
+    hull over the adaptation split, eroded as adapt's align stage does)."""
+    from staticdepth.geometry.alignment import ground_mask_from_feet
+
+    rows = [r.agents(i) for i in range(len(r))]
+    feet = np.concatenate([np.stack([x["foot_u"], x["foot_v"]], 1) for x in
+                           (rows[i][rows[i]["foot_v"] >= 0] for i in r.split("adapt"))
+                           if len(x)])
+    erode = conf.align.erode_px
+    return rows, ground_mask_from_feet(feet, r.width, r.height,
+                                       r.width / 80.0 if erode is None else erode)
+
+
+def analyse(seq: str, sets: dict, oracle: str | None) -> dict:
+    from staticdepth.adaptation.align import upright_options
+    from staticdepth.dataset.h5 import SequenceReader
+    from staticdepth.evaluate import region_masks
+    from staticdepth.geometry.alignment import agents_at_contact, align_upright
+    from staticdepth.metrics import apply_protocol, valid_mask
+
+    conf, n_g = run_settings(seq, sets)
     acc: dict = {}
     contact_ratio = []
     total = np.zeros(3)
     with SequenceReader(seq) as r:
-        K, W, H = r.camera.K, r.width, r.height
+        K = r.camera.K
         mount = (r.meta.mounting.normal, r.meta.mounting.height_m)
-        rows = [r.agents(i) for i in range(len(r))]
-        feet = np.concatenate([np.stack([x["foot_u"], x["foot_v"]], 1) for x in
-                               (rows[i][rows[i]["foot_v"] >= 0] for i in r.split("adapt"))
-                               if len(x)])
-        erode = conf.align.erode_px
-        walked = ground_mask_from_feet(feet, W, H, W / 80.0 if erode is None else erode)
+        rows, walked = walked_region(r, conf)
         for i in r.split("eval"):
             Z, gt, inst = r.prediction("base", i), r.depth(i), r.instances(i)
             m = inst > 0
@@ -133,21 +147,35 @@ def report(name: str, res: dict, min_share: float) -> None:
               f"below 0.7 on {np.mean(cr < 0.7):.0%}")
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
+def kept_run_parser(doc: str, runs: str) -> argparse.ArgumentParser:
+    """The options of a bench over the runs ``bench_gains.py --keep`` left (also
+    bench_align_twice.py): ``--work``, ``--runs``, ``--set``."""
+    ap = argparse.ArgumentParser(description=doc,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--work", default="out/bench", help="bench_gains.py --keep's work folder")
-    ap.add_argument("--runs", default="i4-m0,i4-m1", help="sequences <scene>-m<model index>")
+    ap.add_argument("--runs", default=runs, help="sequences <scene>-m<model index>")
     ap.add_argument("--set", action="append", default=[], metavar="align.KEY=VALUE")
-    ap.add_argument("--oracle-ground", choices=("all", "beyond"))
-    ap.add_argument("--min-share", type=float, default=0.002,
-                    help="rows whose share of the frame's error is below this are left out")
-    args = ap.parse_args()
+    return ap
+
+
+def kept_runs(args):
+    """(run, sequence path, ``--set`` settings) of each of ``--runs``; exits at a run without an
+    adapt summary."""
     sets = dict(kv.split("=", 1) for kv in args.set)
     for run in args.runs.split(","):
         seq = os.path.join(args.work, f"{run}.h5")
         if not os.path.exists(seq + ".adapt.json"):
             sys.exit(f"{seq}: no adapt summary (run bench_gains.py --keep --work {args.work})")
+        yield run, seq, sets
+
+
+def main() -> None:
+    ap = kept_run_parser(__doc__, "i4-m0,i4-m1")
+    ap.add_argument("--oracle-ground", choices=("all", "beyond"))
+    ap.add_argument("--min-share", type=float, default=0.002,
+                    help="rows whose share of the frame's error is below this are left out")
+    args = ap.parse_args()
+    for run, seq, sets in kept_runs(args):
         report(run, analyse(seq, sets, args.oracle_ground), args.min_share)
 
 

@@ -14,15 +14,14 @@ Usage:
 """
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import sys
 
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-from benchmarks.bench_align_regions import categories  # noqa: E402
+from benchmarks.bench_align_regions import (categories, kept_run_parser, kept_runs,  # noqa: E402
+                                            run_settings, walked_region)
 
 REGIONS = ("all", "ground", "agents", "structures", "0-10m", "10-20m", "20-40m", "40-80m")
 
@@ -42,27 +41,17 @@ def _aligned(conf, K, n_g, walked, inst, rows, Z, info):
 
 
 def analyse(seq: str, sets: dict, every: int) -> dict:
-    from staticdepth.adaptation.config import build_config
     from staticdepth.dataset.h5 import SequenceReader
     from staticdepth.evaluate import region_masks
-    from staticdepth.geometry.alignment import ground_mask_from_feet
     from staticdepth.metrics import apply_protocol, valid_mask
 
-    with open(seq + ".adapt.json") as f:
-        summary = json.load(f)
-    conf = build_config({**summary["config"], **sets})
-    n_g = np.asarray(summary["plane"]["normal"])
+    conf, n_g = run_settings(seq, sets)
     acc: dict = {}
     moved_by: dict = {}
     with SequenceReader(seq) as r:
-        K, W, H = r.camera.K, r.width, r.height
+        K = r.camera.K
         mount = (r.meta.mounting.normal, r.meta.mounting.height_m)
-        rows = [r.agents(i) for i in range(len(r))]
-        feet = np.concatenate([np.stack([x["foot_u"], x["foot_v"]], 1) for x in
-                               (rows[i][rows[i]["foot_v"] >= 0] for i in r.split("adapt"))
-                               if len(x)])
-        erode = conf.align.erode_px
-        walked = ground_mask_from_feet(feet, W, H, W / 80.0 if erode is None else erode)
+        rows, walked = walked_region(r, conf)
         for i in r.split("eval")[::every]:
             Z, gt, inst = r.prediction("base", i), r.depth(i), r.instances(i)
             info1: dict = {}
@@ -111,18 +100,10 @@ def report(name: str, res: dict) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--work", default="out/bench", help="bench_gains.py --keep's work folder")
-    ap.add_argument("--runs", default="i3-m1", help="sequences <scene>-m<model index>")
-    ap.add_argument("--set", action="append", default=[], metavar="align.KEY=VALUE")
+    ap = kept_run_parser(__doc__, "i3-m1")
     ap.add_argument("--every", type=int, default=1, help="every k-th evaluation frame")
     args = ap.parse_args()
-    sets = dict(kv.split("=", 1) for kv in args.set)
-    for run in args.runs.split(","):
-        seq = os.path.join(args.work, f"{run}.h5")
-        if not os.path.exists(seq + ".adapt.json"):
-            sys.exit(f"{seq}: no adapt summary (run bench_gains.py --keep --work {args.work})")
+    for run, seq, sets in kept_runs(args):
         report(run, analyse(seq, sets, args.every))
 
 
