@@ -4,8 +4,10 @@ fitted together (the unknowns and residuals: :mod:`staticdepth.geometry.agent_pl
 Robust pipeline: RANSAC over tracks (3 tracks, extents at their prior means, every other track's
 ``s_j`` solved with the normal fixed, observations within ``inlier_px`` counted), a soft-L1 fit of
 all unknowns on the inlier tracks from the RANSAC and the affine (Eq. 1) normals (people seen as
-boxes: each also with disks as wide as the boxes, the lowest cost kept), the residual scales, then a fit on the inlier observations; its uncertainty
-(:mod:`staticdepth.geometry.agent_plane_boot`) refits from that solution.
+boxes: each also with disks as wide as the boxes, the lowest cost kept), the residual scales,
+then a fit on the inlier observations; the per-track heights last, with the people's disks in
+metres (:func:`_metric_scales`); its uncertainty (:mod:`staticdepth.geometry.agent_plane_boot`)
+refits from that solution.
 """
 from __future__ import annotations
 
