@@ -10,7 +10,8 @@ s_j of the same inlier tracks (``true s``: the height distributions' own floor, 
 that only sees short people whole); the median fitted / true s_j over the inlier tracks (a
 uniform bias: the normal's pitch error moves every s_j by about cot(ray angle) x the error); and
 the slope of log(fitted / true) on log true height (a bias that grows with stature: extents that
-do not match the body's scaling; a sitting outlier track kept as an inlier steepens it). Last, the medians and maxima of the absolute errors.
+do not match the body's scaling; a sitting outlier track kept as an inlier steepens it).
+Last, the medians and maxima of the absolute errors.
 """
 from __future__ import annotations
 
