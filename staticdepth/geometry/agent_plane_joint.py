@@ -4,8 +4,10 @@ fitted together (the unknowns and residuals: :mod:`staticdepth.geometry.agent_pl
 Robust pipeline: RANSAC over tracks (3 tracks, extents at their prior means, every other track's
 ``s_j`` solved with the normal fixed, observations within ``inlier_px`` counted), a soft-L1 fit of
 all unknowns on the inlier tracks from the RANSAC and the affine (Eq. 1) normals (people seen as
-boxes: each also with disks as wide as the boxes, the lowest cost kept), the residual scales, then a fit on the inlier observations; its uncertainty
-(:mod:`staticdepth.geometry.agent_plane_boot`) refits from that solution.
+boxes: each also with disks as wide as the boxes, the lowest cost kept), the residual scales,
+then a fit on the inlier observations; the per-track heights last, with the people's disks in
+metres (:func:`_metric_scales`); its uncertainty (:mod:`staticdepth.geometry.agent_plane_boot`)
+refits from that solution.
 """
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ import numpy as np
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
-from staticdepth.geometry.agent_plane_problem import _normal, _Problem
+from staticdepth.geometry.agent_plane_problem import MIN_SHAPE_TRACKS, _normal, _Problem
 from staticdepth.geometry.agent_plane_sides import wide_start, width_spread
 from staticdepth.geometry.agent_shape import GROUPS
 from staticdepth.geometry.agent_walker import relative_noise_split
@@ -114,6 +116,7 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     inl = _track_inliers(obs.idx, prob.errors(n, theta_all, s, 0.0) < thr, J)
     if inl.sum() == 0:
         inl = np.ones(J, bool)
+    s = _metric_scales(prob, n, theta_all, s, inl, thr)
     extents = {GROUPS[g].name: [float(v) for v in theta_all[sl.start - 2:sl.stop - 2]]
                for g, sl in prob.slices.items()}
     if prob.e1:
@@ -126,6 +129,22 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     k2, k1 = (prob.kappa, prob.kappa) if np.isscalar(prob.kappa) else prob.kappa
     boot["relative_noise"], boot["relative_noise_one_foot"] = float(k2), float(k1)
     return n, s, inl, res, extents, boot
+
+
+def _metric_scales(prob: _Problem, n, theta, s, inl, thr: float) -> np.ndarray:
+    """Per-track heights s_j with the people's disks fixed in metres at the fitted extents of a
+    typical (median inlier) person: a head's and a foot's width hardly grow with stature, so
+    radii scaled with each track's height make a child's too narrow and its height too large
+    (0.3 m cylinders: +6-9% per child, the adults' heights pulled down where children are many).
+    The normal and extents stay those of the scaled model's fit."""
+    people = inl & (prob.track_group == 0)
+    if people.sum() < MIN_SHAPE_TRACKS:
+        return s
+    prob.extent_s = float(np.median(s[people]))
+    try:
+        return prob.solve_scales(n, theta, huber_px=thr)
+    finally:
+        prob.extent_s = None
 
 
 def _people_residuals(prob: _Problem, n, theta, s, inl):

@@ -101,6 +101,7 @@ class _Problem:
                      >= MIN_ONE_FOOT)
         self.e1, self._with_one = 0.0, False      # the one-foot extent, fitted or not
         self.width_sd = WIDTH_SD      # the ring radii's spread (agent_plane_sides.width_spread)
+        self.extent_s = None          # disks' radii e * s (None) or e * extent_s (in metres)
 
     def params(self, theta: np.ndarray, e1: float | None = None) -> list:
         out = [np.asarray(GROUPS[g].prior) for g in range(len(GROUPS))]
@@ -137,7 +138,7 @@ class _Problem:
     def top(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray, e1=None, rays=None):
         rays = self.anchored(n, theta, s, e1)[0] if rays is None else rays
         return predict_top(self.K, n, rays, s[self.obs.idx], self.group,
-                           self.params(theta, e1), self.headings(n))
+                           self.params(theta, e1), self.headings(n), self.extent_s)
 
     def top_rows(self, n: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
         return self.top(n, theta, s)[1]

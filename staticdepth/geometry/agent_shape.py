@@ -237,12 +237,14 @@ def box_columns(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray,
 
 
 def top_points(n: np.ndarray, rays: np.ndarray, s: np.ndarray, group: np.ndarray,
-               params: list[np.ndarray], heading: np.ndarray | None) -> np.ndarray:
+               params: list[np.ndarray], heading: np.ndarray | None,
+               extent_s: float | None = None) -> np.ndarray:
     """Highest silhouette points (N, 3) over d for agents whose lowest point is on ``rays``.
 
     n: unit normal; s: (N,) height over d; group: (N,) index into :data:`GROUPS`; params: one
-    parameter vector per group; heading: (N, 3) unit headings (needed for box groups). NaN rows
-    where a ray does not meet the ground."""
+    parameter vector per group; heading: (N, 3) unit headings (needed for box groups);
+    ``extent_s``: the disks' radii ``e * extent_s`` (fixed in metres: a typical agent's s) instead
+    of ``e * s``. NaN rows where a ray does not meet the ground."""
     nr = rays @ n
     with np.errstate(divide="ignore", invalid="ignore"):
         F = rays / nr[:, None]
@@ -255,11 +257,12 @@ def top_points(n: np.ndarray, rays: np.ndarray, s: np.ndarray, group: np.ndarray
             continue
         p = params[g]
         if grp.outline == "disk":
+            se = s[m] if extent_s is None else np.full(int(m.sum()), extent_s)
             A = F[m].copy()
             if np.any(np.asarray(p[0]) > 0):
                 for _ in range(3):
-                    A = A + (F[m] - _rim(A, basis, p[0] * s[m], lowest=True))
-            T[m] = _rim(A - s[m, None] * n, basis, p[1] * s[m], lowest=False)
+                    A = A + (F[m] - _rim(A, basis, p[0] * se, lowest=True))
+            T[m] = _rim(A - s[m, None] * n, basis, p[1] * se, lowest=False)
         else:
             T[m] = _box_top(n, F[m], s[m], p[0], p[1], heading[m])
     return T
@@ -267,10 +270,11 @@ def top_points(n: np.ndarray, rays: np.ndarray, s: np.ndarray, group: np.ndarray
 
 def predict_top(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray,
                 group: np.ndarray, params: list[np.ndarray],
-                heading: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                heading: np.ndarray | None = None, extent_s: float | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Predicted top points (u (N,), v (N,)) in pixels (NaN where impossible); see
     :func:`top_points`."""
-    T = top_points(n, rays, s, group, params, heading)
+    T = top_points(n, rays, s, group, params, heading, extent_s)
     z = T[:, 2]
     bad = ~(z > 1e-9)
     with np.errstate(divide="ignore", invalid="ignore"):
