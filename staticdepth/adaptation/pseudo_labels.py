@@ -3,7 +3,7 @@
 With ``pseudo_labels.dense_mode`` the aligned labels take that mode's depth on the static pixels
 it keeps stable over the split (:func:`staticdepth.pseudo_labels.stable_depth`); with
 ``pseudo_labels.untrusted`` the static pixels it does not keep stable (measured with
-``dense_mode``, else ``align.mode``) take the base network's value or leave the loss.
+``dense_mode``, else ``align.mode``) take the base network's depth or leave the loss.
 Written to ``<SEQ>.h5.adapt/labels.h5`` (one (H, W) float32 label per frame of the adaptation
 split, with the number of relabelled agent pixels per frame in its ``rows``).
 """
