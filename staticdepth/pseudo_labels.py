@@ -18,7 +18,7 @@ together, so the fine-tuned network's agents improve against the truth on every 
 with both test networks (plane labels, agents only, leave i2's agents worse: the image they sit in
 keeps the network's error; README, fine-tuning figures). With ``untrusted`` (default ``base``)
 adapt keeps the aligned label only on the agents and the static pixels whose alignment repeats
-over the split, shift-free (:func:`trusted_label`); the rest take the base's own depth.
+over the split, shift-free (:func:`trusted_label`); the rest take the base's own shape.
 ``untrusted="aligned"`` labels every pixel with the alignment, shift-free: with the U-Net that
 fails on the view ft-align 0.139 / 0.069 / 0.146 / 0.255 -> 0.118 / 0.070 / 0.136 / 0.230 on
 i1-i4 (chosen on i1, i3) but 0.127 -> 0.132 on a held-out scene, and its fine-tuned agents
@@ -36,7 +36,7 @@ from staticdepth.errors import InputError
 
 CONTACTS = ("lowest", "bottom_rows")
 LABEL_SOURCES = ("prediction", "plane", "aligned")
-UNTRUSTED = ("label", "base", "ignore", "aligned")
+UNTRUSTED = ("label", "base", "depth", "ignore", "aligned")
 
 
 @dataclass(frozen=True)
@@ -60,8 +60,9 @@ class PseudoLabelConfig:
     untrusted: str = "base"            # "aligned": the static pixels whose label is not stable
     #                                    over the split (dense_spread, measured with dense_mode or
     #                                    else align.mode): "label" keeps it, "base" takes the base
-    #                                    network's own depth at the labels' scale (c x its inverse
-    #                                    depth), "ignore" leaves them out of the loss; agents and
+    #                                    network's own value less its shift (its shape is kept
+    #                                    there), "depth" the base's depth at the labels' scale
+    #                                    (c x inv), "ignore" leaves them out of the loss; agents and
     #                                    stable pixels take s / aligned depth (shift-free);
     #                                    "aligned": no stability test, every pixel takes
     #                                    s / aligned (fitted over all of them), shift-free
@@ -201,14 +202,13 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
     whose alignment repeats over the split), as shift-free inverse depth in the network's units.
 
     The network is fitted over every trusted pixel (robust ``inv ~ s / aligned + t``, not the
-    ground alone); trusted pixels take ``s / aligned``, the others the base's own depth
-    ``1 / inv`` at the trusted labels' scale, ``c inv`` (``untrusted="base"``: what the base gets
-    right there is kept, a regulariser toward it; ``"aligned"`` too, for the pixels without an
-    alignment, as adapt trusts every pixel then) or NaN (``"ignore"``: out of the loss). The
-    former ``inv - t`` (the base less its shift) changed the base's depth where it was not
-    trusted - most at far pixels, where ``inv`` is near ``t`` - and was worse than the base there
-    (U-Net i1 untrusted pixels 0.404 against 0.317): with ``c inv`` the fine-tuned network's
-    regions worse than base by more than 3% went 12 -> 8 of 64 on i1-i4 (README, issue 19). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
+    ground alone); trusted pixels take ``s / aligned``, the others the network's own value less
+    its shift, ``inv - t`` (``untrusted="base"``: its shape is kept there, relative to the
+    labelled pixels; NaN where that is not positive, beyond its horizon; ``"aligned"`` too, for
+    the pixels without an alignment, as adapt trusts every pixel then) or NaN (``"ignore"``: out
+    of the loss), or the base's own depth ``1 / inv`` at the trusted labels' scale, ``c inv``
+    (``"depth"``: the base less its shift changes the base's depth most at far pixels, where
+    ``inv`` is near ``t``; not the default: README, issue 19 seventh round). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
     teaches the network a ``1 / prediction`` right up to one scale. None when no map exists
     (fewer than 3 trusted pixels, or no positive slope). ``fit``: a given (s, t) instead (adapt:
     the ground's, when the trusted pixels give none)."""
@@ -224,15 +224,19 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
     s, t = fit
     with np.errstate(divide="ignore", invalid="ignore"):
         label = np.float32(s) / A
-        other = (np.float32(_depth_scale(inv, label, sel, max_points)) * inv
-                 if untrusted in ("base", "aligned") else np.full(inv.shape, np.nan))
+        if untrusted == "depth":     # the base's own depth 1 / inv, at the labels' scale
+            other = np.float32(_depth_scale(inv, label, sel, max_points)) * inv
+        else:
+            other = (inv - np.float32(t) if untrusted in ("base", "aligned")
+                     else np.full(inv.shape, np.nan))
     other = np.where(other > 0, other, np.nan)
     return np.where(sel, label, other).astype(np.float32)
 
 
 def _depth_scale(inv: np.ndarray, label: np.ndarray, sel: np.ndarray, max_points: int) -> float:
     """The one scale c that puts the base's depth ``1 / inv`` at the trusted labels' scale: the
-    median of ``label / inv`` over the trusted pixels (1 when none are usable)."""
+    median of ``label / inv`` over the trusted pixels (1 when none are usable: then every label
+    is ``inv``, and the scale-only loss takes any scale)."""
     ok = sel & (inv > 0) & np.isfinite(label)
     r = (label[ok] / inv[ok])[::max(1, np.count_nonzero(ok) // max_points)]
     r = r[np.isfinite(r) & (r > 0)]

@@ -145,7 +145,8 @@ def test_stable_depth_keeps_what_the_alignment_repeats():
 def test_trusted_label_keeps_the_base_or_drops_untrusted_pixels():
     """Trusted pixels: the network is 2 / A + 0.5 there except one outlier -> the robust map
     recovers (2, 0.5) and labels every trusted pixel 2 / A (the outlier too: shift-free);
-    untrusted pixels take NaN with ``ignore``."""
+    untrusted pixels take the network's value less its shift 0.5 (NaN where that is <= 0) or
+    NaN."""
     from staticdepth.pseudo_labels import trusted_label
 
     rng = np.random.default_rng(0)
@@ -157,6 +158,10 @@ def test_trusted_label_keeps_the_base_or_drops_untrusted_pixels():
     inv[~trusted] = rng.uniform(0.1, 1.0, np.count_nonzero(~trusted))
     got = trusted_label(inv, A, trusted, "base")
     np.testing.assert_allclose(got[trusted], 2.0 / A[trusted], rtol=1e-5)
+    above = ~trusted & (inv > 0.5)
+    assert 0 < np.count_nonzero(above) < np.count_nonzero(~trusted)
+    np.testing.assert_allclose(got[above], inv[above] - 0.5, atol=1e-5)
+    assert np.isnan(got[~trusted & ~above]).all()
     dropped = trusted_label(inv, A, trusted, "ignore")
     assert np.isnan(dropped[~trusted]).all()
     np.testing.assert_array_equal(dropped[trusted], got[trusted])
@@ -167,7 +172,7 @@ def test_trusted_label_keeps_the_base_or_drops_untrusted_pixels():
 
 
 def test_untrusted_pixels_keep_the_base_depth():
-    """``untrusted="base"``: untrusted pixels keep the base's depth ``1 / inv`` up to one scale
+    """``untrusted="depth"``: untrusted pixels keep the base's depth ``1 / inv`` up to one scale
     a frame, the scale of the trusted labels. A network whose inverse depth is ``2 / A + 0.5``
     on the trusted pixels: the labels there are ``2 / A``; an untrusted pixel the network puts at
     inverse depth 0.6 (depth 1 / 0.6) keeps that depth relative to the others (``inv - t`` would
@@ -180,7 +185,7 @@ def test_untrusted_pixels_keep_the_base_depth():
     trusted = np.ones(A.shape, bool)
     trusted[3:, 5:] = False
     inv[~trusted] = rng.uniform(0.55, 1.0, np.count_nonzero(~trusted))
-    got = trusted_label(inv, A, trusted, "base")
+    got = trusted_label(inv, A, trusted, "depth")
     np.testing.assert_allclose(got[trusted], 2.0 / A[trusted], rtol=1e-5)
     c = np.median((2.0 / A[trusted]) / inv[trusted])
     np.testing.assert_allclose(got[~trusted], c * inv[~trusted], rtol=1e-5)

@@ -3,7 +3,7 @@
 With ``pseudo_labels.dense_mode`` the aligned labels take that mode's depth on the static pixels
 it keeps stable over the split (:func:`staticdepth.pseudo_labels.stable_depth`); with
 ``pseudo_labels.untrusted`` the static pixels it does not keep stable (measured with
-``dense_mode``, else ``align.mode``) take the base network's depth or leave the loss.
+``dense_mode``, else ``align.mode``) take the base network's value or leave the loss.
 Written to ``<SEQ>.h5.adapt/labels.h5`` (one (H, W) float32 label per frame of the adaptation
 split, with the number of relabelled agent pixels per frame in its ``rows``).
 """
@@ -61,7 +61,7 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
             inst = agents.instances(i)
             A = aligned_frame(conf, ws.K, plane.normal, ground, inst, agents.rows(i),
                               depth_from_inverse(inv))
-            if (pl.dense_mode or pl.untrusted in ("base", "ignore")) and not dense:
+            if (pl.dense_mode or pl.untrusted in ("base", "depth", "ignore")) and not dense:
                 dense.extend(_dense(conf, ws, agents, plane, ground))
             if pl.dense_mode:           # stable pixels of the dense mode, off the frame's agents
                 A = np.where(dense[1] & (inst == 0), dense[0], A)
