@@ -36,7 +36,7 @@ from staticdepth.errors import InputError
 
 CONTACTS = ("lowest", "bottom_rows")
 LABEL_SOURCES = ("prediction", "plane", "aligned")
-UNTRUSTED = ("label", "base", "ignore", "aligned")
+UNTRUSTED = ("label", "base", "depth", "ignore", "aligned")
 
 
 @dataclass(frozen=True)
@@ -61,7 +61,8 @@ class PseudoLabelConfig:
     #                                    over the split (dense_spread, measured with dense_mode or
     #                                    else align.mode): "label" keeps it, "base" takes the base
     #                                    network's own value less its shift (its shape is kept
-    #                                    there), "ignore" leaves them out of the loss; agents and
+    #                                    there), "depth" the base's depth at the labels' scale
+    #                                    (c x inv), "ignore" leaves them out of the loss; agents and
     #                                    stable pixels take s / aligned depth (shift-free);
     #                                    "aligned": no stability test, every pixel takes
     #                                    s / aligned (fitted over all of them), shift-free
@@ -205,7 +206,9 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
     its shift, ``inv - t`` (``untrusted="base"``: its shape is kept there, relative to the
     labelled pixels; NaN where that is not positive, beyond its horizon; ``"aligned"`` too, for
     the pixels without an alignment, as adapt trusts every pixel then) or NaN (``"ignore"``: out
-    of the loss). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
+    of the loss), or the base's own depth ``1 / inv`` at the trusted labels' scale, ``c inv``
+    (``"depth"``: the base less its shift changes the base's depth most at far pixels, where
+    ``inv`` is near ``t``; not the default: README, issue 19 seventh round). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
     teaches the network a ``1 / prediction`` right up to one scale. None when no map exists
     (fewer than 3 trusted pixels, or no positive slope). ``fit``: a given (s, t) instead (adapt:
     the ground's, when the trusted pixels give none)."""
@@ -221,10 +224,23 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
     s, t = fit
     with np.errstate(divide="ignore", invalid="ignore"):
         label = np.float32(s) / A
-        other = (inv - np.float32(t) if untrusted in ("base", "aligned")
-                 else np.full(inv.shape, np.nan))
+        if untrusted == "depth":     # the base's own depth 1 / inv, at the labels' scale
+            other = np.float32(_depth_scale(inv, label, sel, max_points)) * inv
+        else:
+            other = (inv - np.float32(t) if untrusted in ("base", "aligned")
+                     else np.full(inv.shape, np.nan))
     other = np.where(other > 0, other, np.nan)
     return np.where(sel, label, other).astype(np.float32)
+
+
+def _depth_scale(inv: np.ndarray, label: np.ndarray, sel: np.ndarray, max_points: int) -> float:
+    """The one scale c that puts the base's depth ``1 / inv`` at the trusted labels' scale: the
+    median of ``label / inv`` over the trusted pixels (1 when none are usable: then every label
+    is ``inv``, and the scale-only loss takes any scale)."""
+    ok = sel & (inv > 0) & np.isfinite(label)
+    r = (label[ok] / inv[ok])[::max(1, np.count_nonzero(ok) // max_points)]
+    r = r[np.isfinite(r) & (r > 0)]
+    return float(np.median(r)) if len(r) else 1.0
 
 
 def stable_depth(depths: np.ndarray, static: np.ndarray, max_spread: float

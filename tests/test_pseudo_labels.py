@@ -169,3 +169,25 @@ def test_trusted_label_keeps_the_base_or_drops_untrusted_pixels():
     assert trusted_label(-inv, A, trusted, "base") is None        # no positive slope
     with pytest.raises(InputError, match="untrusted must be one of"):
         PseudoLabelConfig(untrusted="drop")
+
+
+def test_untrusted_pixels_keep_the_base_depth():
+    """``untrusted="depth"``: untrusted pixels keep the base's depth ``1 / inv`` up to one scale
+    a frame, the scale of the trusted labels. A network whose inverse depth is ``2 / A + 0.5``
+    on the trusted pixels: the labels there are ``2 / A``; an untrusted pixel the network puts at
+    inverse depth 0.6 (depth 1 / 0.6) keeps that depth relative to the others (``inv - t`` would
+    make it 1 / 0.1, six times farther), at the scale c = median(2 / A / inv) over the trusted."""
+    from staticdepth.pseudo_labels import trusted_label
+
+    rng = np.random.default_rng(1)
+    A = rng.uniform(2.0, 40.0, (6, 8)).astype(np.float32)
+    inv = (2.0 / A + 0.5).astype(np.float32)
+    trusted = np.ones(A.shape, bool)
+    trusted[3:, 5:] = False
+    inv[~trusted] = rng.uniform(0.55, 1.0, np.count_nonzero(~trusted))
+    got = trusted_label(inv, A, trusted, "depth")
+    np.testing.assert_allclose(got[trusted], 2.0 / A[trusted], rtol=1e-5)
+    c = np.median((2.0 / A[trusted]) / inv[trusted])
+    np.testing.assert_allclose(got[~trusted], c * inv[~trusted], rtol=1e-5)
+    ratio = got[~trusted] / inv[~trusted]           # the base's depth ratios are kept
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-5)

@@ -61,7 +61,7 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
             inst = agents.instances(i)
             A = aligned_frame(conf, ws.K, plane.normal, ground, inst, agents.rows(i),
                               depth_from_inverse(inv))
-            if (pl.dense_mode or pl.untrusted in ("base", "ignore")) and not dense:
+            if (pl.dense_mode or pl.untrusted in ("base", "depth", "ignore")) and not dense:
                 dense.extend(_dense(conf, ws, agents, plane, ground))
             if pl.dense_mode:           # stable pixels of the dense mode, off the frame's agents
                 A = np.where(dense[1] & (inst == 0), dense[0], A)
