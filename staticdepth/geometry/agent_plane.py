@@ -151,8 +151,10 @@ class AgentPlane:
     ``normal`` (3,) unit, camera frame, pointing to the ground; ``horizon`` (a, b, c) with
     ``a u + b v + c = 0`` (positive on the ground side); ``d_over_agent_height`` = d / H of a
     typical agent (1 / median s_j over the inlier tracks); ``track_ids`` (J,), ``track_scale``
-    (J,) = s_j = H_j / d; ``inliers`` (J,) bool; ``normal_std_deg`` and ``d_over_h_std`` from the
-    bootstrap (NaN when not run); ``camera_height_m`` when a height prior or a height was given.
+    (J,) = s_j = H_j / d; ``inliers`` (J,) bool; ``normal_std_deg`` (the gate's; joint: the
+    bootstrap, class misfit and Laplace std in quadrature, their parts in ``normal_std_parts``)
+    and ``d_over_h_std`` (NaN when the bootstrap was not run); ``camera_height_m`` when a height
+    prior or a height was given.
     """
 
     normal: np.ndarray
