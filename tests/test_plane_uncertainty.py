@@ -74,3 +74,16 @@ def test_gate_refuses_a_far_camera_the_bootstrap_alone_accepted():
                                         s.height_m)
     assert crb_priors <= crb + 1e-9 and 0.5 < crb < q["laplace_data_std_deg"] * 1.5
     assert tracks_for(crb, 24) > 24
+
+
+def test_the_plane_file_carries_both_uncertainties():
+    from staticdepth.geometry.agent_plane import AgentPlane
+
+    s = scene("tapered", 5, n_tracks=8)
+    p = fit_agent_plane(s.K, s.obs, AgentPlaneConfig(bootstrap=3, column_weight=1.0))
+    q = p.normal_std_parts
+    assert {"bootstrap_std_deg", "laplace_std_deg", "laplace_data_std_deg"} <= set(q)
+    assert p.normal_std_deg == np.sqrt(q["bootstrap_std_deg"] ** 2 + q["class_misfit_deg"] ** 2
+                                       + q["laplace_std_deg"] ** 2)
+    back = AgentPlane.from_dict(p.to_dict())
+    assert back.normal_std_parts == q and back.normal_std_deg == p.normal_std_deg
