@@ -16,7 +16,11 @@ height distributions, maximum likelihood), of the anchor depth given the true ca
 seconds per fit; a fit that refuses (InputError,
 e.g. a near-nadir camera) is printed and counted, not in the statistics. ``--bootstrap N``: the
 joint model's bootstrap too, and the ratio of the true normal error to its reported uncertainty
-(median / max; <= 1 where the uncertainty covers the error). ``--truth foot``, ``top`` or
+(median / max; <= 1 where the uncertainty covers the error) and how many cameras over 1 degree
+the gate accepts and under 0.5 it refuses. ``--verbose``: per camera also the joint fit's
+Laplace std (priors in / data only) and the Cramer-Rao bound at the truth (data only / priors
+in; agent_plane_laplace), the chance an unbiased fit with that RMS is over 1 degree and the tracks
+that would make it 5%. ``--truth foot``, ``top`` or
 ``foot,top``: each observation's foot (top) point replaced by the projection of the agent's true
 axis foot (axis top, the foot plus its height along the up direction) with 1 px noise of its own
 (``feet`` 2: the axis is both feet's mean): which observed quantity carries a camera's error.
