@@ -16,7 +16,11 @@ height distributions, maximum likelihood), of the anchor depth given the true ca
 seconds per fit; a fit that refuses (InputError,
 e.g. a near-nadir camera) is printed and counted, not in the statistics. ``--bootstrap N``: the
 joint model's bootstrap too, and the ratio of the true normal error to its reported uncertainty
-(median / max; <= 1 where the uncertainty covers the error). ``--truth foot``, ``top`` or
+(median / max; <= 1 where the uncertainty covers the error) and how many cameras over 1 degree
+the gate accepts and under 0.5 it refuses. ``--verbose``: per camera also the joint fit's
+Laplace std (priors in / data only) and the Cramer-Rao bound at the truth (data only / priors
+in; agent_plane_laplace), the chance an unbiased fit with that RMS is over 1 degree and the tracks
+that would make it 5%. ``--truth foot``, ``top`` or
 ``foot,top``: each observation's foot (top) point replaced by the projection of the agent's true
 axis foot (axis top, the foot plus its height along the up direction) with 1 px noise of its own
 (``feet`` 2: the axis is both feet's mean): which observed quantity carries a camera's error.
@@ -46,7 +50,8 @@ from staticdepth import tracking  # noqa: E402
 from staticdepth.errors import InputError  # noqa: E402
 from staticdepth.geometry.agent_plane import (AgentPlaneConfig, camera_height_from_prior,  # noqa: E402
                                               fit_agent_plane)
-from staticdepth.geometry.agent_plane_gate import camera_height_from_agents  # noqa: E402
+from staticdepth.geometry.agent_plane_gate import camera_height_from_agents, plane_gate  # noqa: E402
+from staticdepth.geometry.agent_plane_laplace import cramer_rao_of_fit, tracks_for  # noqa: E402
 from staticdepth.geometry.plane import angle_between_deg  # noqa: E402
 from staticdepth.geometry.scale import anchor_depth, anchor_pixel  # noqa: E402
 
@@ -95,6 +100,18 @@ def camera_height(plane, model: str, vehicles: bool) -> float:
         return float("nan")
 
 
+def uncertainty_cell(s, p, conf, n_tracks: int) -> str:
+    """The joint fit's Laplace std (priors in / data only) and the Cramer-Rao bound at the truth
+    (data only / priors in; agent_plane_laplace), the chance that an unbiased fit with the bound's
+    RMS is over 1 degree, and the tracks (same frames each) that would make it 5%."""
+    q = p.normal_std_parts
+    crb, crb_p = cramer_rao_of_fit(s.K, s.obs, p, conf, s.normal, s.agent_heights, s.height_m)
+    return (f", Laplace {q.get('laplace_std_deg', np.nan):.2f} / "
+            f"{q.get('laplace_data_std_deg', np.nan):.2f}, CRB {crb:.2f} / {crb_p:.2f} "
+            f"(P(>1 deg) {np.exp(-(1 / crb) ** 2):.0%}; 1 deg at 95%: "
+            f"{tracks_for(crb, n_tracks)} tracks)")
+
+
 def scene_table(names: list[str], frames: int, min_height_px: float, bootstrap: int) -> None:
     """Plane error per class set on the independent rendered scenes (see the module doc)."""
     from indep_scenes import SCENES, Scene
@@ -123,8 +140,13 @@ def scene_table(names: list[str], frames: int, min_height_px: float, bootstrap: 
             c = np.asarray(p.extra["classes"])
             per = ", ".join(f"class {k}: {np.count_nonzero(p.inliers & (c == k))}/"
                             f"{np.count_nonzero(c == k)}" for k in np.unique(c))
+            q = p.normal_std_parts
             print(f"{spec.name:3} {name:8} error {err:5.2f}  std {p.normal_std_deg:5.2f}  "
-                  f"ratio {err / p.normal_std_deg:5.2f}  tracks {per}", flush=True)
+                  f"ratio {err / p.normal_std_deg:5.2f}  tracks {per}  (bootstrap "
+                  f"{q.get('bootstrap_std_deg', np.nan):.2f}, Laplace "
+                  f"{q.get('laplace_std_deg', np.nan):.2f} / data "
+                  f"{q.get('laplace_data_std_deg', np.nan):.2f}; gate "
+                  f"{'accepts' if plane_gate(p).ok else 'refuses'})", flush=True)
 
 
 def main() -> None:
@@ -166,7 +188,7 @@ def main() -> None:
     for kind, det in ((k, d) for k in args.generators.split(",") for d in detections):
         stats = {m: ([], [], [], []) for m in models}
         refused = {m: 0 for m in models}
-        ratios = []
+        ratios, gate = [], [0, 0]     # the gate's: accepted over 1 deg, refused under 0.5
         for seed in range(args.first_camera, args.first_camera + args.cameras):
             try:
                 s = scene(kind, seed, detection=det, outliers=args.outliers)
@@ -196,9 +218,14 @@ def main() -> None:
                     print(f"  {kind} camera {seed} {m}: {stats[m][0][-1]:.2f} deg, anchor "
                           f"{stats[m][3][-1]:.2f}%, camera height "
                           f"{h / s.height_m * 100 - 100:+.1f}%, "
-                          f"{n_tracks} tracks, uncertainty {p.normal_std_deg:.2f}", flush=True)
+                          f"{n_tracks} tracks, uncertainty {p.normal_std_deg:.2f}"
+                          + (uncertainty_cell(s, p, CONFIGS[m], n_tracks) if m == "joint"
+                             else ""), flush=True)
                 if m == "joint" and args.bootstrap:
                     ratios.append(stats[m][0][-1] / p.normal_std_deg)
+                    ok = plane_gate(p).ok
+                    gate[0] += ok and stats[m][0][-1] > 1.0
+                    gate[1] += not ok and stats[m][0][-1] < 0.5
         cells = []
         for m in models:
             e, h, t, a = (np.asarray(x) for x in stats[m])
@@ -210,7 +237,8 @@ def main() -> None:
                          f"{np.median(t):4.1f}"
                          + (f" ({refused[m]} refused)" if refused[m] else ""))
         if ratios:
-            cells.append(f"error / std {np.nanmedian(ratios):.2f} / {np.nanmax(ratios):.2f}")
+            cells.append(f"error / std {np.nanmedian(ratios):.2f} / {np.nanmax(ratios):.2f}, gate "
+                         f"accepts {gate[0]} over 1 deg, refuses {gate[1]} under 0.5")
         label = f"{kind}/{det}" if len(detections) > 1 else kind
         print(f"{label:10}" + "".join(f" | {c:^42}" for c in cells), flush=True)
 

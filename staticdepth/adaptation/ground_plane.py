@@ -4,7 +4,9 @@ Streams (instance map, rows) pairs of the adaptation frames into the tracker (on
 rows are kept), fits :func:`staticdepth.geometry.agent_plane.fit_agent_plane`, and writes
 ``<SEQ>.h5.adapt/ground_plane.json``: the plane (in units of the camera height), its tracks'
 classes, the feet of every agent of the split (the ground region the alignment fits the predicted
-plane in), the stage hash and the sequence identity.
+plane in), the stage hash and the sequence identity. A plane whose normal is too uncertain for
+alignment (:func:`staticdepth.geometry.agent_plane_gate.plane_gate`: the bootstrap and the
+Laplace uncertainty, both in the file) is flagged with the tracks and frames it would need.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.errors import InputError
 from staticdepth.fileio import atomic_write_json
 from staticdepth.geometry.agent_plane import AgentPlane, fit_agent_plane
+from staticdepth.geometry.agent_plane_gate import plane_gate
 
 FILE = "ground_plane.json"
 
@@ -81,9 +84,12 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str
     feet = [f[f[:, 1] >= 0] for f in feet]
     feet = np.concatenate(feet) if feet else np.zeros((0, 2))
     n_in = int(np.count_nonzero(plane.inliers))
-    if n_in < 5 or not np.isfinite(plane.normal_std_deg):
+    gate = plane_gate(plane) if np.isfinite(plane.normal_std_deg) else None
+    if n_in < 5 or gate is None:
         ws.log(f"warning: the ground plane rests on {n_in} agent track(s) (uncertainty "
                f"{plane.normal_std_deg:.2f} deg): use more adaptation frames or a better detector")
+    elif not gate.ok:       # flagged, not stopped: the scale stage gates the metric depth
+        ws.log(f"warning: {gate.message}")
     classes = np.asarray(plane.extra.get("classes", np.full(len(plane.track_ids), -1)))
     os.makedirs(ws.dir, exist_ok=True)
     atomic_write_json(ws.path(FILE), {

@@ -61,6 +61,9 @@ from staticdepth.geometry.projection import rays_from_pixels
 
 MODELS = ("joint", "exact", "affine", "paper")
 PERSON_CLASSES = (0, -1)  # COCO person, or unknown class (a CSV without classes)
+# the normal's uncertainty, part by part (joint model; agent_plane_boot, agent_plane_laplace)
+UNCERTAINTY_PARTS = ("bootstrap_std_deg", "class_misfit_deg", "laplace_std_deg",
+                     "laplace_data_std_deg")
 
 
 @dataclass(frozen=True)
@@ -148,8 +151,10 @@ class AgentPlane:
     ``normal`` (3,) unit, camera frame, pointing to the ground; ``horizon`` (a, b, c) with
     ``a u + b v + c = 0`` (positive on the ground side); ``d_over_agent_height`` = d / H of a
     typical agent (1 / median s_j over the inlier tracks); ``track_ids`` (J,), ``track_scale``
-    (J,) = s_j = H_j / d; ``inliers`` (J,) bool; ``normal_std_deg`` and ``d_over_h_std`` from the
-    bootstrap (NaN when not run); ``camera_height_m`` when a height prior or a height was given.
+    (J,) = s_j = H_j / d; ``inliers`` (J,) bool; ``normal_std_deg`` (the gate's; joint: the
+    bootstrap, class misfit and Laplace std in quadrature, their parts in ``normal_std_parts``)
+    and ``d_over_h_std`` (NaN when the bootstrap was not run); ``camera_height_m`` when a height
+    prior or a height was given.
     """
 
     normal: np.ndarray
@@ -167,6 +172,7 @@ class AgentPlane:
     camera_height_source: str | None = None
     extra: Mapping[str, Any] = field(default_factory=dict)
     camera_height_std_m: float = float("nan")
+    normal_std_parts: Mapping[str, float] = field(default_factory=dict)   # UNCERTAINTY_PARTS
 
     @property
     def pitch_deg(self) -> float:
@@ -192,7 +198,8 @@ class AgentPlane:
              "rms_px": self.rms_px, "n_observations": self.n_observations,
              "uncertainty": {"normal_std_deg": _num(self.normal_std_deg),
                              "d_over_agent_height_std": _num(self.d_over_h_std),
-                             "camera_height_std_m": _num(self.camera_height_std_m)}}
+                             "camera_height_std_m": _num(self.camera_height_std_m),
+                             **{k: _num(v) for k, v in self.normal_std_parts.items()}}}
         if self.camera_height_m is not None:
             d["camera_height_m"] = self.camera_height_m
             d["camera_height_source"] = self.camera_height_source
@@ -222,7 +229,8 @@ class AgentPlane:
                        float(unc.get("d_over_agent_height_std") or float("nan")),
                        None if h is None else float(h), d.get("camera_height_source"),
                        {"extents": d["extents"]} if "extents" in d else {},
-                       float(unc.get("camera_height_std_m") or float("nan")))
+                       float(unc.get("camera_height_std_m") or float("nan")),
+                       {k: float(unc[k]) for k in UNCERTAINTY_PARTS if unc.get(k) is not None})
         except KeyError as e:
             raise InputError(f"plane is missing the key {e.args[0]!r}", source) from None
         except (TypeError, ValueError) as e:
@@ -328,7 +336,8 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
                                  "class_misfit_deg": boot.get("class_misfit_deg", float("nan")),
                                  "relative_noise": boot.get("relative_noise", 0.0),
                                  "relative_noise_one_foot": boot.get("relative_noise_one_foot",
-                                                                     0.0)})
+                                                                     0.0)},
+                          normal_std_parts={k: boot[k] for k in UNCERTAINTY_PARTS if k in boot})
     else:
         n, s, inl, res = fit_robust(K, obs, conf, rng)
         d_over_h = 1.0 / float(np.median(s[inl]))

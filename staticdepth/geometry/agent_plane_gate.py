@@ -8,11 +8,13 @@ children and tall outliers weigh by their probability instead of biasing a mean.
 combines a bootstrap over the tracks (the spread of heights) with the plane's own ``d/H``
 uncertainty.
 
-Gate: :func:`plane_gate` says whether a plane is good enough for alignment (the normal's bootstrap
+Gate: :func:`plane_gate` says whether a plane is good enough for alignment (the normal's
 uncertainty at most ``max_normal_std_deg``, 1 degree by default, and at least ``min_tracks``
 inlier tracks) and, when not, how many inlier tracks it would need: the uncertainty falls as
 ``1 / sqrt(tracks)``, so ``tracks * (std / limit)^2``; with agents arriving at a steady rate the
-frames needed scale by the same factor.
+frames needed scale by the same factor. The joint model's uncertainty combines the bootstrap
+over tracks with the fit's data-only Laplace uncertainty (``AgentPlane.normal_std_parts``,
+:mod:`staticdepth.geometry.agent_plane_boot`); the message names both.
 """
 from __future__ import annotations
 
@@ -132,6 +134,16 @@ def _num(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
+def _parts(plane) -> str:
+    """`` (bootstrap B, Laplace L)`` when the plane has them (joint model), else empty."""
+    q = getattr(plane, "normal_std_parts", {})
+    named = [(name, q[k]) for name, k in (("bootstrap", "bootstrap_std_deg"),
+                                          ("class misfit", "class_misfit_deg"),
+                                          ("Laplace", "laplace_std_deg"))
+             if k in q and (k != "class_misfit_deg" or q[k] > 0)]
+    return f" ({', '.join(f'{n} {v:.2f}' for n, v in named)})" if len(named) > 1 else ""
+
+
 def plane_gate(plane, max_normal_std_deg: float = 1.0, min_tracks: int = 3) -> PlaneGate:
     """Whether ``plane`` (an AgentPlane) is good enough for alignment; see the module doc.
 
@@ -147,13 +159,14 @@ def plane_gate(plane, max_normal_std_deg: float = 1.0, min_tracks: int = 3) -> P
                          f"ground plane refused: {tracks} inlier track(s), uncertainty unknown; "
                          f"need at least {need} tracks (about {need / max(tracks, 1):.1f}x the "
                          "frames)")
+    parts = _parts(plane)
     if std <= max_normal_std_deg:
         return PlaneGate(True, std, max_normal_std_deg, tracks, tracks, 1.0,
-                         f"ground plane accepted: normal uncertainty {std:.2f} deg <= "
+                         f"ground plane accepted: normal uncertainty {std:.2f} deg{parts} <= "
                          f"{max_normal_std_deg:g} deg over {tracks} inlier tracks")
     factor = (std / max_normal_std_deg) ** 2
     need = int(math.ceil(tracks * factor))
     return PlaneGate(False, std, max_normal_std_deg, tracks, need, factor,
-                     f"ground plane refused: normal uncertainty {std:.2f} deg > "
+                     f"ground plane refused: normal uncertainty {std:.2f} deg{parts} > "
                      f"{max_normal_std_deg:g} deg over {tracks} inlier tracks; need about {need} "
                      f"tracks ({factor:.1f}x the frames)")

@@ -123,7 +123,7 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
         extents["people one-foot"] = [prob.e1]     # e_1: added to e_f in one-foot frames
     from staticdepth.geometry.agent_plane_boot import joint_uncertainty
 
-    boot = joint_uncertainty(K, prob, conf, n, theta_all, inl, rng) if conf.bootstrap > 0 else {}
+    boot = joint_uncertainty(K, prob, conf, n, theta_all, inl, rng, s, thr)
     boot["column_weight"] = conf.fit_column_weight
     boot["inlier_px"] = thr
     k2, k1 = (prob.kappa, prob.kappa) if np.isscalar(prob.kappa) else prob.kappa
