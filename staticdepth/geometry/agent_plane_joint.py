@@ -116,14 +116,15 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     inl = _track_inliers(obs.idx, prob.errors(n, theta_all, s, 0.0) < thr, J)
     if inl.sum() == 0:
         inl = np.ones(J, bool)
-    s = _metric_scales(prob, n, theta_all, s, inl, thr)
+    s_fit, s = s, _metric_scales(prob, n, theta_all, s, inl, thr)
     extents = {GROUPS[g].name: [float(v) for v in theta_all[sl.start - 2:sl.stop - 2]]
                for g, sl in prob.slices.items()}
     if prob.e1:
         extents["people one-foot"] = [prob.e1]     # e_1: added to e_f in one-foot frames
     from staticdepth.geometry.agent_plane_boot import joint_uncertainty
 
-    boot = joint_uncertainty(K, prob, conf, n, theta_all, inl, rng, s, thr)
+    # the Laplace part at the fit's own heights (its optimum), not the metric ones
+    boot = joint_uncertainty(K, prob, conf, n, theta_all, inl, rng, s_fit, thr)
     boot["column_weight"] = conf.fit_column_weight
     boot["inlier_px"] = thr
     k2, k1 = (prob.kappa, prob.kappa) if np.isscalar(prob.kappa) else prob.kappa
