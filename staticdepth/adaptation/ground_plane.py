@@ -89,7 +89,8 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str
         ws.log(f"warning: the ground plane rests on {n_in} agent track(s) (uncertainty "
                f"{plane.normal_std_deg:.2f} deg): use more adaptation frames or a better detector")
     elif not gate.ok:       # flagged, not stopped: the scale stage gates the metric depth
-        ws.log(f"warning: {gate.message}")
+        ws.log(f"warning: {gate.message}; adapt goes on with it (alignment and metric scale "
+               "inherit its error)")
     classes = np.asarray(plane.extra.get("classes", np.full(len(plane.track_ids), -1)))
     os.makedirs(ws.dir, exist_ok=True)
     atomic_write_json(ws.path(FILE), {
