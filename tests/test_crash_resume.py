@@ -90,13 +90,16 @@ def frames_written(partial: str) -> int:
 
 
 def run_and_kill(args: list[str], partial: str, sig: int, at: int, timeout: float = 300):
-    """Run the CLI in a subprocess, wait until the partial holds ``at`` frames, send ``sig``."""
+    """Run the CLI in a subprocess, wait until the partial holds ``at`` frames, send ``sig``;
+    (0, stderr) when the writer completed before the signal reached it."""
     proc = subprocess.Popen([sys.executable, "-c", CLI, *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     t0 = time.monotonic()
     try:
         while frames_written(partial) < at:
             if proc.poll() is not None:
+                if proc.returncode == 0:   # done before we looked (a loaded machine): caller retries
+                    return 0, proc.stderr.read()
                 pytest.fail(f"the writer ended before frame {at}: {proc.stderr.read()}")
             if time.monotonic() - t0 > timeout:
                 pytest.fail("the writer made no progress")
@@ -146,7 +149,16 @@ def test_killed_writer_resumes_to_the_uninterrupted_result(kind, sig, inputs, tm
     out = tmp_path / "out.h5"
     args, n = writer_args(kind, inputs, out)
     at = random.Random(f"{kind}{sig}").randint(1, n // 2)
-    rc, err = run_and_kill(args, str(out) + ".partial", sig, at)
+    for _ in range(5):
+        rc, err = run_and_kill(args, str(out) + ".partial", sig, at)
+        if rc != 0:
+            break
+        # the writer finished its few frames (or was in close(), where a signal waits for the
+        # end by design) before the signal reached it: a loaded machine; that run is complete
+        assert out.exists(), err
+        out.unlink()
+    else:
+        pytest.fail("the writer finished before the signal in 5 runs")
     assert not out.exists() and os.path.exists(str(out) + ".partial")
     if sig == signal.SIGKILL:
         assert rc == -signal.SIGKILL
