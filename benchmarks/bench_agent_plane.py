@@ -162,6 +162,8 @@ def main() -> None:
     ap_.add_argument("--models", default="paper,exact,joint")
     ap_.add_argument("--bootstrap", type=int, default=0)
     ap_.add_argument("--verbose", action="store_true", help="every camera's error")
+    ap_.add_argument("--gate-lines", action="store_true", help="with --bootstrap: per camera the "
+                     "joint fit's error, std and its parts, and the gate's verdict")
     ap_.add_argument("--truth", default="", help="foot, top or foot,top: observed points "
                      "replaced by the generator's true axis points (see the module doc)")
     ap_.add_argument("--scenes", default="", help="e.g. i1,i2,i3,i4: the rendered scenes instead")
@@ -188,7 +190,7 @@ def main() -> None:
     for kind, det in ((k, d) for k in args.generators.split(",") for d in detections):
         stats = {m: ([], [], [], []) for m in models}
         refused = {m: 0 for m in models}
-        ratios, gate = [], [0, 0]     # the gate's: accepted over 1 deg, refused under 0.5
+        ratios, gate = [], [0, 0, 0, 0]   # accepted over 1 deg, refused under 0.5, of how many
         for seed in range(args.first_camera, args.first_camera + args.cameras):
             try:
                 s = scene(kind, seed, detection=det, outliers=args.outliers)
@@ -226,6 +228,17 @@ def main() -> None:
                     ok = plane_gate(p).ok
                     gate[0] += ok and stats[m][0][-1] > 1.0
                     gate[1] += not ok and stats[m][0][-1] < 0.5
+                    gate[2] += stats[m][0][-1] > 1.0
+                    gate[3] += stats[m][0][-1] < 0.5
+                    if args.gate_lines:
+                        q = p.normal_std_parts
+                        print(f"  gate {kind} {det} camera {seed}: error {stats[m][0][-1]:.2f} "
+                              f"std {p.normal_std_deg:.2f} (bootstrap "
+                              f"{q.get('bootstrap_std_deg', np.nan):.2f}, class misfit "
+                              f"{q.get('class_misfit_deg', np.nan):.2f}, Laplace "
+                              f"{q.get('laplace_std_deg', np.nan):.2f} / data "
+                              f"{q.get('laplace_data_std_deg', np.nan):.2f}) "
+                              f"{'accepts' if ok else 'refuses'}", flush=True)
         cells = []
         for m in models:
             e, h, t, a = (np.asarray(x) for x in stats[m])
@@ -238,7 +251,8 @@ def main() -> None:
                          + (f" ({refused[m]} refused)" if refused[m] else ""))
         if ratios:
             cells.append(f"error / std {np.nanmedian(ratios):.2f} / {np.nanmax(ratios):.2f}, gate "
-                         f"accepts {gate[0]} over 1 deg, refuses {gate[1]} under 0.5")
+                         f"accepts {gate[0]} of {gate[2]} over 1 deg, refuses {gate[1]} of "
+                         f"{gate[3]} under 0.5")
         label = f"{kind}/{det}" if len(detections) > 1 else kind
         print(f"{label:10}" + "".join(f" | {c:^42}" for c in cells), flush=True)
 
