@@ -23,14 +23,15 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
+from bench_agent_plane import CONFIGS  # noqa: E402
 from plane_generators import scene  # noqa: E402
 
-from staticdepth.geometry.agent_plane import AgentPlaneConfig, fit_agent_plane  # noqa: E402
+from staticdepth.geometry.agent_plane import fit_agent_plane  # noqa: E402
 from staticdepth.geometry.agent_plane_gate import camera_height_ml  # noqa: E402
 from staticdepth.geometry.agent_shape import group_of_class  # noqa: E402
 from staticdepth.geometry.plane import angle_between_deg  # noqa: E402
 
-CONF = AgentPlaneConfig(bootstrap=0, column_weight=1.0)     # bench_agent_plane's joint model
+CONF = CONFIGS["joint"]     # the joint model as bench_agent_plane.py fits it
 
 
 def camera_row(s, p) -> tuple[float, float, float, float, float]:
