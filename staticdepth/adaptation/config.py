@@ -73,6 +73,8 @@ class AlignConfig:
     walked_ratio: float | None = 1.2     # upright: inside the walked region (the ground mask)
     #                                  a pixel farther than this x its contact's plane depth
     #                                  is ground, not a structure (null: off)
+    occlude: bool = True             # upright: runs stop at the frame's agents (the foot behind
+    #                                  an agent is hidden) and take a row neighbour's ratio
     plane_bound: bool = True         # upright: no pixel below the agents' horizon farther than
     #                                  the plane along its ray (align outputs, the align command,
     #                                  export-model; not the pseudo labels)
@@ -182,7 +184,7 @@ def model_identity(spec: str) -> dict[str, Any]:
 # silently keep, e.g., the former pseudo labels). Raising one reruns that stage and the stages
 # after it, as a changed setting does.
 STAGE_VERSIONS = {"base": 1, "agents": 1, "ground_plane": 4, "pseudo_labels": 4, "finetune": 2,
-                  "align": 3, "scale": 1}
+                  "align": 4, "scale": 1}
 
 
 def _versioned(stage: str, settings: dict) -> str:

@@ -32,7 +32,10 @@ walked, the plane's depth is uncertain) or pulling the run nearer than its ``gro
 Inside the walked region (``walked``: the ground mask, where the agents' feet were), a traced pixel
 whose plane depth exceeds ``walked_ratio`` x its contact's is ground the network did not let recede
 (a structure standing there would be taller than ``1 - 1 / walked_ratio`` camera heights): it takes
-the plane, and the contacts are traced again over it. Afterwards (``align_upright``'s
+the plane, and the contacts are traced again over it. With ``occlude`` a run does not pass
+through the frame's agents (``not_ground``): a blurred network continues a wall's depth into the
+agent in front of it, and the wall took the agent's contact, nearer than its own hidden foot; the
+runs an agent cuts take a row neighbour's ratio (the same wall beside the agent). Afterwards (``align_upright``'s
 ``plane_bound``) no pixel below the horizon ends farther than the plane along its ray.
 
 A pure function of (depth, K, plane, ground mask[, agent mask]); ``geometry/alignment.py``
@@ -92,6 +95,27 @@ def contact_ratios(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndar
         qc[v, cont] = qc[v + 1, ub[cont]]
         idx[v, cont] = idx[v + 1, ub[cont]]
     return qc, idx
+
+
+def occluded_runs(A: np.ndarray, occluder: np.ndarray, ground: np.ndarray, du: np.ndarray,
+                  jump_rel: float) -> np.ndarray:
+    """(H, W) bool: pixels whose run (continuous depth down the vertical, not ground) ends on an
+    ``occluder`` pixel: whatever stands behind an agent has its foot hidden by it."""
+    h, w = A.shape
+    out = np.zeros((h, w), bool)
+    cols = np.arange(w)
+    for v in range(h - 2, -1, -1):
+        step = du[v]
+        ok = np.isfinite(step) & ~ground[v] & ~occluder[v] & np.isfinite(A[v])
+        ub = np.where(ok, np.rint(cols + np.nan_to_num(step)), -1).astype(np.int64)
+        ok &= (ub >= 0) & (ub < w)
+        ub = np.clip(ub, 0, w - 1)
+        a_b = A[v + 1, ub]
+        with np.errstate(invalid="ignore"):
+            cont = ~ground[v + 1, ub] & ~occluder[v + 1, ub] \
+                & (np.abs(A[v] - a_b) <= jump_rel * np.minimum(A[v], a_b))
+        out[v] = ok & (occluder[v + 1, ub] | (cont & out[v + 1, ub]))
+    return out
 
 
 def _walk_down(A, ground, q, du, cv, cu, nearer: float, steps: int, jump_rel: float):
@@ -260,7 +284,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   fill: bool = True, max_pull: float = np.inf, max_contact: float = np.inf,
                   recede_push: float = np.inf, walked: np.ndarray | None = None,
                   walked_ratio: float = np.inf, extra_ground: np.ndarray | None = None,
-                  keep_rel: float | None = KEEP_REL,
+                  keep_rel: float | None = KEEP_REL, occlude: bool = False,
                   info: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
@@ -272,9 +296,11 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     the true ground to bound what a better ground cue could give); ``info``: a dict that receives
     the per-pixel categories ``ground``, ``planar`` (took the plane), ``traced`` (has a contact),
     ``moved`` (re-anchored) and ``contact`` (flat index of each pixel's contact, -1: none);
-    ``keep_rel``: :func:`refine_contacts`' (None: off). Returns the new map and the (H, W) bool
-    mask of the pixels it set (re-anchored, planar, or snapped pixels found to be structures,
-    which keep ``A``)."""
+    ``keep_rel``: :func:`refine_contacts`' (None: off); ``occlude``: runs end at ``not_ground``
+    (an agent hides the foot of what stands behind it) and those cut take a row neighbour's
+    ratio (:func:`fill_along_rows`, as ``fill`` does for every run without a contact). Returns
+    the new map and the (H, W) bool mask of the pixels it set (re-anchored, planar, or snapped
+    pixels found to be structures, which keep ``A``)."""
     if shape not in SHAPES:
         raise InputError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
     if not (np.isfinite(jump_rel) and jump_rel > 0):
@@ -289,9 +315,13 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     src = A if native is None else np.asarray(native, dtype=np.float64)
     max_walk = max(2, h // 16)
 
+    cut = occlude and not_ground is not None
+    # runs stop at the frame's agents (NaN ends a run): the foot behind an agent is hidden
+    A_tr = np.where(not_ground, np.nan, A) if cut else A
+
     def trace(g):
-        qc, idx = contact_ratios(A, g, q, du, jump_rel)
-        refine_contacts(A, g, q, du, qc, idx, jump_rel, near_rel, max_walk, src, keep_rel)
+        qc, idx = contact_ratios(A_tr, g, q, du, jump_rel)
+        refine_contacts(A_tr, g, q, du, qc, idx, jump_rel, near_rel, max_walk, src, keep_rel)
         return qc, idx, idx >= 0
 
     snapped = ground
@@ -352,6 +382,9 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     todo = (~ground | have) & np.isfinite(A)
     if fill:
         fill_along_rows(ratio, A, todo, jump_rel)
+    elif cut:       # runs an agent cut take a row neighbour's ratio (the same wall beside it)
+        fill_along_rows(ratio, A, todo & occluded_runs(A, not_ground, ground, du, jump_rel),
+                        jump_rel)
     moved = todo & np.isfinite(ratio)
     if info is not None:    # per-pixel categories, for diagnostics (benchmarks/)
         info.update(ground=ground, planar=planar, traced=have, moved=moved, contact=idx)

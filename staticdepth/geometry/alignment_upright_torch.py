@@ -103,8 +103,10 @@ class UprightAlignment(nn.Module):
                  fill: bool = True, max_pull: float = float("inf"),
                  contact_range: float | None = None, recede_push: float = float("inf"),
                  walked_ratio: float = float("inf"), plane_bound: bool = False,
-                 keep_rel: float | None = KEEP_REL, max_points: int = 20000):
+                 keep_rel: float | None = KEEP_REL, occlude: bool = False,
+                 max_points: int = 20000):
         super().__init__()
+        del occlude     # runs end at the frame's agents: an exported graph has no agent mask
         if shape not in SHAPES:
             raise ValueError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
         self.ground = GroundAlignment(K, width, height, n_g, d_g, ground_mask, snap_rel=snap_rel,
