@@ -116,7 +116,8 @@ def analyse(seq: str, sets: dict, oracle: str | None) -> dict:
                             a = acc.setdefault((c, t, f"{lo}-{hi}m"), np.zeros(4))
                             a += [k.sum()] + [e[k].sum() for e in errs]
             total += [vm.sum(), errs[0][vm].sum(), errs[1][vm].sum()]
-            k = vm & info["moved"] & reg["structures"]
+            # moved with a contact of their own (a filled pixel, e.g. a run an agent cut, has -1)
+            k = vm & info["moved"] & reg["structures"] & (info["contact"] >= 0)
             if k.any():
                 contact_ratio.append(gt.ravel()[info["contact"][k]] / gt[k])
     cr = np.concatenate(contact_ratio) if contact_ratio else np.zeros(0)
