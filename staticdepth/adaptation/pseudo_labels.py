@@ -3,7 +3,9 @@
 With ``pseudo_labels.dense_mode`` the aligned labels take that mode's depth on the static pixels
 it keeps stable over the split (:func:`staticdepth.pseudo_labels.stable_depth`); with
 ``pseudo_labels.untrusted`` the static pixels it does not keep stable (measured with
-``dense_mode``, else ``align.mode``) take the base network's value or leave the loss.
+``dense_mode``, else ``align.mode``) take the base network's value or leave the loss; with
+``pseudo_labels.grazing`` agents whose contact's plane depth is less certain than the base's
+depth take the base's (:func:`staticdepth.pseudo_labels.grazing_agents`).
 Written to ``<SEQ>.h5.adapt/labels.h5`` (one (H, W) float32 label per frame of the adaptation
 split, with the number of relabelled agent pixels per frame in its ``rows``).
 """
@@ -15,7 +17,8 @@ from staticdepth.adaptation.common import Agents, Workspace
 from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.geometry.agent_plane import AgentPlane
 from staticdepth.progress import progress
-from staticdepth.pseudo_labels import (aligned_pseudo_label, network_space, plane_pseudo_label,
+from staticdepth.pseudo_labels import (aligned_pseudo_label, contact_label_std, grazing_agents,
+                                       network_space, plane_depth_rel_std, plane_pseudo_label,
                                        pseudo_label, trusted_label)
 
 ROWS = np.dtype([("frame", np.int32), ("agent_pixels", np.int64)])
@@ -55,6 +58,9 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
         plane_inv = (ray_grid(ws.K, ws.width, ws.height) @ np.asarray(plane.normal)
                      ).astype(np.float32)
         ground = ground_region(conf, ws, feet)
+        label_std = (plane_depth_rel_std(ws.K, plane.normal, plane.normal_std_deg, ws.width,
+                                         ws.height, pl.contact_row_px)
+                     if pl.grazing != "off" else None)
         dense: list = []            # computed on the first frame labelled (not when skipped)
 
         def label_frame(i, inv):
@@ -75,6 +81,9 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
                         # which carry its shift (no frame of the independent scenes i1-i4, h1)
                         return pseudo_label(inv, inst, agents.rows(i), pl)
                     label = trusted_label(inv, A, trusted, pl.untrusted, fit=fit)
+                if label_std is not None:   # agents whose contact grazes the ground
+                    std, on_agents = contact_label_std(label_std, inst, agents.rows(i), pl)
+                    label = grazing_agents(label, inv, std, on_agents, pl.grazing)
                 return label, trusted & np.isfinite(label)
             label, m = aligned_pseudo_label(inv, A, plane_inv, ground & (inst == 0))
             if not m.any():     # the network's ground does not recede: its own contact values
