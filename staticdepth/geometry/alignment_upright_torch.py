@@ -258,36 +258,37 @@ class UprightAlignment(nn.Module):
     def _contacts(self, A: torch.Tensor, ground: torch.Tensor, src: torch.Tensor):
         """contact_ratios + refine_contacts: (pixels with a contact, each one's walked contact
         pixel, the contact's plane inverse depth)."""
-        h, N, q = self.h, self.N, self.q64
+        h, N = self.h, self.N
         # the march up the rows: contacts, links to the pixel below, chain ends
         below = self._take(ground.to(torch.int64), self.nxt) > 0
         a_b = self._take(A, self.nxt)
+        c_b = self._cont(A, a_b)
         ok = self.ok_n & ~ground
         contact = ok & below & self.contact_ok
-        cont = ok & ~below & self._cont(A, a_b)
-        link = follow(torch.where(cont, self.nxt, self.ar), _doublings(h))
+        link = follow(torch.where(ok & ~below & c_b, self.nxt, self.ar), _doublings(h))
         cid = self._take(torch.where(contact, self.ar, -torch.ones_like(self.ar)), link)
         # every contact walks down to the structure's foot: over ground the network sees nearer
-        # than the plane, continuous with it, at most max_walk rows; a walk that stops stays
-        edge = (self.walk_ok & below & (a_b * self.q_nxt < 1.0 - self.near_rel)
-                & self._cont(A, a_b))
-        step = torch.where(edge, self.nxt, self.ar)
-        pos, walks = self.ar, []
+        # than the plane, continuous with it, at most max_walk rows; a walk that stops stays.
+        # Only the contacts walk (a data-sized index list, NonZero in the graph): the walks are
+        # a few thousand entries, not H x W, and the step count stays fixed
+        c_idx = torch.nonzero(contact).reshape(-1)
+        r_b = a_b * self.q_nxt
+        edge = self.walk_ok & below & c_b
+        step = torch.where(edge & (r_b < 1.0 - self.near_rel), self.nxt, self.ar)
+        pos, walks = c_idx, []
         for _ in range(self.max_walk):
             nxt = self._take(step, pos)
-            walks.append((contact & (nxt != pos), nxt))
+            walks.append((nxt != pos, nxt))
             pos = nxt
         new_q = self._contact_q(A, src)
         if self.keep_rel is not None:
             # walk on over ground nearer than the plane by any amount, kept where the run then
             # stands at the plane's depth at its contact (numpy: refine_contacts)
-            edge = (self.walk_ok & below & (a_b * self.q_nxt < 1.0 - 1e-4)
-                    & self._cont(A, a_b))
-            step = torch.where(edge, self.nxt, self.ar)
+            step = torch.where(edge & (r_b < 1.0 - 1e-4), self.nxt, self.ar)
             pos_l, loose = pos, []
             for _ in range(2 * self.max_walk):
                 nxt = self._take(step, pos_l)
-                loose.append((contact & (nxt != pos_l), nxt))
+                loose.append((nxt != pos_l, nxt))
                 pos_l = nxt
             ok = (pos_l != pos) & (torch.abs(self._take(new_q * src, pos_l) - 1.0)
                                    <= self.keep_rel)
@@ -295,12 +296,13 @@ class UprightAlignment(nn.Module):
             walks += [(act & ok, p) for act, p in loose]
         # a walked-over ground pixel takes the contact that reached it first: written last
         wk = -torch.ones(N + 1, dtype=torch.int64)
-        dummy = torch.full_like(self.ar, N)
+        dummy = torch.full_like(c_idx, N)
         for act, p in walks[::-1]:
-            wk = wk.scatter(0, torch.where(act, p, dummy), self.ar)
+            wk = wk.scatter(0, torch.where(act, p, dummy), c_idx)
         cid = torch.where(wk[:N] >= 0, wk[:N], cid)
         have = cid >= 0
-        foot = self._take(pos, torch.clamp(cid, min=0))      # each pixel's contact, walked
+        # each pixel's contact, walked (pixels that are no contact: themselves, never read)
+        foot = self._take(self.ar.scatter(0, c_idx, pos), torch.clamp(cid, min=0))
         return have, foot, self._take(new_q, foot)
 
     def _contact_q(self, A: torch.Tensor, src: torch.Tensor) -> torch.Tensor:
