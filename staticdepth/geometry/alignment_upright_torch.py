@@ -280,7 +280,6 @@ class UprightAlignment(nn.Module):
             nxt = self._take(step, pos)
             walks.append((nxt != pos, nxt))
             pos = nxt
-        new_q = self._contact_q(A, src)
         if self.keep_rel is not None:
             # walk on over ground nearer than the plane by any amount, kept where the run then
             # stands at the plane's depth at its contact (numpy: refine_contacts)
@@ -290,8 +289,8 @@ class UprightAlignment(nn.Module):
                 nxt = self._take(step, pos_l)
                 loose.append((nxt != pos_l, nxt))
                 pos_l = nxt
-            ok = (pos_l != pos) & (torch.abs(self._take(new_q * src, pos_l) - 1.0)
-                                   <= self.keep_rel)
+            ok = (pos_l != pos) & (torch.abs(self._contact_q(A, src, pos_l)
+                                             * self._take(src, pos_l) - 1.0) <= self.keep_rel)
             pos = torch.where(ok, pos_l, pos)
             walks += [(act & ok, p) for act, p in loose]
         # a walked-over ground pixel takes the contact that reached it first: written last
@@ -301,21 +300,26 @@ class UprightAlignment(nn.Module):
             wk = wk.scatter(0, torch.where(act, p, dummy), c_idx)
         cid = torch.where(wk[:N] >= 0, wk[:N], cid)
         have = cid >= 0
-        # each pixel's contact, walked (pixels that are no contact: themselves, never read)
-        foot = self._take(self.ar.scatter(0, c_idx, pos), torch.clamp(cid, min=0))
-        return have, foot, self._take(new_q, foot)
+        # each pixel's contact, walked, and its plane inverse depth (pixels without a contact:
+        # pixel 0's entries, never read)
+        cid = torch.clamp(cid, min=0)
+        foot = self._take(self.ar.scatter(0, c_idx, pos), cid)
+        qc = torch.zeros_like(self.q64).scatter(0, c_idx, self._contact_q(A, src, pos))
+        return have, foot, self._take(qc, cid)
 
-    def _contact_q(self, A: torch.Tensor, src: torch.Tensor) -> torch.Tensor:
-        """numpy's ``_contact_q`` as a field over every base position."""
-        q = self.q64
-        a_up = self._take(A, self.above)
-        r0, ra = A * q, a_up * self.q_above
-        sel = (r0 - ra > 1e-6) & self.has_above
+    def _contact_q(self, A: torch.Tensor, src: torch.Tensor, at: torch.Tensor) -> torch.Tensor:
+        """numpy's ``_contact_q`` at the base positions ``at`` (flat indices): the walked contacts
+        only, not every pixel."""
+        q, q_above, above = self._take(self.q64, at), self._take(self.q_above, at), \
+            self._take(self.above, at)
+        a0, s0 = self._take(A, at), self._take(src, at)
+        r0, ra = a0 * q, self._take(A, above) * q_above
+        sel = (r0 - ra > 1e-6) & self._take(self.has_above, at)
         x = torch.where(sel, (1.0 - r0) / torch.where(sel, r0 - ra, torch.ones_like(r0)),
                         torch.full_like(r0, 0.5))
         x = torch.clamp(torch.where(torch.isnan(x), torch.full_like(x, 0.5), x), 0.0, 1.0)
         # src q extrapolated to x reaches 1 once the run is scaled to 1 / new_q at its base
-        return q * (1.0 + x) - x * self.q_above * self._take(src, self.above) / src
+        return q * (1.0 + x) - x * q_above * self._take(src, above) / s0
 
     def _fill(self, ratio: torch.Tensor, A: torch.Tensor, todo: torch.Tensor) -> torch.Tensor:
         """fill_along_rows: a pixel to fill links to its left (then right) neighbour; every
