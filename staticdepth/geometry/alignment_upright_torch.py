@@ -12,9 +12,11 @@ The numpy version's sequential scans become fixed-size index gathers:
   the links by pointer doubling (``link = link[link]``, ceil(log2 H) times) gives every pixel its
   chain's end, hence its contact;
 - the walk of a contact down to the structure's foot (``refine_contacts``): ``max(2, H // 16)``
-  steps for every pixel at once; a walked-over ground pixel takes the contact that reached it at
-  the earliest step (ScatterElements: the contacts reaching it at one step share the rest of the
-  walk, so their writes are equal);
+  steps (then ``2 max(2, H // 16)`` for ``keep_rel``'s walk on) for the contacts only, a
+  data-sized index list (NonZero: a few thousand of the H x W pixels; the step count is fixed,
+  so the exported graph follows any frame); a walked-over ground pixel takes the contact that
+  reached it at the earliest step (ScatterElements: the contacts reaching it at one step share
+  the rest of the walk, so their writes are equal);
 - the fill along rows (``fill_along_rows``): left then right links, pointer doubling over W.
 The trust rules (``fill``, ``max_pull``, ``contact_range``, ``recede_push``, ``walked_ratio``)
 and the plane's bound (``plane_bound``: a constant map of the plane's depth, an elementwise
@@ -296,8 +298,8 @@ class UprightAlignment(nn.Module):
         # a walked-over ground pixel takes the contact that reached it first: written last
         wk = -torch.ones(N + 1, dtype=torch.int64)
         dummy = torch.full_like(c_idx, N)
-        for act, p in walks[::-1]:
-            wk = wk.scatter(0, torch.where(act, p, dummy), c_idx)
+        for act, p in walks[::-1]:          # in place: a copy of H x W per step cost 10%
+            wk.scatter_(0, torch.where(act, p, dummy), c_idx)
         cid = torch.where(wk[:N] >= 0, wk[:N], cid)
         have = cid >= 0
         # each pixel's contact, walked, and its plane inverse depth (pixels without a contact:
