@@ -146,3 +146,37 @@ def test_torch_upright_second_pass_matches_numpy(frame):
     assert np.mean(_rel(ref, off) > 1e-3) > 0.01           # the walk on decided something
     out = UprightAlignment(K, 320, 160, n, 1.0, G, **kw)(torch.from_numpy(once)).numpy()
     assert _rel(out, ref).max() < 1e-5, _rel(out, ref).max()
+
+
+def test_upright_onnx_walks_any_number_of_contacts(frame, tmp_path):
+    """Only the contacts walk (a NonZero index list in the graph): traced on one frame, the ONNX
+    graph follows frames with other contacts, here an aligned map aligned again (adapt's
+    defaults: the keep_rel walk on decides) and another frame of the scene, as numpy does."""
+    import onnxruntime as ort
+
+    from staticdepth.adaptation.align import upright_options
+    from staticdepth.adaptation.config import build_config
+    from tests.indep_scenes import SCENES, Scene
+
+    Z, K, n, G, reg = frame
+    kw = upright_options(build_config({}).align)
+    mod = UprightAlignment(K, 320, 160, n, 1.0, G, **kw)
+    path = str(tmp_path / "u.onnx")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(mod, (torch.from_numpy(Z),), path, input_names=["z"], opset_version=17,
+                          dynamo=False)
+    sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
+    once = align_depth(Z, K, n, 1.0, G, mode="upright", **kw).depth
+    gt = Scene(SCENES[0], 320, 160).render(9)["depth"]
+    other = (1.0 / (2.0 / np.where(np.isfinite(gt), gt, 80.0) + 0.03)).astype(np.float32)
+    counts = set()
+    for Zf in (Z, once, other):
+        ref = align_depth(Zf, K, n, 1.0, G, mode="upright", **kw)
+        counts.add(int((ref.depth != align_depth(Zf, K, n, 1.0, G, mode="ground").depth).sum()))
+        got = sess.run(None, {"z": Zf})[0]
+        with torch.no_grad():
+            eager = mod(torch.from_numpy(Zf)).numpy()
+        assert _rel(got, eager).max() < 1e-4, _rel(got, eager).max()     # float32 rounding
+        assert _rel(got, ref.depth).max() < 1e-4, _rel(got, ref.depth).max()
+    assert len(counts) == 3                     # three frames with different runs re-anchored

@@ -12,9 +12,11 @@ The numpy version's sequential scans become fixed-size index gathers:
   the links by pointer doubling (``link = link[link]``, ceil(log2 H) times) gives every pixel its
   chain's end, hence its contact;
 - the walk of a contact down to the structure's foot (``refine_contacts``): ``max(2, H // 16)``
-  steps for every pixel at once; a walked-over ground pixel takes the contact that reached it at
-  the earliest step (ScatterElements: the contacts reaching it at one step share the rest of the
-  walk, so their writes are equal);
+  steps (then ``2 max(2, H // 16)`` for ``keep_rel``'s walk on) for the contacts only, a
+  data-sized index list (NonZero: a few thousand of the H x W pixels; the step count is fixed,
+  so the exported graph follows any frame); a walked-over ground pixel takes the contact that
+  reached it at the earliest step (ScatterElements: the contacts reaching it at one step share
+  the rest of the walk, so their writes are equal);
 - the fill along rows (``fill_along_rows``): left then right links, pointer doubling over W.
 The trust rules (``fill``, ``max_pull``, ``contact_range``, ``recede_push``, ``walked_ratio``)
 and the plane's bound (``plane_bound``: a constant map of the plane's depth, an elementwise
@@ -258,62 +260,68 @@ class UprightAlignment(nn.Module):
     def _contacts(self, A: torch.Tensor, ground: torch.Tensor, src: torch.Tensor):
         """contact_ratios + refine_contacts: (pixels with a contact, each one's walked contact
         pixel, the contact's plane inverse depth)."""
-        h, N, q = self.h, self.N, self.q64
+        h, N = self.h, self.N
         # the march up the rows: contacts, links to the pixel below, chain ends
         below = self._take(ground.to(torch.int64), self.nxt) > 0
         a_b = self._take(A, self.nxt)
+        c_b = self._cont(A, a_b)
         ok = self.ok_n & ~ground
         contact = ok & below & self.contact_ok
-        cont = ok & ~below & self._cont(A, a_b)
-        link = follow(torch.where(cont, self.nxt, self.ar), _doublings(h))
+        link = follow(torch.where(ok & ~below & c_b, self.nxt, self.ar), _doublings(h))
         cid = self._take(torch.where(contact, self.ar, -torch.ones_like(self.ar)), link)
         # every contact walks down to the structure's foot: over ground the network sees nearer
-        # than the plane, continuous with it, at most max_walk rows; a walk that stops stays
-        edge = (self.walk_ok & below & (a_b * self.q_nxt < 1.0 - self.near_rel)
-                & self._cont(A, a_b))
-        step = torch.where(edge, self.nxt, self.ar)
-        pos, walks = self.ar, []
+        # than the plane, continuous with it, at most max_walk rows; a walk that stops stays.
+        # Only the contacts walk (a data-sized index list, NonZero in the graph): the walks are
+        # a few thousand entries, not H x W, and the step count stays fixed
+        c_idx = torch.nonzero(contact).reshape(-1)
+        r_b = a_b * self.q_nxt
+        edge = self.walk_ok & below & c_b
+        step = torch.where(edge & (r_b < 1.0 - self.near_rel), self.nxt, self.ar)
+        pos, walks = c_idx, []
         for _ in range(self.max_walk):
             nxt = self._take(step, pos)
-            walks.append((contact & (nxt != pos), nxt))
+            walks.append((nxt != pos, nxt))
             pos = nxt
-        new_q = self._contact_q(A, src)
         if self.keep_rel is not None:
             # walk on over ground nearer than the plane by any amount, kept where the run then
             # stands at the plane's depth at its contact (numpy: refine_contacts)
-            edge = (self.walk_ok & below & (a_b * self.q_nxt < 1.0 - 1e-4)
-                    & self._cont(A, a_b))
-            step = torch.where(edge, self.nxt, self.ar)
+            step = torch.where(edge & (r_b < 1.0 - 1e-4), self.nxt, self.ar)
             pos_l, loose = pos, []
             for _ in range(2 * self.max_walk):
                 nxt = self._take(step, pos_l)
-                loose.append((contact & (nxt != pos_l), nxt))
+                loose.append((nxt != pos_l, nxt))
                 pos_l = nxt
-            ok = (pos_l != pos) & (torch.abs(self._take(new_q * src, pos_l) - 1.0)
-                                   <= self.keep_rel)
+            ok = (pos_l != pos) & (torch.abs(self._contact_q(A, src, pos_l)
+                                             * self._take(src, pos_l) - 1.0) <= self.keep_rel)
             pos = torch.where(ok, pos_l, pos)
             walks += [(act & ok, p) for act, p in loose]
         # a walked-over ground pixel takes the contact that reached it first: written last
         wk = -torch.ones(N + 1, dtype=torch.int64)
-        dummy = torch.full_like(self.ar, N)
-        for act, p in walks[::-1]:
-            wk = wk.scatter(0, torch.where(act, p, dummy), self.ar)
+        dummy = torch.full_like(c_idx, N)
+        for act, p in walks[::-1]:          # in place: a copy of H x W per step cost 10%
+            wk.scatter_(0, torch.where(act, p, dummy), c_idx)
         cid = torch.where(wk[:N] >= 0, wk[:N], cid)
         have = cid >= 0
-        foot = self._take(pos, torch.clamp(cid, min=0))      # each pixel's contact, walked
-        return have, foot, self._take(new_q, foot)
+        # each pixel's contact, walked, and its plane inverse depth (pixels without a contact:
+        # pixel 0's entries, never read)
+        cid = torch.clamp(cid, min=0)
+        foot = self._take(self.ar.scatter(0, c_idx, pos), cid)
+        qc = torch.zeros_like(self.q64).scatter(0, c_idx, self._contact_q(A, src, pos))
+        return have, foot, self._take(qc, cid)
 
-    def _contact_q(self, A: torch.Tensor, src: torch.Tensor) -> torch.Tensor:
-        """numpy's ``_contact_q`` as a field over every base position."""
-        q = self.q64
-        a_up = self._take(A, self.above)
-        r0, ra = A * q, a_up * self.q_above
-        sel = (r0 - ra > 1e-6) & self.has_above
+    def _contact_q(self, A: torch.Tensor, src: torch.Tensor, at: torch.Tensor) -> torch.Tensor:
+        """numpy's ``_contact_q`` at the base positions ``at`` (flat indices): the walked contacts
+        only, not every pixel."""
+        q, q_above, above = self._take(self.q64, at), self._take(self.q_above, at), \
+            self._take(self.above, at)
+        a0, s0 = self._take(A, at), self._take(src, at)
+        r0, ra = a0 * q, self._take(A, above) * q_above
+        sel = (r0 - ra > 1e-6) & self._take(self.has_above, at)
         x = torch.where(sel, (1.0 - r0) / torch.where(sel, r0 - ra, torch.ones_like(r0)),
                         torch.full_like(r0, 0.5))
         x = torch.clamp(torch.where(torch.isnan(x), torch.full_like(x, 0.5), x), 0.0, 1.0)
         # src q extrapolated to x reaches 1 once the run is scaled to 1 / new_q at its base
-        return q * (1.0 + x) - x * self.q_above * self._take(src, self.above) / src
+        return q * (1.0 + x) - x * q_above * self._take(src, above) / s0
 
     def _fill(self, ratio: torch.Tensor, A: torch.Tensor, todo: torch.Tensor) -> torch.Tensor:
         """fill_along_rows: a pixel to fill links to its left (then right) neighbour; every
