@@ -121,26 +121,29 @@ def occluded_runs(A: np.ndarray, occluder: np.ndarray, ground: np.ndarray, du: n
 def _walk_down(A, ground, q, du, cv, cu, nearer: float, steps: int, jump_rel: float):
     """Move each base pixel (cv, cu) down its vertical line over ground pixels with ``A q`` below
     ``nearer`` (nearer than the plane) and continuous with it, at most ``steps`` rows. Returns the
-    new bases and, per step, the pixels walked over and the indices of the bases that walked."""
+    new bases and, per step, the pixels walked over and the indices of the bases that walked.
+    Only the bases still walking are looked at in each step (a stopped walk stays stopped)."""
     h, w = A.shape
-    active = np.ones(len(cv), bool)
+    cv, cu = np.array(cv, dtype=np.int64), np.array(cu, dtype=np.int64)
+    idx = np.arange(len(cv))
     walked_pix, walked_c = [], []
     for _ in range(steps):
-        step = du[cv, cu]
-        bv = cv + 1
-        bu = np.rint(cu + np.nan_to_num(step)).astype(np.int64)
-        act = active & np.isfinite(step) & (bv < h) & (bu >= 0) & (bu < w)
+        v, u = cv[idx], cu[idx]
+        step = du[v, u]
+        bv = v + 1
+        bu = np.rint(u + np.nan_to_num(step)).astype(np.int64)
+        act = np.isfinite(step) & (bv < h) & (bu >= 0) & (bu < w)
         bv, bu = np.where(act, bv, 0), np.clip(bu, 0, w - 1)
-        a, a_b, qb = A[cv, cu], A[bv, bu], q[bv, bu]
+        a, a_b, qb = A[v, u], A[bv, bu], q[bv, bu]
         with np.errstate(invalid="ignore", divide="ignore"):
             act &= ground[bv, bu] & (qb > 0) & (a_b * qb < nearer) \
                 & (np.abs(a - a_b) <= jump_rel * np.minimum(a, a_b))
         if not act.any():
             break
-        cv, cu = np.where(act, bv, cv), np.where(act, bu, cu)
-        walked_pix.append(bv[act] * w + bu[act])
-        walked_c.append(np.flatnonzero(act))
-        active = act
+        idx, bv, bu = idx[act], bv[act], bu[act]
+        cv[idx], cu[idx] = bv, bu
+        walked_pix.append(bv * w + bu)
+        walked_c.append(idx)
     return cv, cu, walked_pix, walked_c
 
 
@@ -220,31 +223,37 @@ def walk_up(du: np.ndarray, n: int, span: int):
         yield vs + j, np.clip(ui, 0, w - 1), inside
 
 
-def recession(A: np.ndarray, q: np.ndarray, du: np.ndarray, span: int,
-              jump_rel: float) -> np.ndarray:
-    """(H, W) how fast the depth grows up the image's vertical relative to the plane's: the ratio
-    of the ``ln A`` to the ``ln (1 / q)`` difference over ``span`` rows; NaN where that is not
-    measurable or a single row's step exceeds the plane's by more than a depth step
-    (``jump_rel``). About 1 on the ground (also where the network has it at the wrong depth),
-    0 or below on a structure standing on it (it gets nearer or stays going up)."""
-    h, w = A.shape
-    out = np.full((h, w), np.nan)
+def recession(maps, q: np.ndarray, du: np.ndarray, span: int,
+              jump_rel: float) -> list[np.ndarray]:
+    """Per map of ``maps`` (each (H, W)), how fast the depth grows up the image's vertical
+    relative to the plane's: the ratio of the ``ln A`` to the ``ln (1 / q)`` difference over
+    ``span`` rows; NaN where that is not measurable or a single row's step exceeds the plane's by
+    more than a depth step (``jump_rel``). About 1 on the ground (also where the network has it at
+    the wrong depth), 0 or below on a structure standing on it (it gets nearer or stays going up).
+    The maps share one walk up the verticals."""
+    h, w = q.shape
+    outs = [np.full((h, w), np.nan) for _ in maps]
     if span >= h:
-        return out
+        return outs
     n = h - span
-    ok = np.ones((n, w), bool)
-    inside = ok
-    a_prev, q_prev = A[:n], q[:n]
+    oks = [np.ones((n, w), bool) for _ in maps]
+    inside = oks[0]
+    a_prev, q_prev = [A[:n] for A in maps], q[:n]
     with np.errstate(invalid="ignore", divide="ignore"):
         for rows, ui, inside in walk_up(du, n, span):
-            a_j, q_j = A[rows, ui], q[rows, ui]
-            ok &= (q_j > 0) & (np.log(a_prev / a_j) <= np.log1p(jump_rel) + np.log(q_j / q_prev))
-            a_prev, q_prev = a_j, q_j
-        ok &= inside
-        g_net = np.log(A[:n] / a_prev)
+            q_j = q[rows, ui]
+            plane = (q_j > 0, np.log1p(jump_rel) + np.log(q_j / q_prev))
+            for i, A in enumerate(maps):
+                a_j = A[rows, ui]
+                oks[i] &= plane[0] & (np.log(a_prev[i] / a_j) <= plane[1])
+                a_prev[i] = a_j
+            q_prev = q_j
         g_pl = np.log(q_prev / q[:n])
-        out[:n] = np.where(ok & (q[:n] > 0) & (g_pl > 1e-6), g_net / g_pl, np.nan)
-    return out
+        for A, ok, a_end, out in zip(maps, oks, a_prev, outs):
+            ok &= inside
+            g_net = np.log(A[:n] / a_end)
+            out[:n] = np.where(ok & (q[:n] > 0) & (g_pl > 1e-6), g_net / g_pl, np.nan)
+    return outs
 
 
 def fill_along_rows(ratio: np.ndarray, A: np.ndarray, todo: np.ndarray, jump_rel: float) -> None:
@@ -260,20 +269,23 @@ def fill_along_rows(ratio: np.ndarray, A: np.ndarray, todo: np.ndarray, jump_rel
             ratio[m, u] = ratio[m, prev]
 
 
-def _receding(M: np.ndarray, q: np.ndarray, du: np.ndarray, span: int, jump_rel: float,
-               recede: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
-    """(H, W) bool: ``flat`` (neither the pixel nor the pixels ``span`` rows above it recede:
-    a structure, if the plane's depth snapped it) and ``recedes`` (the depth of ``M`` grows up
-    the vertical ``recede`` times as fast as the plane's, measured from above at a step)."""
-    h, w = M.shape
-    k = recession(M, q, du, span, jump_rel)
+def _receding(maps, q: np.ndarray, du: np.ndarray, span: int, jump_rel: float,
+              recede: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """(H, W) bool: ``flat`` (on no map of ``maps`` does the pixel or the pixel ``span`` rows
+    above it recede: a structure, if the plane's depth snapped it) and ``recedes`` (on some map
+    the depth grows up the vertical ``recede`` times as fast as the plane's, measured from above
+    at a step)."""
+    h, w = q.shape
     vu = np.arange(h)[:, None] - span
     uu = np.clip(np.rint(np.arange(w)[None, :] - span * np.nan_to_num(du)), 0, w - 1)
-    k_up = np.where(vu >= 0, k[np.maximum(vu, 0), uu.astype(np.int64)], np.nan)
-    k_any = np.where(np.isfinite(k), k, k_up)
-    with np.errstate(invalid="ignore"):
-        return ((k < recede[0]) & ~(k_up >= recede[0]),
-                (k_any >= recede[0]) & (k_any <= recede[1]))
+    flat, recedes = np.ones((h, w), bool), np.zeros((h, w), bool)
+    for k in recession(maps, q, du, span, jump_rel):
+        k_up = np.where(vu >= 0, k[np.maximum(vu, 0), uu.astype(np.int64)], np.nan)
+        k_any = np.where(np.isfinite(k), k, k_up)
+        with np.errstate(invalid="ignore"):
+            flat &= (k < recede[0]) & ~(k_up >= recede[0])
+            recedes |= (k_any >= recede[0]) & (k_any <= recede[1])
+    return flat, recedes
 
 
 def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, ground: np.ndarray,
@@ -330,11 +342,8 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
         # measured on the map the decisions are taken on and on the shape a traced run keeps:
         # ground where either recedes, a structure on the plane's depth where neither does, so
         # that a run this alignment re-anchored is not taken for ground when aligned again
-        flat, recedes = _receding(A, q, du, span, jump_rel, recede)
-        if native is not None:
-            f_src, r_src = _receding(src, q, du, span, jump_rel, recede)
-            flat &= f_src
-            recedes |= r_src
+        flat, recedes = _receding((A,) if native is None else (A, src), q, du, span,
+                                  jump_rel, recede)
         with np.errstate(invalid="ignore"):
             planar = recedes & ~ground
             # the plane at most recede_push x farther than the pixel's ground-mode depth
