@@ -7,7 +7,9 @@ row in one step (before) landed every replicate near the soft-L1 fit *with* the 
 solution dropped, an offset added to each replicate's angle: with 20% outliers (masks, seeds
 0-19, 10 replicates) the bootstrap was 2-6x the replicates' own spread (cylinder 1: 2.58 against
 0.54 deg), and the gate refused 19 of 59 cameras under 0.5 degrees (now 14), accepting 0 of 6
-over 1 either way (``benchmarks/bench_plane_boot.py``). It measures how much the plane depends on
+over 1 either way (``benchmarks/bench_plane_boot.py``). Held out (seeds 20-39): refused 20 -> 12 of
+46, but accepted 3 -> 5 of 11 over 1 (ellipsoid 21 and 26, 1.18 / 1.19 deg at 1.2-1.4 std); at
+1 px without outliers accepted 6 -> 6 of 8, refused 2 -> 3 of 54. It measures how much the plane depends on
 which agents happened to pass, not a bias that every track shares: a class whose outline the
 model describes worse (a real car: body, cabin and wheels, not one box) shifts the plane
 consistently whenever it is drawn, and the bootstrap reported 0.23 deg for an all-class plane
