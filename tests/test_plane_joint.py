@@ -103,7 +103,7 @@ def test_extent_is_estimated_not_assumed(fits):
     """Thin walkers drive the people's extent to ~0, wide cylinders (0.3 m) up to ~0.17."""
     thin = _fit(fits, "thin", 0)[1].extra["extents"]["people"]
     wide = _fit(fits, "cylinder", 0)[1].extra["extents"]["people"]
-    assert max(thin[:2]) < 0.03 and min(wide[:2]) > 0.1, (thin, wide)   # (e_f, e_h)
+    assert max(thin) < 0.03 and min(wide) > 0.1, (thin, wide)
 
 
 def test_camera_height_ml_weighs_children_by_their_share():

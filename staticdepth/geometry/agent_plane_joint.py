@@ -19,8 +19,7 @@ import numpy as np
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import _BIG, AgentObservations
 from staticdepth.geometry.agent_plane_linear import plane_affine
-from staticdepth.geometry.agent_plane_problem import (MIN_SHAPE_TRACKS, RIM_GAIN, _normal,
-                                                      _Problem)
+from staticdepth.geometry.agent_plane_problem import MIN_SHAPE_TRACKS, _normal, _Problem
 from staticdepth.geometry.agent_plane_sides import wide_start, width_spread
 from staticdepth.geometry.agent_shape import GROUPS
 from staticdepth.geometry.agent_walker import relative_noise_split
@@ -90,12 +89,12 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
             p, r, theta, s, cost = alt
     rim = sub.rim_start(sub.prior_theta())  # people: also with a raised foot rim (flaring)
     if rim is not None:
-        e1, sub.rim_free = sub.e1, True
+        e1 = sub.e1
         alt = sub.fit(conf, starts, rim, loss=conf.loss, max_nfev=100)
-        if alt[4] < cost - RIM_GAIN:
+        if alt[4] < cost:
             p, r, theta, s, cost = alt
         else:
-            sub.e1, sub.rim_free = e1, False
+            sub.e1 = e1
     # the rows' noise scale (gait, rough masks) sets the inlier threshold, never below inlier_px
     n = _normal(p, r)
     theta_all = _expand(prob, sub, theta)

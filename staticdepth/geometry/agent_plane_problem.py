@@ -49,7 +49,6 @@ from staticdepth.geometry.camera import normal_from_pitch_roll
 
 MIN_SHAPE_TRACKS = 3
 RIM_START = 0.03     # the people's raised rim's start (delta, a share of the height)
-RIM_GAIN = 5.0       # the cost drop (robust, in noise units) that keeps the rim free
 
 
 def _normal(pitch: float, roll: float) -> np.ndarray:
@@ -105,7 +104,6 @@ class _Problem:
         self.e1, self._with_one = 0.0, False      # the one-foot extent, fitted or not
         self.width_sd = WIDTH_SD      # the ring radii's spread (agent_plane_sides.width_spread)
         self.extent_s = None          # disks' radii e * s (None) or e * extent_s (in metres)
-        self.rim_free = False         # the people's raised rim (delta, z) an unknown, else fixed
 
     def params(self, theta: np.ndarray, e1: float | None = None) -> list:
         out = [np.asarray(GROUPS[g].prior) for g in range(len(GROUPS))]
@@ -235,9 +233,7 @@ class _Problem:
         th0 = np.clip(th0, t_lo, t_hi)
         fixed = np.ones(len(th0), bool)
         for g in (self.free if free_shape else []):
-            sl = self.slices[g]
-            rim = GROUPS[g].outline == "disk" and not self.rim_free
-            fixed[sl.start - 2:sl.stop - 2 - (2 if rim else 0)] = False
+            fixed[self.slices[g].start - 2:self.slices[g].stop - 2] = False
         t_lo, t_hi = np.where(fixed, th0 - 1e-9, t_lo), np.where(fixed, th0 + 1e-9, t_hi)
         lower = np.r_[lo_p, -mr, t_lo, -10.0, np.full(self.J, 1e-4)]
         upper = np.r_[hi_p, mr, t_hi, 10.0, np.full(self.J, 100.0)]
@@ -271,5 +267,4 @@ class _Problem:
         """The one-foot extent and the ring radii's spread of ``other`` (a problem on a subset of
         the observations)."""
         self.e1 = other.e1 if self.one_free else 0.0
-        self.rim_free = other.rim_free
         self.width_sd = other.width_sd
