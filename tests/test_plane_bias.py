@@ -29,9 +29,7 @@ def test_thin_bodies_without_noise_or_priors_give_the_exact_plane():
     s = scene("thin", 9, noise_px=0.0)
     p = fit_agent_plane(s.K, s.obs, NO_PRIORS)
     assert angle_between_deg(p.normal, s.normal) < 0.01
-    e_f, e_h, delta, z = p.extra["extents"]["people"]
-    assert max(e_f, e_h) < 0.002
-    assert delta < 0.2 * z        # the raised rim the lowest point only from views over 79 deg
+    assert max(p.extra["extents"]["people"]) < 0.002
     assert angle_between_deg(fit_agent_plane(s.K, s.obs, JOINT).normal, s.normal) < 0.2
 
 
@@ -49,5 +47,4 @@ def test_tapered_steep_camera_is_exact_from_the_true_foot_and_crown():
     o["height_px"] = o["foot_v"] - o["top_v"]
     p = fit_agent_plane(s.K, o, JOINT)
     assert angle_between_deg(p.normal, s.normal) < 0.15
-    e_f, e_h, delta, z = p.extra["extents"]["people"]
-    assert max(e_f, e_h) < 0.01 and delta < 0.2 * z
+    assert max(p.extra["extents"]["people"]) < 0.01
