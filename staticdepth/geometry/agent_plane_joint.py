@@ -87,14 +87,6 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
                       loss=conf.loss, max_nfev=100)
         if alt[4] < cost:
             p, r, theta, s, cost = alt
-    rim = sub.rim_start(sub.prior_theta())  # people: also with a raised foot rim (flaring)
-    if rim is not None:
-        e1 = sub.e1
-        alt = sub.fit(conf, starts, rim, loss=conf.loss, max_nfev=100)
-        if alt[4] < cost:
-            p, r, theta, s, cost = alt
-        else:
-            sub.e1 = e1
     # the rows' noise scale (gait, rough masks) sets the inlier threshold, never below inlier_px
     n = _normal(p, r)
     theta_all = _expand(prob, sub, theta)

@@ -2,8 +2,7 @@
 :mod:`staticdepth.geometry.agent_plane_joint`).
 
 Unknowns: the normal (pitch, roll), one extent vector per class group present
-(:mod:`staticdepth.geometry.agent_shape`: people are foot and head disks and a raised foot rim
-``(e_f, e_h, delta, z)``,
+(:mod:`staticdepth.geometry.agent_shape`: people are foot and head disks ``(e_f, e_h)``,
 two-wheelers and vehicles boxes ``(a, b)``; each with a weak Gaussian prior,
 ``shape_prior_weight`` pixels per prior standard deviation; a group with fewer than 3 tracks
 keeps the prior means), where masks show walkers' feet both apart and overlapping the one-foot
@@ -48,7 +47,6 @@ from staticdepth.geometry.agent_walker import (MIN_ONE_FOOT, ONE_FOOT_BOUNDS, ON
 from staticdepth.geometry.camera import normal_from_pitch_roll
 
 MIN_SHAPE_TRACKS = 3
-RIM_START = 0.03     # the people's raised rim's start (delta, a share of the height)
 
 
 def _normal(pitch: float, roll: float) -> np.ndarray:
@@ -113,25 +111,11 @@ class _Problem:
         for g in self.present:
             if GROUPS[g].outline == "disk" and e1 != 0:   # one-foot frames: e_f + e_1
                 m = self.group == g
-                out[g] = [out[g][0] + e1 * self.one[m], *out[g][1:]]
+                out[g] = [out[g][0] + e1 * self.one[m], out[g][1]]
         return out
 
     def prior_theta(self) -> np.ndarray:
         return np.concatenate([GROUPS[g].prior for g in self.present] or [np.zeros(0)])
-
-    def rim_start(self, theta: np.ndarray) -> np.ndarray | None:
-        """``theta`` with the people's raised rim moved out of its flat region (None where the
-        people's extents are not free): at ``delta = 0`` the rim is never the lowest point and
-        the cost has no slope in it (tapered camera 1, noise-free: stayed at 1.00 degrees);
-        started there alone, a thin body's fit went 5.65 degrees off (camera 15), so
-        :func:`~staticdepth.geometry.agent_plane_joint.fit_joint` keeps the lower cost."""
-        g = next((g for g in self.free if GROUPS[g].outline == "disk"), None)
-        if g is None:
-            return None
-        th = np.array(theta, np.float64)
-        k = self.slices[g].start - 2 + 2
-        th[k] = max(th[k], RIM_START)
-        return th
 
     def shape_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         lo = np.concatenate([GROUPS[g].lower for g in self.present] or [np.zeros(0)])

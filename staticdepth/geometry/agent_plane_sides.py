@@ -70,7 +70,7 @@ def anchored(prob, n, theta, s, dev=None, iters: int = 3):
 def _people_widths(prob, n, theta, s, dev, iters: int = 1):
     """(foot rays, width residuals) of the people seen as boxes; see :func:`anchored`."""
     k = prob.width_idx
-    e_f, e_h, *rim = prob.params(theta, dev)[0]   # people (the disk group): foot, head, rim
+    e_f, e_h = prob.params(theta, dev)[0]   # people (the disk group): foot, head extents
     if np.ndim(e_f):                          # per observation of the group (striding)
         e_f = np.asarray(e_f)[(np.cumsum(prob.group == 0) - 1)[k]]
     j, sk = prob.obs.idx[k], s[prob.obs.idx[k]]
@@ -86,7 +86,7 @@ def _people_widths(prob, n, theta, s, dev, iters: int = 1):
 
     for it in range(iters + 1):
         rays = rays_from_pixels(prob.K, u, prob.obs.v[k])
-        A = foot_centres(n, rays, sk, e_f, rim)
+        A = foot_centres(n, rays, sk, e_f)
         d_lo, d_hi = disk_columns(prob.K, n, A, sk, e_f, e_h)
         if it == 0:       # the ring that alone spans the box, never inside the widest disk
             r_lo = np.bincount(j, np.maximum(e_f, e_h) * sk, minlength=prob.J) \
@@ -169,5 +169,5 @@ def wide_start(prob) -> np.ndarray | None:
     e = float(np.clip(0.5 * np.median(w), 0.0, 0.3))
     theta = prob.prior_theta().copy()
     sl = prob.slices[0]
-    theta[sl.start - 2:sl.start] = e         # the foot and head disks (not the raised rim)
+    theta[sl.start - 2:sl.stop - 2] = e
     return theta

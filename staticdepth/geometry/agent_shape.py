@@ -6,11 +6,8 @@ foot) is the lowest point of its footprint's outline, its highest image point (t
 the highest point of its roof's outline. Two outlines, both scaled with the agent's height:
 
 - ``disk`` (people; unknown classes): a disk of radius ``e_f s`` at the foot and one of ``e_h s``
-  at the top, and a raised foot rim of radius ``(e_f + delta) s`` at the height ``z s`` (a body
-  flaring above its sole: from a steep view the flare's near edge is the lowest point, so the
-  foot's offset from the axis grows with the viewing angle); four parameters
-  ``(e_f, e_h, delta, z)`` (``e = 0, delta = 0``: the thin head-foot axis; about 0.12 for a
-  0.2 m body).
+  at the top; two parameters ``(e_f, e_h)`` (0 = the thin head-foot axis; about 0.12 for a 0.2 m
+  body).
 - ``box`` (two-wheelers, cars, buses, trucks): a rectangle of half-length ``a s`` along the
   track's heading and half-width ``b s`` across it; two parameters ``(a, b)``. The heading is the
   principal direction of the track's foot points on the ground.
@@ -51,8 +48,7 @@ class ShapeGroup:
 
 # COCO ids: person 0, bicycle 1, car 2, motorcycle 3, bus 5, truck 7; -1 = unknown (a CSV)
 GROUPS = (
-    ShapeGroup("people", "disk", (0, -1), (0.07, 0.05, 0.0, 0.06), (0.06, 0.05, 0.05, 0.03),
-               (0.0, 0.0, 0.0, 0.01), (0.3, 0.3, 0.2, 0.2),
+    ShapeGroup("people", "disk", (0, -1), (0.07, 0.05), (0.06, 0.05), (0.0, 0.0), (0.3, 0.3),
                ((0.9, 1.70, 0.09), (0.1, 1.25, 0.15))),
     ShapeGroup("two-wheelers", "box", (1, 3), (0.5, 0.17), (0.2, 0.08), (0.0, 0.0), (1.2, 0.5),
                ((1.0, 1.70, 0.10),)),
@@ -173,40 +169,18 @@ def person_columns(K: np.ndarray, n: np.ndarray, rays: np.ndarray, s: np.ndarray
     return np.fmin(lo, rlo), np.fmax(hi, rhi)
 
 
-def foot_centres(n: np.ndarray, rays: np.ndarray, s: np.ndarray, e_f, rim=(),
-                 se: np.ndarray | None = None) -> np.ndarray:
+def foot_centres(n: np.ndarray, rays: np.ndarray, s: np.ndarray, e_f) -> np.ndarray:
     """(N, 3) centres of the people's foot disks whose lowest image points are on ``rays`` (NaN
-    where a ray misses the ground). ``rim``: ``(delta, z)``, a second rim of radius
-    ``(e_f + delta) se`` at the height ``z s`` (a body flaring above its sole: seen from above
-    the flare's near edge, not the sole's, is the lowest point, so the observed foot's offset
-    from the axis grows with the viewing angle); the centre is the one whose other rim is not
-    lower in the image than the ray. ``se``: the radii's scale (default ``s``)."""
-    se = s if se is None else se
+    where a ray misses the ground)."""
     nr = rays @ n
     with np.errstate(divide="ignore", invalid="ignore"):
         F = rays / nr[:, None]
     F[~(nr > 1e-9)] = np.nan
-    basis = _ground_basis(n)
-    A = _under(F, basis, np.asarray(e_f) * se)
-    if len(rim) < 2 or not rim[0] > 0:
-        return A
-    zs = rim[1] * s
-    r2 = (np.asarray(e_f) + rim[0]) * se
-    lift = zs[:, None] * n
-    with np.errstate(invalid="ignore"):
-        B = _under(F * (1.0 - zs)[:, None], basis, r2) + lift     # the raised rim lowest
-        row_a = _rows(_rim(A - lift, basis, r2, lowest=True))     # hyp. sole: its raised rim
-    take_b = np.nan_to_num(row_a, nan=-np.inf) > _rows(F) + 1e-12
-    return np.where((take_b & np.all(np.isfinite(B), 1))[:, None], B, A)
-
-
-def _under(F: np.ndarray, basis, rho: np.ndarray) -> np.ndarray:
-    """(N, 3) centres of horizontal disks (radii rho) in the plane of F whose lowest image
-    points are F (3 fixed-point steps)."""
     A = F.copy()
-    if np.any(np.asarray(rho) > 0):
+    if np.any(np.asarray(e_f) > 0):
+        basis = _ground_basis(n)
         for _ in range(3):
-            A = A + (F - _rim(A, basis, np.broadcast_to(rho, (len(F),)), lowest=True))
+            A = A + (F - _rim(A, basis, np.asarray(e_f) * s, lowest=True))
     return A
 
 
@@ -284,7 +258,10 @@ def top_points(n: np.ndarray, rays: np.ndarray, s: np.ndarray, group: np.ndarray
         p = params[g]
         if grp.outline == "disk":
             se = s[m] if extent_s is None else np.full(int(m.sum()), extent_s)
-            A = foot_centres(n, rays[m], s[m], p[0], p[2:], se)
+            A = F[m].copy()
+            if np.any(np.asarray(p[0]) > 0):
+                for _ in range(3):
+                    A = A + (F[m] - _rim(A, basis, p[0] * se, lowest=True))
             T[m] = _rim(A - s[m, None] * n, basis, p[1] * se, lowest=False)
         else:
             T[m] = _box_top(n, F[m], s[m], p[0], p[1], heading[m])
