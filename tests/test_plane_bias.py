@@ -10,6 +10,14 @@ from 4 cm at the sole to 11 cm a few centimetres up, so seen from above the silh
 point is the flare's near rim, not a foot disk's, and the foot extent that describes it grows with
 the viewing angle. Replacing the mask's foot and top by the true axis foot and crown leaves
 0.01-0.19 degrees.
+
+Tried, not kept (ninth round, commits ce559df-330a330 and their reverts): a second, raised foot
+rim (radius ``(e_f + delta) s`` at the height ``z s``, both fitted) whose near edge is the lowest
+point from steep views. Noise-free it takes tapered seeds 0-19 from 0.13 / 1.25 to 0.11 / 0.60
+(camera 8: 1.25 -> 0.18-0.28), thin unchanged; at 1 px it does not pay: tapered 0.40 / 1.08 ->
+0.47 / 1.18 (cameras 5, 8, 12 better, 1, 7, 15, 19 worse by 0.2-0.7), the rim's two unknowns
+trading against the pitch as the extents do, and free on walkers it absorbed the gait
+(ellipsoid seed 1: 0.06 -> 2.58 until kept only where it lowered the cost by 5).
 """
 from __future__ import annotations
 
