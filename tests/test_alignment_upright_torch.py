@@ -73,21 +73,26 @@ def test_torch_upright_matches_numpy(frame, kw):
     assert _rel(out, ref).max() < 1e-5, _rel(out, ref).max()
 
 
-def test_upright_exports_to_onnx(frame, tmp_path):
+def _onnx_session(mod, Z, tmp_path):
+    """The module traced on the frame ``Z``, exported to ONNX and opened in onnxruntime."""
     import onnxruntime as ort
 
+    path = str(tmp_path / "u.onnx")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        torch.onnx.export(mod, (torch.from_numpy(Z),), path, input_names=["z"], opset_version=17,
+                          dynamo=False)
+    return ort.InferenceSession(path, providers=["CPUExecutionProvider"])
+
+
+def test_upright_exports_to_onnx(frame, tmp_path):
     from staticdepth.geometry.alignment_torch import alignment_module
 
     Z, K, n, G, _ = frame
     mod = alignment_module("upright", K, 320, 160, n, 1.0, G, snap_rel=0.1, jump_rel=0.08,
                            plane_bound=True)      # adapt's default: the plane's bound too
     assert isinstance(mod, UprightAlignment)
-    path = str(tmp_path / "u.onnx")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        torch.onnx.export(mod, (torch.from_numpy(Z),), path, input_names=["z"], opset_version=17,
-                          dynamo=False)
-    sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
+    sess = _onnx_session(mod, Z, tmp_path)
     for s_f, t_f in [(1.0, 0.0), (3.0, 0.02)]:             # each frame its own scale and shift
         Zf = (1.0 / (s_f / Z + t_f)).astype(np.float32)
         ref = align_depth(Zf, K, n, 1.0, G, mode="upright", plane_bound=True).depth
@@ -152,8 +157,6 @@ def test_upright_onnx_walks_any_number_of_contacts(frame, tmp_path):
     """Only the contacts walk (a NonZero index list in the graph): traced on one frame, the ONNX
     graph follows frames with other contacts, here an aligned map aligned again (adapt's
     defaults: the keep_rel walk on decides) and another frame of the scene, as numpy does."""
-    import onnxruntime as ort
-
     from staticdepth.adaptation.align import upright_options
     from staticdepth.adaptation.config import build_config
     from tests.indep_scenes import SCENES, Scene
@@ -161,12 +164,7 @@ def test_upright_onnx_walks_any_number_of_contacts(frame, tmp_path):
     Z, K, n, G, reg = frame
     kw = upright_options(build_config({}).align)
     mod = UprightAlignment(K, 320, 160, n, 1.0, G, **kw)
-    path = str(tmp_path / "u.onnx")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        torch.onnx.export(mod, (torch.from_numpy(Z),), path, input_names=["z"], opset_version=17,
-                          dynamo=False)
-    sess = ort.InferenceSession(path, providers=["CPUExecutionProvider"])
+    sess = _onnx_session(mod, Z, tmp_path)
     once = align_depth(Z, K, n, 1.0, G, mode="upright", **kw).depth
     gt = Scene(SCENES[0], 320, 160).render(9)["depth"]
     other = (1.0 / (2.0 / np.where(np.isfinite(gt), gt, 80.0) + 0.03)).astype(np.float32)
