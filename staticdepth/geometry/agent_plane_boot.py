@@ -58,7 +58,7 @@ def replicate_normal(K, prob: _Problem, conf, n, theta, tracks, thr: float, mode
     the solution. ``mode``: ``all`` every row of those tracks; ``kept`` only the rows within the
     solution's threshold ``thr`` (``s``: the solution's track scales); ``reselect`` ``all``, then
     the replicate's own threshold and kept rows refitted, the fit's own two steps."""
-    from staticdepth.geometry.agent_plane_joint import _track_inliers
+    from staticdepth.geometry.agent_plane_joint import _fine_fit, kept_rows
 
     p0, r0 = pitch_roll_from_normal(n)
     obs = prob.obs.subset(tracks)
@@ -74,19 +74,13 @@ def replicate_normal(K, prob: _Problem, conf, n, theta, tracks, thr: float, mode
     m = _normal(p, r)
     if mode != "reselect":
         return m, float(np.median(sv))
-    err = sub.errors(m, th, sv, 0.0)
-    t2 = max(conf.inlier_px, 2.5 * 1.4826 * float(np.nanmedian(err)))
-    good = err < t2
-    keep = _track_inliers(sub.obs.idx, good, sub.J)[sub.obs.idx] & good
+    _, _, keep = kept_rows(sub.obs.idx, sub.errors(m, th, sv, 0.0), sub.J, conf.inlier_px)
     if keep.sum() < 3:
         return m, float(np.median(sv))
     fine = _Problem(K, sub.obs.select(keep), sub.kappa)
-    fine.take_feet(sub)
     if fine.present != sub.present:
         return m, float(np.median(sv))
-    p, r, _, sv, _ = fine.fit(conf, [(np.degrees(p), np.degrees(r))], _expand(fine, sub, th),
-                              loss=conf.loss if conf.fit_column_weight > 0 else "linear",
-                              max_nfev=60)
+    p, r, _, sv = _fine_fit(fine, sub, conf, p, r, th)
     return _normal(p, r), float(np.median(sv))
 
 

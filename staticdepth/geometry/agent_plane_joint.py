@@ -100,14 +100,11 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     if len(prob.width_idx):     # people as boxes: the spread of their widths
         prob.width_sd = width_spread(prob, n, theta_all, s, inl,
                                      GROUPS[0].typical_height[1])
-    err = prob.errors(n, theta_all, s, 0.0)
-    thr = max(conf.inlier_px, 2.5 * 1.4826 * float(np.median(err)))
-    inl = _track_inliers(obs.idx, err < thr, J)
-    keep = inl[obs.idx] & (err < thr)
+    thr, inl, keep = kept_rows(obs.idx, prob.errors(n, theta_all, s, 0.0), J, conf.inlier_px)
     conf = _column_weight(conf, prob, n, theta_all, s, keep)
     fine = _Problem(K, obs.select(keep), prob.kappa) if keep.sum() >= 3 else sub
     if fine.present == sub.present:
-        p, r, theta = _fine_fit(fine, prob, conf, p, r, theta_all)
+        p, r, theta, _ = _fine_fit(fine, prob, conf, p, r, theta_all)
         theta_all = _expand(prob, fine, theta)
         prob.take_feet(fine)
     n = _normal(p, r)
@@ -158,13 +155,22 @@ def _people_residuals(prob: _Problem, n, theta, s, inl):
             np.r_[one, one])
 
 
+def kept_rows(idx: np.ndarray, err: np.ndarray, J: int, inlier_px: float):
+    """The fit's second step's rows, from the first fit's row errors ``err`` (px / sigma): the
+    threshold (``inlier_px``, or 2.5 robust sigmas where the errors are larger), the inlier
+    tracks (J,) and the kept rows (N,) (the bootstrap's replicates take the same step)."""
+    thr = max(inlier_px, 2.5 * 1.4826 * float(np.median(err)))
+    inl = _track_inliers(idx, err < thr, J)
+    return thr, inl, inl[idx] & (err < thr)
+
+
 def _fine_fit(fine: _Problem, prob: _Problem, conf, p, r, theta_all):
-    """The fit on the inlier observations (pitch, roll, theta), the one-foot extent from the
-    first fit's."""
+    """The fit on the inlier observations (pitch, roll, theta, track scales), the one-foot extent
+    from the first fit's."""
     fine.take_feet(prob)
     fit = fine.fit(conf, [(math.degrees(p), math.degrees(r))], _expand(fine, prob, theta_all),
                    loss=conf.loss if conf.fit_column_weight > 0 else "linear", max_nfev=60)
-    return fit[0], fit[1], fit[2]
+    return fit[0], fit[1], fit[2], fit[3]
 
 
 def _column_weight(conf, prob: _Problem, n, theta, s, keep):
