@@ -8,7 +8,7 @@ import pytest
 
 from staticdepth.errors import InputError
 from staticdepth.geometry.alignment import align_depth, depth_from_inverse
-from staticdepth.geometry.alignment_upright import down_step
+from staticdepth.geometry.alignment_vertical import down_step
 from tests.test_alignment import dpt_failure, scene
 
 

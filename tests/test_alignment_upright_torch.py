@@ -77,6 +77,7 @@ def _onnx_session(mod, Z, tmp_path):
     """The module traced on the frame ``Z``, exported to ONNX and opened in onnxruntime."""
     import onnxruntime as ort
 
+    tmp_path.mkdir(parents=True, exist_ok=True)
     path = str(tmp_path / "u.onnx")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -178,3 +179,32 @@ def test_upright_onnx_walks_any_number_of_contacts(frame, tmp_path):
         assert _rel(got, eager).max() < 1e-4, _rel(got, eager).max()     # float32 rounding
         assert _rel(got, ref.depth).max() < 1e-4, _rel(got, ref.depth).max()
     assert len(counts) == 3                     # three frames with different runs re-anchored
+
+
+def test_upright_onnx_follows_a_frame_without_contacts(frame, tmp_path):
+    """A frame whose every pixel is the plane's ground (a steep 45 degree view: no horizon, no
+    structure) leaves the NonZero index list empty: the graph traced on a frame with a wall, and
+    the one traced on the empty frame, both give numpy's result on either frame."""
+    from staticdepth.adaptation.align import upright_options
+    from staticdepth.adaptation.config import build_config
+    from staticdepth.geometry.projection import ray_grid
+
+    _, K, _, _, _ = frame
+    t = math.radians(45.0)
+    n = np.array([0.0, math.cos(t), math.sin(t)])
+    q = ray_grid(K, 320, 160) @ n                        # the plane's inverse depth (d = 1)
+    flat = (1.0 / q).astype(np.float32)
+    wall = flat.copy()
+    wall[40:100, 100:140] = flat[100, 120]               # a wall standing on row 100
+    G = flat < 3.0
+    kw = upright_options(build_config({}).align)
+    mod = UprightAlignment(K, 320, 160, n, 1.0, G, **kw)
+    refs = [align_depth(Zf, K, n, 1.0, G, mode="upright", **kw).depth for Zf in (flat, wall)]
+    ground = [align_depth(Zf, K, n, 1.0, G, mode="ground").depth for Zf in (flat, wall)]
+    assert (refs[0] == ground[0]).all()                  # no run re-anchored on the flat frame
+    assert (refs[1] != ground[1]).sum() > 1000           # the wall's run is
+    for i, traced in enumerate((wall, flat)):
+        sess = _onnx_session(mod, traced, tmp_path / str(i))
+        for Zf, ref in zip((flat, wall), refs):
+            got = sess.run(None, {"z": Zf})[0]
+            assert _rel(got, ref).max() < 1e-4, (i, _rel(got, ref).max())

@@ -33,7 +33,8 @@ import torch
 from torch import nn
 
 from staticdepth.geometry.alignment_torch import GroundAlignment, masked_median
-from staticdepth.geometry.alignment_upright import KEEP_REL, RECEDE, SHAPES, down_step, walk_up
+from staticdepth.geometry.alignment_upright import KEEP_REL, RECEDE, SHAPES
+from staticdepth.geometry.alignment_vertical import down_step, walk_up
 from staticdepth.geometry.projection import ray_grid
 
 
@@ -192,7 +193,7 @@ class UprightAlignment(nn.Module):
         return torch.cat([k, nan[m * w:]])
 
     def _receding(self, M: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """numpy's ``_receding``: (flat, recedes) of the map ``M``."""
+        """numpy's ``receding`` (alignment_vertical.py): (flat, recedes) of the map ``M``."""
         lo, hi = self.recede
         k = self._recession(M)
         k_up = torch.where(self.up_ok, self._take(k, self.up), torch.full_like(k, float("nan")))
