@@ -21,7 +21,7 @@ fit to the labels on c1 with the network's own contact labels: |prediction - lab
 shift): adapt's labels (``pseudo_labels.untrusted=base``) are shift-free inverse depth, and a
 shift-invariant loss let the fine-tuned network keep any shift, which median-scaled depth
 ``1 / prediction`` cannot undo (the U-Net's i2 structures: 0.186 base, 0.418 ft with ``ssi`` and
-every pixel labelled; 0.128 with trusted labels and ``si`` at 60 steps; README, fine-tuning).
+every pixel labelled; 0.128 with trusted labels and ``si`` at 60 steps; docs/gains.md, fine-tuning).
 """
 from __future__ import annotations
 

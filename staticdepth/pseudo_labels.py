@@ -16,19 +16,19 @@ The default, ``source="aligned"`` (:func:`aligned_pseudo_label`), labels every p
 frame's alignment mapped back into the network's space: agents and the rest of the image move
 together, so the fine-tuned network's agents improve against the truth on every independent scene
 with both test networks (plane labels, agents only, leave i2's agents worse: the image they sit in
-keeps the network's error; README, fine-tuning figures). With ``untrusted`` (default ``base``)
+keeps the network's error; docs/gains.md, fine-tuning). With ``untrusted`` (default ``base``)
 adapt keeps the aligned label only on the agents and the static pixels whose alignment repeats
 over the split, shift-free (:func:`trusted_label`); the rest take the base's own shape.
 ``untrusted="aligned"`` labels every pixel with the alignment, shift-free: with the U-Net that
 fails on the view ft-align 0.139 / 0.069 / 0.146 / 0.255 -> 0.118 / 0.070 / 0.136 / 0.230 on
 i1-i4 (chosen on i1, i3) but 0.127 -> 0.132 on a held-out scene, and its fine-tuned agents
-worse on four of five scenes (i4 0.389 -> 0.464, base 0.460): not the default (README, issue 19).
+worse on four of five scenes (i4 0.389 -> 0.464, base 0.460): not the default (docs/gains.md).
 ``grazing`` (off by default) distrusts agents whose label is less certain than the base
 (:func:`grazing_agents`): on the low cameras (i4, held-out h3) the labels' tail comes from
 contacts not seen (cut off by the image's edge or hidden behind another agent: 84 of 412 / 96
 of 426 agent-frames, median error 0.38 / 0.53), not from grazing rays; dropping them from the
 loss or blending in the base did not improve the fine-tuned agents beyond seed noise and made
-built-in i4 ``ft`` worse (README, issue 19 tenth round).
+built-in i4 ``ft`` worse (docs/gains.md).
 """
 from __future__ import annotations
 
@@ -229,7 +229,7 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
     the pixels without an alignment, as adapt trusts every pixel then) or NaN (``"ignore"``: out
     of the loss), or the base's own depth ``1 / inv`` at the trusted labels' scale, ``c inv``
     (``"depth"``: the base less its shift changes the base's depth most at far pixels, where
-    ``inv`` is near ``t``; not the default: README, issue 19 seventh round). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
+    ``inv`` is near ``t``; not the default: docs/gains.md, seventh round). Labels are 0 at infinity, so a loss without shift (``finetune.loss=si``)
     teaches the network a ``1 / prediction`` right up to one scale. None when no map exists
     (fewer than 3 trusted pixels, or no positive slope). ``fit``: a given (s, t) instead (adapt:
     the ground's, when the trusted pixels give none)."""

@@ -155,7 +155,7 @@ def test_the_default_refuses_pulls_beyond_the_ground_modes_noise():
     """A traced contact is never behind the structure's foot (it is the foot, or ground in front
     of an occluder that hides it), so a run pulled nearer than its ground-mode depth is as likely
     a contact in front as a network that put the structure too far; on the independent scenes
-    pulls beyond 1.1x lost against the ground mode in every run (README). With adapt's default
+    pulls beyond 1.1x lost against the ground mode in all runs (docs/gains.md). With adapt's default
     (align.max_pull 1.1) no pixel of the wall the network puts 50% too far ends more than 1.1x
     nearer than its ground-mode depth: the wall is only partly fixed (max_pull 2 fixes it, the
     price of the rule), still far better than the ground mode, and the ground stays exact."""

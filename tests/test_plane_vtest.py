@@ -8,7 +8,7 @@ normal and camera height must agree within twice their combined uncertainty (mea
 24.6 and 27.0 degrees, roll 0.2 and -5.5, normal +-1.3 and +-4.4 degrees, so the normals are
 5.6 degrees apart against a 2-sigma bound of 9.2; camera height 6.21 +- 0.09 and 6.88 +- 0.51 m).
 
-Why the second half's roll is off and uncertain (measured, see the README): one track (24, 15
+Why the second half's roll is off and uncertain (docs/ground_plane.md): one track (24, 15
 frames crossing the image sideways) moves it by 7.5 degrees: without it the roll is 0.3. The
 masks' head-foot columns disagree with the rows here: their lean is about a quarter of what the
 rows' pitch implies under the assumed f (the axes alone put the vertical vanishing point at a

@@ -69,7 +69,7 @@ def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: 
                   plane_bound: bool = False) -> np.ndarray:
     """One frame's depth ``Z`` aligned as adapt does it (units of the camera height).
     ``plane_bound``: ``align.plane_bound`` applies (the align stage's outputs pass it; the pseudo
-    labels do not: labels with it made the fine-tuned U-Net's ft-align worse, README)."""
+    labels do not: labels with it made the fine-tuned U-Net's ft-align worse, docs/gains.md)."""
     m = instances > 0
     # the frame's agents leave the ground mask, unless they would leave too little of it
     agent_mask = m if np.count_nonzero(ground & ~m) >= 50 else None
