@@ -95,20 +95,24 @@ def run(args) -> None:
 
 
 def _rules(floors: list[float]) -> dict:
-    """Named ways of combining the parts (q: the uncertainty dict) into the normal's std: the
-    bootstrap B and Laplace L in quadrature (before), their larger, or their RMS; the class
-    misfit and a constant body-model floor in quadrature."""
+    """Named ways of combining the parts (q: the uncertainty dict) into the normal's std, each
+    with a constant body-model floor in quadrature: ``sum`` (before) the bootstrap B, the Laplace
+    L and the class misfit M in quadrature; ``mean`` (now) that sum's square halved; ``max`` the
+    larger of B and L, M in quadrature; ``mean+M`` B's and L's squares averaged, M in full."""
     def b(q):
         return q.get("bootstrap_std_deg", np.nan)
 
     def lap(q):
         return q.get("laplace_std_deg", 0.0)
 
-    combos = {"quad": lambda q: b(q) ** 2 + lap(q) ** 2,
-              "max": lambda q: max(b(q), lap(q)) ** 2,
-              "rms": lambda q: (b(q) ** 2 + lap(q) ** 2) / 2}
-    return {f"{name} floor {f:g}": (lambda q, c=c, f=f: float(np.sqrt(
-                c(q) + q.get("class_misfit_deg", 0.0) ** 2 + f * f)))
+    def m(q):
+        return q.get("class_misfit_deg", 0.0) ** 2
+
+    combos = {"sum": lambda q: b(q) ** 2 + lap(q) ** 2 + m(q),
+              "mean": lambda q: (b(q) ** 2 + lap(q) ** 2 + m(q)) / 2,
+              "max": lambda q: max(b(q), lap(q)) ** 2 + m(q),
+              "mean+M": lambda q: (b(q) ** 2 + lap(q) ** 2) / 2 + m(q)}
+    return {f"{name} floor {f:g}": (lambda q, c=c, f=f: float(np.sqrt(c(q) + f * f)))
             for name, c in combos.items() for f in floors}
 
 

@@ -41,7 +41,6 @@ def test_reported_std_matches_the_spread_the_quadrature_sum_overstated():
     assert 0.3 < spread < 1.0                           # a camera where the noise matters
     assert 0.8 < np.median(new) / spread < 1.4          # the reported std: the spread
     assert np.median(old) / spread > 1.5                # the sum overstated it
-    # the gate's verdicts move with the scale: std <= 1 / sqrt(2) is the sum <= 1 where the
-    # class misfit is 0
+    # the gate's verdicts move with the scale: std <= 1 / sqrt(2) is the sum <= 1
     for n, o in zip(new, old):
         assert (n <= GATE_STD_DEG) == (o <= 1.0)

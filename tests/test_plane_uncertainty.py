@@ -85,9 +85,9 @@ def test_the_plane_file_carries_both_uncertainties():
     q = p.normal_std_parts
     assert {"bootstrap_std_deg", "laplace_std_deg", "laplace_data_std_deg"} <= set(q)
     # the bootstrap's and the Laplace's variances averaged (two estimates of one spread), the
-    # class misfit in quadrature (agent_plane_boot)
+    # class misfit's square halved too (agent_plane_boot)
     assert p.normal_std_deg == pytest.approx(np.sqrt(
-        (q["bootstrap_std_deg"] ** 2 + q["laplace_std_deg"] ** 2) / 2 + q["class_misfit_deg"] ** 2),
-        rel=1e-12)
+        (q["bootstrap_std_deg"] ** 2 + q["laplace_std_deg"] ** 2 + q["class_misfit_deg"] ** 2)
+        / 2), rel=1e-12)
     back = AgentPlane.from_dict(p.to_dict())
     assert back.normal_std_parts == q and back.normal_std_deg == p.normal_std_deg

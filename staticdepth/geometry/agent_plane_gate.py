@@ -17,9 +17,9 @@ over tracks with the fit's data-only Laplace uncertainty (``AgentPlane.normal_st
 :mod:`staticdepth.geometry.agent_plane_boot`); the message names both. That std covers the
 error as a 2-D Gaussian's RMS angle does (masks at 1 px: 68% of cameras within 1 std and 96%
 within 2 on seeds 0-19, 63% and 97% held out on 20-39, against 63% and 98% expected). It is
-the quadrature sum of the bootstrap and the Laplace that it replaced (gated at 1 degree) over
-sqrt(2), so the default limit is 1 / sqrt(2) degree: the verdicts stay those of the sum wherever
-the class misfit is 0, and at the limit the error exceeds 1 degree with probability
+the quadrature sum of the bootstrap, the class misfit and the Laplace that it replaced (gated at 1 degree) over
+sqrt(2), so the default limit is 1 / sqrt(2) degree: the verdicts stay those of the sum, and
+at the limit the error exceeds 1 degree with probability
 ``exp(-(1 / std)^2)`` = 14%.
 """
 from __future__ import annotations
