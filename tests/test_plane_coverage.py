@@ -5,8 +5,8 @@ Truth: the independent generators of tests/plane_generators.py, one noise-free c
 true errors over the draws is the spread the reported std has to match. The bootstrap and the
 Laplace estimate the same spread, so their variances are averaged; their quadrature sum (before)
 is sqrt(2) too large where the two agree. Over many cameras (benchmarks/bench_plane_coverage.py,
-masks at 1 px) the average puts 68% of the cameras within 1 std on seeds 0-19 and 63% held out
-on 20-39 (a 2-D Gaussian: 63%), the sum 88 / 90%. One camera is one sample of that: on thin 6
+masks at 1 px) the average puts 67% of the cameras within 1 std on seeds 0-19 and 59% held out
+on 20-39 (a 2-D Gaussian: 63%), the sum 86 / 90%. One camera is one sample of that: on thin 6
 the average is 0.72 of its spread and the sum 1.02; on tapered 6 (here) 1.14 and 1.62.
 """
 from __future__ import annotations
