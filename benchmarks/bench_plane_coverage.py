@@ -6,9 +6,9 @@ Usage: python benchmarks/bench_plane_coverage.py --generators thin --cameras 20 
        python benchmarks/bench_plane_coverage.py --summary out/cov.jsonl [--rule NAME]
 
 Each line: generator, seed, detection, outliers, the normal's error (deg), the fit's uncertainty
-dict (bootstrap, class misfit, Laplace, the linearised shape shifts of
-``agent_plane_laplace._shifts``), the camera height from the agents (error %, reported std %,
-the std's two parts: the tracks' heights and the plane's d/H) and the distributions-alone error.
+dict (bootstrap, class misfit, Laplace; lines written before commit 58ebb84's revert also the
+linearised body-extent shift ``shape_shift_deg``), the camera height from the agents (error %,
+its reported std %, the plane's d/H part of it) and the distributions-alone error.
 ``--summary``: per generator and rule, error / std (median, max), coverage (share of cameras
 within 1 and 2 std; a 2-D Gaussian's RMS angle holds 63% within 1 and 98% within 2), good
 (< 0.5 deg) refused and bad (> 1 deg) accepted by the gate (std <= 1 deg); the same for the

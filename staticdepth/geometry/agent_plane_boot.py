@@ -33,8 +33,8 @@ replicates' spread weighs half. The class misfit's square is halved too: at full
 refused a vehicles camera 0.16 degrees off that the sum accepted (seeds 0-19, 20% outliers), and
 on the vehicles' masks (seeds 0-19) it put 61% within 1 std, halved 56%. The gate's limit moves with it (1 -> 1 / sqrt(2) degree)
 (:data:`staticdepth.geometry.agent_plane_gate.GATE_STD_DEG`). A body-model term (the normal's
-shift with the body extents held one prior sd off, linearised: ``shape_shift_deg``) was tried
-and not kept: it does not rank where the error exceeds the std (Spearman -0.11 over 197 cameras)
+shift with the body extents held one prior sd off, the other unknowns re-optimised, linearised
+at the solution; commit 58ebb84) was tried and removed: it does not rank where the error exceeds the std (Spearman -0.11 over 197 cameras)
 and 0.1 x it refused 28 of the cameras under 0.5 degrees against 13 (``benchmarks/
 bench_plane_coverage.py``).
 """

@@ -39,8 +39,7 @@ import numpy as np
 
 from staticdepth.geometry.agent_cylinder import _BIG
 from staticdepth.geometry.agent_plane_problem import _Problem
-from staticdepth.geometry.agent_shape import GROUPS
-from staticdepth.geometry.agent_walker import ONE_FOOT_BOUNDS, ONE_FOOT_PRIOR
+from staticdepth.geometry.agent_walker import ONE_FOOT_BOUNDS
 from staticdepth.geometry.camera import pitch_roll_from_normal
 
 # the normal's RMS angle must stay below the limit / this for 95% of its errors to: a 2-D
@@ -129,7 +128,7 @@ def _information(prob: _Problem, conf, x: np.ndarray, with_one: bool, at_bound=N
     D = D[:, keep]
     ok = np.abs(r[:n_data]) < 0.5 * _BIG
     lam_col = int(np.flatnonzero(keep == prob.k_s - 1)[0])
-    return (r[:n_data][ok], D[:n_data][ok]), D[n_data:], lam_col, keep
+    return (r[:n_data][ok], D[:n_data][ok]), D[n_data:], lam_col
 
 
 def _at_bound(prob: _Problem, x: np.ndarray, with_one: bool) -> np.ndarray:
@@ -177,51 +176,9 @@ def laplace_uncertainty(K, prob: _Problem, conf, n, theta, s, inl, thr: float) -
     with_one = bool(conf.one_foot and sub.one_free)
     s_sub = s[tracks]
     x = _state(sub, n, theta, s_sub, _height_offset(sub, s_sub), with_one)
-    data, prior_D, lam_col, _ = _information(sub, conf, x, with_one, _at_bound(sub, x, with_one))
+    data, prior_D, lam_col = _information(sub, conf, x, with_one, _at_bound(sub, x, with_one))
     with_p, no_p, scale = _std_pair(n, data, prior_D, lam_col, conf, robust=True)
-    out = {"laplace_std_deg": with_p, "laplace_data_std_deg": no_p, "laplace_scale": scale}
-    return {**out, **_shifts(sub, conf, n, x, with_one)}
-
-
-def _shifts(prob: _Problem, conf, n, x: np.ndarray, with_one: bool) -> dict:
-    """Linearised shifts at the solution ``x`` (every free unknown re-optimised, Gauss-Newton on
-    the robust rows and the priors): ``shape_shift_deg``, the normal's angle when the body
-    extents are held one prior sd off (the extents' angles in quadrature; the plausible body
-    range, a model-mismatch measure); ``one_foot_shift_deg`` the same for the one-foot extent;
-    ``laplace_fixed_shape_deg`` the Laplace std with the extents fixed; ``log_height_per_deg``
-    the change of log(camera height) per degree of pitch (the tracks' mean log s)."""
-    (r, D), prior_D, _, cols = _information(prob, conf, x, with_one)
-    if conf.loss == "soft_l1":
-        dpsi = (1.0 + (r / conf.f_scale_px) ** 2) ** -1.5
-    else:
-        dpsi = np.ones_like(r)
-    A = (D * dpsi[:, None]).T @ D + prior_D.T @ prior_D
-    ext = (cols >= 2) & (cols < 2 + prob.n_shape)
-    one = cols == prob.k_s + prob.J
-    sd_all = np.concatenate([GROUPS[g].prior_sd for g in prob.present] or [np.zeros(0)])
-
-    def angle_of(dpr):
-        return _angle_std_deg(n, np.outer(dpr, dpr))
-
-    def shift(of: np.ndarray, sd: np.ndarray) -> float:
-        rest = ~of
-        if not of.any():
-            return 0.0
-        dx = -np.linalg.lstsq(A[np.ix_(rest, rest)], A[np.ix_(rest, of)], rcond=None)[0]
-        return float(np.sqrt(sum(angle_of(dx[:2, k] * sd[k]) ** 2 for k in range(of.sum()))))
-
-    out = {"shape_shift_deg": shift(ext, sd_all[cols[ext] - 2]),
-           "one_foot_shift_deg": shift(one, np.full(1, ONE_FOOT_PRIOR[1]))}
-    fixed = ~(ext | one)
-    out["laplace_fixed_shape_deg"] = _angle_std_deg(n, _normal_block(A[np.ix_(fixed, fixed)]))
-    # pitch held 1 degree off: the tracks' log s re-optimised with everything else
-    pit = cols == 0
-    rest = ~pit
-    dx = -np.linalg.lstsq(A[np.ix_(rest, rest)], A[np.ix_(rest, pit)], rcond=None)[0][:, 0]
-    sc = (cols[rest] >= prob.k_s) & (cols[rest] < prob.k_s + prob.J)
-    s = x[cols[rest][sc]]
-    out["log_height_per_deg"] = float(-np.mean(dx[sc] / s) * math.radians(1.0))
-    return out
+    return {"laplace_std_deg": with_p, "laplace_data_std_deg": no_p, "laplace_scale": scale}
 
 
 def cramer_rao_std(K, obs, conf, n_true, s_true, height_m: float, theta, kappa=0.0,
@@ -236,7 +193,7 @@ def cramer_rao_std(K, obs, conf, n_true, s_true, height_m: float, theta, kappa=0
     with_one = bool(conf.one_foot and prob.one_free)
     x = _state(prob, n_true, np.asarray(theta, float), np.asarray(s_true, float),
                -math.log(height_m), with_one)
-    (r, D), prior_D, lam_col, _ = _information(prob, conf, x, with_one)
+    (r, D), prior_D, lam_col = _information(prob, conf, x, with_one)
     ok = np.abs(r) < max_residual
     with_p, no_p, _ = _std_pair(n_true, (r[ok], D[ok]), prior_D, lam_col, conf, robust=False)
     return no_p, with_p
