@@ -10,16 +10,16 @@ uncertainty.
 
 Gate: :func:`plane_gate` says whether a plane is good enough for alignment (the normal's
 uncertainty at most ``max_normal_std_deg``, :data:`GATE_STD_DEG` by default, and at least
-``min_tracks`` inlier tracks) and, when not, how many inlier tracks it would need: the uncertainty falls as
-``1 / sqrt(tracks)``, so ``tracks * (std / limit)^2``; with agents arriving at a steady rate the
-frames needed scale by the same factor. The joint model's uncertainty combines the bootstrap
-over tracks with the fit's data-only Laplace uncertainty (``AgentPlane.normal_std_parts``,
-:mod:`staticdepth.geometry.agent_plane_boot`); the message names both. That std covers the
-error as a 2-D Gaussian's RMS angle does (masks at 1 px: 67% of cameras within 1 std and 95%
-within 2 on seeds 0-19, 59% and 97% held out on 20-39, against 63% and 98% expected). It is
-the quadrature sum of the bootstrap, the class misfit and the Laplace that it replaced (gated at 1 degree) over
-sqrt(2), so the default limit is 1 / sqrt(2) degree: the verdicts stay those of the sum, and
-at the limit the error exceeds 1 degree with probability
+``min_tracks`` inlier tracks) and, when not, how many inlier tracks it would need: the uncertainty
+falls as ``1 / sqrt(tracks)``, so ``tracks * (std / limit)^2``; with agents arriving at a steady
+rate the frames needed scale by the same factor. The joint model's uncertainty combines the
+bootstrap over tracks with the fit's data-only Laplace uncertainty
+(``AgentPlane.normal_std_parts``, :mod:`staticdepth.geometry.agent_plane_boot`); the message names
+both. That std covers the error as a 2-D Gaussian's RMS angle does (masks at 1 px: 67% of cameras
+within 1 std and 95% within 2 on seeds 0-19, 59% and 97% held out on 20-39, against 63% and 98%
+expected). It is the quadrature sum of the bootstrap, the class misfit and the Laplace that it
+replaced (gated at 1 degree) over sqrt(2), so the default limit is 1 / sqrt(2) degree: the
+verdicts stay those of the sum, and at the limit the error exceeds 1 degree with probability
 ``exp(-(1 / std)^2)`` = 14%.
 """
 from __future__ import annotations
