@@ -113,7 +113,7 @@ def uncertainty_cell(s, p, conf, n_tracks: int) -> str:
     return (f", Laplace {q.get('laplace_std_deg', np.nan):.2f} / "
             f"{q.get('laplace_data_std_deg', np.nan):.2f}, CRB {crb:.2f} / {crb_p:.2f} "
             f"(P(>1 deg) {np.exp(-(1 / crb) ** 2):.0%}; 1 deg at 95%: "
-            f"{tracks_for(crb, n_tracks)} tracks)")
+            f"{tracks_for(crb, n_tracks) if np.isfinite(crb) else 'no'} tracks)")
 
 
 def scene_table(names: list[str], frames: int, min_height_px: float, bootstrap: int) -> None:

@@ -18,8 +18,8 @@ import numpy as np
 
 from staticdepth.errors import InputError
 from staticdepth.geometry import load_camera
-from staticdepth.geometry.agent_plane_gate import (CLASS_SETS, class_set, plane_gate,
-                                                   with_camera_height_from_agents)
+from staticdepth.geometry.agent_plane_gate import (CLASS_SETS, GATE_STD_DEG, class_set,
+                                                   plane_gate, with_camera_height_from_agents)
 
 if TYPE_CHECKING:  # the fit imports scipy: loaded when a plane is fitted, not for --help
     from staticdepth.geometry.agent_plane import AgentPlane, AgentPlaneConfig
@@ -144,9 +144,9 @@ def register(sub) -> None:
     p.add_argument("--classes", choices=tuple(CLASS_SETS),
                    help="agent classes that enter the fit (default: all for joint, people for "
                         "the other models)")
-    p.add_argument("--max-normal-std", type=float, default=1.0,
-                   help="refuse a plane whose normal uncertainty (bootstrap, degrees) is larger "
-                        "(default 1)")
+    p.add_argument("--max-normal-std", type=float, default=GATE_STD_DEG,
+                   help="refuse a plane whose normal uncertainty (degrees) is larger (default "
+                        f"{GATE_STD_DEG:.2f}: 1 degree of error is then 1.4 std)")
     p.add_argument("--accept-uncertain", action="store_true",
                    help="write the plane even when it fails the uncertainty gate")
     p.add_argument("--radius", type=float, help="agent body radius in metres (default 0.2, 0 = "
