@@ -256,25 +256,15 @@ def trusted_label(inv_depth: np.ndarray, aligned: np.ndarray, trusted: np.ndarra
 
 def plane_depth_rel_std(K: np.ndarray, normal, normal_std_deg: float, width: int, height: int,
                         row_px: float = 1.0) -> np.ndarray:
-    """Each pixel's relative std of the plane's depth ``d / (n . r)`` read at that pixel as a
-    contact: a contact row off by ``row_px`` rows changes ``n . r`` by ``(n . K^-1 e_v) row_px``,
-    a normal tilted by ``normal_std_deg`` (its RMS angle, taken whole in the worst direction) by
-    up to ``sigma |r - (n . r) n|``; both relative to ``n . r``, in quadrature. Near the horizon
-    ``n . r`` goes to 0 (a grazing ray), so a one-row or sub-degree error moves the depth most
-    there: (H, W) float32, NaN at and above the horizon (no depth)."""
+    """Each pixel's relative std of the plane's depth read at that pixel as a contact, from a
+    contact row off by ``row_px`` and the normal's ``normal_std_deg``
+    (:func:`staticdepth.geometry.scale.plane_depth_rel_error` over the image): (H, W) float32,
+    NaN at and above the horizon (no depth)."""
     from staticdepth.geometry.projection import ray_grid
+    from staticdepth.geometry.scale import plane_depth_rel_error
 
-    K = np.asarray(K, np.float64)
-    n = np.asarray(normal, np.float64)
-    n = n / np.linalg.norm(n)
-    r = ray_grid(K, width, height)
-    q = r @ n
-    dq_row = abs(float(n @ np.linalg.solve(K, [0.0, 1.0, 0.0]))) * row_px
-    sigma = np.radians(normal_std_deg) if np.isfinite(normal_std_deg) else 0.0
-    dq_tilt = sigma * np.linalg.norm(r - q[..., None] * n, axis=-1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rel = np.hypot(dq_row, dq_tilt) / q
-    return np.where(q > 0, rel, np.nan).astype(np.float32)
+    return plane_depth_rel_error(K, normal, normal_std_deg, ray_grid(K, width, height),
+                                 row_px).astype(np.float32)
 
 
 def contact_label_std(plane_std: np.ndarray, instances: np.ndarray, agents: np.ndarray,

@@ -98,21 +98,40 @@ def temporal_scale(scales) -> float:
 
 
 
+def plane_depth_rel_error(K: np.ndarray, normal, normal_std_deg: float, rays: np.ndarray,
+                          row_px: float = 0.0) -> np.ndarray:
+    """Each ray's relative std of the plane depth ``d / (n . r)`` read along it (``rays`` (..., 3),
+    ``K^-1 [u, v, 1]``): a contact row off by ``row_px`` rows changes ``n . r`` by
+    ``(n . K^-1 e_v) row_px``, a normal tilted by ``normal_std_deg`` (its RMS angle, taken whole
+    in the worst direction; NaN counts as 0) by up to ``sigma |r - (n . r) n|`` (a small rotation
+    of n moves n . r by at most sigma |n x r|); both relative to ``n . r``, in quadrature. Near
+    the horizon ``n . r`` goes to 0 (a grazing ray), so a one-row or sub-degree error moves the
+    depth most there. NaN at and above the horizon (no depth)."""
+    K = np.asarray(K, np.float64)
+    n = np.asarray(normal, np.float64)
+    n = n / np.linalg.norm(n)
+    r = np.asarray(rays, np.float64)
+    q = r @ n
+    dq_row = abs(float(n @ np.linalg.solve(K, [0.0, 1.0, 0.0]))) * row_px
+    sigma = np.radians(normal_std_deg) if np.isfinite(normal_std_deg) else 0.0
+    dq_tilt = sigma * np.linalg.norm(r - q[..., None] * n, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.hypot(dq_row, dq_tilt) / q
+    return np.where(q > 0, rel, np.nan)
+
+
 def plane_depth_rel_std(K: np.ndarray, normal, normal_std_deg: float, u, v) -> float:
-    """Median over the pixels (u, v) of the relative error of the plane depth ``H_c / (n . r)``
-    when the normal is off by ``normal_std_deg`` in the worst direction: ``sigma sin(a) / cos(a)``
-    with ``cos(a) = n . r / |r|`` (a small rotation of n changes n . r by at most
-    sigma |n x r|). Grazing rays (far ground) make it large; NaN std gives NaN; pixels above the
-    horizon are ignored (inf when every one is)."""
+    """Median over the pixels (u, v) of the plane depth's relative error when the normal is off
+    by ``normal_std_deg`` in the worst direction (:func:`plane_depth_rel_error`, no row error).
+    Grazing rays (far ground) make it large; NaN std gives NaN; pixels above the horizon are
+    ignored (inf when every one is)."""
     if not np.isfinite(normal_std_deg):
         return float("nan")
-    r = rays_from_pixels(K, np.asarray(u, np.float64), np.asarray(v, np.float64))
-    r = r / np.linalg.norm(r, axis=-1, keepdims=True)
-    c = r @ np.asarray(normal, dtype=np.float64)
-    c = c[c > 1e-9]
-    if len(c) == 0:
-        return float("inf")
-    return float(np.median(np.radians(normal_std_deg) * np.sqrt(1 - c * c) / c))
+    rel = plane_depth_rel_error(K, normal, normal_std_deg,
+                                rays_from_pixels(K, np.asarray(u, np.float64),
+                                                 np.asarray(v, np.float64)))
+    rel = rel[np.isfinite(rel)]
+    return float(np.median(rel)) if len(rel) else float("inf")
 
 
 def metric_check(K: np.ndarray, normal, normal_std_deg: float, feet: np.ndarray,
