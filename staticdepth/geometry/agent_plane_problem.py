@@ -47,6 +47,9 @@ from staticdepth.geometry.agent_walker import (MIN_ONE_FOOT, ONE_FOOT_BOUNDS, ON
 from staticdepth.geometry.camera import normal_from_pitch_roll
 
 MIN_SHAPE_TRACKS = 3
+# people with no top column (seen as boxes): the head extent's prior is centred on the foot's,
+# this sd apart (the rows alone drove a 0.3 m cylinder's head to 0.006-0.057 against 0.17)
+HEAD_TIE_SD = 0.02
 
 
 def _normal(pitch: float, roll: float) -> np.ndarray:
@@ -83,6 +86,10 @@ class _Problem:
         # people seen as boxes (no top column): their widths, each track's body radius free
         self.width_idx = np.flatnonzero(~box_obs & ~self.has_u & np.isfinite(obs.left)
                                         & np.isfinite(obs.right))
+        # people none of whose observations has a top column: the head prior tied to the foot
+        ppl = ~box_obs & (self.group == 0)
+        self.head_tie = (0 in self.free and bool(ppl.any())
+                         and not bool(np.any(self.has_u & ppl)))
         self.k_s = k + 1                  # index of s_1 (k: log of 1 / camera height in metres)
         mh = np.array([GROUPS[g].typical_height for g in self.track_group])
         self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
@@ -164,10 +171,15 @@ class _Problem:
                                                / self.sigma[self.has_u], nan=_BIG)]
         r = np.r_[r, cols]
         sd = np.concatenate([GROUPS[g].prior_sd for g in self.present] or [np.zeros(0)])
+        mean = self.prior_theta()
+        if self.head_tie:      # the head's extent about the foot's (people seen as boxes)
+            f = self.slices[0].start - 2
+            mean[f + 1], sd = theta[f], sd.copy()
+            sd[f + 1] = HEAD_TIE_SD
         # heights: log s_j = log H_class - log d + eps, robust (children, outliers)
         z = (np.log(s) - self.log_h - lam) / self.log_sd
         zr = np.sign(z) * np.sqrt(2.0 * (np.sqrt(1.0 + z * z) - 1.0))
-        out = np.r_[r, prior_w * (theta - self.prior_theta()) / np.maximum(sd, 1e-9),
+        out = np.r_[r, prior_w * (theta - mean) / np.maximum(sd, 1e-9),
                     height_w * zr]
         if e1 is not None:
             out = np.r_[out, prior_w * (e1 - ONE_FOOT_PRIOR[0]) / ONE_FOOT_PRIOR[1]]
@@ -192,6 +204,8 @@ class _Problem:
         S[rows, self.k_s + self.obs.idx[ob]] = 1
         for k in range(self.n_shape):
             S[R + k, 2 + k] = 1
+        if self.head_tie:
+            S[R + self.slices[0].start - 1, self.slices[0].start] = 1
         tr = R + self.n_shape + np.arange(self.J)
         S[tr, self.k_s - 1] = 1
         S[tr, self.k_s + np.arange(self.J)] = 1
