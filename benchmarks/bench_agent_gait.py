@@ -38,8 +38,8 @@ def _table_ratio(obs, cls=None):
     o = o[order]
     w = np.asarray(o["right"], float) - np.asarray(o["left"], float)
     h = np.asarray(o["height_px"], float)
-    return (gait_ratio(o["track"], w, h, o["frame"]),
-            box_gait(o["track"], w, h, o["frame"]))
+    return (gait_ratio(o["track"], w, h),
+            box_gait(o["track"], w, h))
 
 
 def _vtest(step: int, n_frames: int) -> None:

@@ -42,6 +42,7 @@ from scipy.sparse import lil_matrix
 
 from staticdepth.geometry.agent_cylinder import (_BIG, AgentObservations, gauss_newton_track_scales,
                                                  median_track_scales)
+from staticdepth.geometry.agent_gait import box_gait
 from staticdepth.geometry.agent_plane_sides import WIDTH_SD, anchored, width_tracks
 from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
                                               track_headings)
@@ -90,9 +91,13 @@ class _Problem:
         self.width_idx = np.flatnonzero(~box_obs & ~self.has_u & np.isfinite(obs.left)
                                         & np.isfinite(obs.right))
         # people none of whose observations has a top column: the head prior tied to the foot
+        # where their boxes show no gait (a walker's box bottom is its front foot, its foot
+        # extent holds the stride; agent_gait); a subset's problem takes its parent's verdict
         ppl = ~box_obs & (self.group == 0)
-        self.head_tie = (0 in self.free and bool(ppl.any())
-                         and not bool(np.any(self.has_u & ppl)))
+        self.tie_possible = (0 in self.free and bool(ppl.any())
+                             and not bool(np.any(self.has_u & ppl)))
+        self.head_tie = self.tie_possible and box_gait(
+            obs.idx[ppl], (obs.right - obs.left)[ppl], obs.h[ppl]) == "rigid"
         self.k_s = k + 1                  # index of s_1 (k: log of 1 / camera height in metres)
         mh = np.array([GROUPS[g].typical_height for g in self.track_group])
         self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
@@ -265,7 +270,8 @@ class _Problem:
         return best[:5]
 
     def take_feet(self, other: "_Problem") -> None:
-        """The one-foot extent and the ring radii's spread of ``other`` (a problem on a subset of
-        the observations)."""
+        """The one-foot extent, the ring radii's spread and the head tie's verdict of ``other`` (a
+        problem on a subset of the observations)."""
         self.e1 = other.e1 if self.one_free else 0.0
         self.width_sd = other.width_sd
+        self.head_tie = self.tie_possible and other.head_tie
