@@ -47,15 +47,16 @@ def test_jitter_alone_is_about_one():
 
 
 def test_rigid_box_moving_past_the_camera_is_rigid():
-    """Rigid bodies (a 0.45 m and a 0.6 m wide box, and the thin axis: width only jitter), 24
-    tracks walking past the camera as the generators' cameras have: their boxes change size
-    smoothly with depth, which the ratio and the second differences take out; rigid (over 200
-    draws the statistic is 1.08 median, 1.35 at the 99th percentile; the max of two lags' medians
-    sits above 1)."""
+    """Rigid bodies (a 0.45 m and a 0.6 m wide box, and the thin axis: width only jitter), 60
+    tracks of 12 frames walking past the camera: their boxes change size smoothly with depth,
+    which the ratio and the second differences take out; rigid. Over 200 draws the statistic is
+    1.06-1.07 median (the larger of two lags' medians sits above 1), 1.17-1.20 at the 99th
+    percentile; with the generators' 24 tracks of 9 frames 1.08-1.10 median, 1.28 at the 95th:
+    about one rigid class in ten is left unknown there (no tie: the fit as without the test)."""
     for seed in range(5):
         for width in (0.0, 0.45, 0.6):
             rng = np.random.default_rng(seed)
-            idx, w, h = _tracks(rng, n_tracks=24, width_m=width)
+            idx, w, h = _tracks(rng, n_tracks=60, frames=12, width_m=width)
             g, _ = gait_ratio(idx, np.abs(w), h)
             assert g < RIGID_BELOW and box_gait(idx, np.abs(w), h) == "rigid", (seed, width, g)
 
