@@ -232,8 +232,8 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
             side = np.cross(up, fwd)
             pieces = [pos + P[:, :1] * fwd + P[:, 1:2] * side + P[:, 2:3] * up
                       for P in parts(bkind, hgt, i, phase, dims, gait)]
-            X = pos + (P := body(bkind, hgt, i, phase, dims, gait))[:, :1] * fwd + P[:, 1:2] * side \
-                + P[:, 2:3] * up
+            P = body(bkind, hgt, i, phase, dims, gait)
+            X = pos + P[:, :1] * fwd + P[:, 1:2] * side + P[:, 2:3] * up
             if X[:, 2].min() < 0.3:
                 break
             u, v = _project(K, X)

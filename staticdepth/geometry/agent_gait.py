@@ -17,7 +17,7 @@ width hardly changes, so one track cannot tell; a class of people walking in sev
 can. The verdict gates the head tie of people seen as boxes
 (:data:`staticdepth.geometry.agent_plane_problem.HEAD_TIE_SD`): a walker's box bottom is its
 front foot, so its foot extent holds the stride and must not carry the head.
-Measured (``benchmarks/bench_agent_gait.py``): docs/ground_plane.md, issue 13's tenth round.
+Measured by ``benchmarks/bench_agent_gait.py`` (generators and vtest.avi).
 """
 from __future__ import annotations
 
