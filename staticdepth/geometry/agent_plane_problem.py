@@ -7,7 +7,8 @@ two-wheelers and vehicles boxes ``(a, b)``; each with a weak Gaussian prior,
 ``shape_prior_weight`` pixels per prior standard deviation; a group with fewer than 3 tracks
 keeps the prior means; people none of whose observations has a top column, i.e. seen as boxes,
 have the head extent's prior centred on the fitted foot extent, :data:`HEAD_TIE_SD` apart: the rows
-alone drove a 0.3 m cylinder's head to 0.006-0.057 of its height and every track 4-10% too tall),
+alone drove a 0.3 m cylinder's head to 0.006-0.057 of its height and every track 4-10% too tall;
+only where their boxes are rigid by :func:`staticdepth.geometry.agent_gait.box_gait`),
 where masks show walkers' feet both apart and overlapping the one-foot
 frames' extra foot extent ``e_1`` (:mod:`staticdepth.geometry.agent_walker`), the log of 1 /
 camera height (tying every track's height to its class's typical height, robustly: children and
@@ -52,7 +53,8 @@ from staticdepth.geometry.camera import normal_from_pitch_roll
 
 MIN_SHAPE_TRACKS = 3
 # people with no top column (seen as boxes): the head extent's prior is centred on the foot's,
-# this sd apart (the rows alone drove a 0.3 m cylinder's head to 0.006-0.057 against 0.17)
+# this sd apart (the rows alone drove a 0.3 m cylinder's head to 0.006-0.057 against 0.17),
+# where their boxes show no gait (agent_gait.box_gait)
 HEAD_TIE_SD = 0.02
 
 
