@@ -81,9 +81,11 @@ def _ellipsoid(c, ax, k=12):
     return c + p * ax
 
 
-def parts(kind: str, height: float, frame: int, phase: float, dims=None) -> list[np.ndarray]:
+def parts(kind: str, height: float, frame: int, phase: float, dims=None,
+          gait: float = 1.3) -> list[np.ndarray]:
     """The body as convex pieces, surface points (M, 3) each in the agent frame (forward, side,
-    up), feet on z = 0; a mask is the union of their projections' convex hulls."""
+    up), feet on z = 0; a mask is the union of their projections' convex hulls (``gait``: the
+    walkers' leg phase per frame, radians)."""
     Hh = height
     if kind == "thin":
         return [np.array([[0, 0, 0.0], [0, 0, Hh]])]
@@ -95,7 +97,7 @@ def parts(kind: str, height: float, frame: int, phase: float, dims=None) -> list
     if kind == "cylinder":
         return [_rings(np.full(11, 0.3), np.linspace(0, Hh, 11))]
     if kind == "ellipsoid":
-        hip, swing = 0.5 * Hh, math.radians(20) * math.sin(phase + 1.3 * frame)
+        hip, swing = 0.5 * Hh, math.radians(20) * math.sin(phase + gait * frame)
         drop = hip * (1 - math.cos(swing))                   # both feet on the ground: body bobs
         torso = _ellipsoid(np.array([0, 0, 0.72 * Hh - drop]), np.array([0.14, 0.22, 0.23 * Hh]))
         head = _ellipsoid(np.array([0, 0, 0.935 * Hh - drop]), np.array([0.09, 0.08, 0.065 * Hh]))
@@ -114,10 +116,11 @@ def parts(kind: str, height: float, frame: int, phase: float, dims=None) -> list
     raise ValueError(kind)
 
 
-def body(kind: str, height: float, frame: int, phase: float, dims=None) -> np.ndarray:
+def body(kind: str, height: float, frame: int, phase: float, dims=None,
+         gait: float = 1.3) -> np.ndarray:
     """Surface points (M, 3) in the agent frame (forward, side, up), feet on z = 0 (each once:
     the tapered body's frustums share their rings)."""
-    pieces = parts(kind, height, frame, phase, dims)
+    pieces = parts(kind, height, frame, phase, dims, gait)
     if kind == "tapered":
         return np.concatenate([pieces[0][:len(pieces[0]) // 2]] + [p[len(p) // 2:] for p in pieces])
     return np.concatenate(pieces)
@@ -200,9 +203,11 @@ def _agent_spec(kind: str, rng):
 
 def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.0,
           n_tracks: int = 24, frames: tuple[int, int] = (6, 10), noise_px: float = 1.0,
-          pitch_deg: float | None = None, box_jitter_px: float = 2.0) -> Scene:
+          pitch_deg: float | None = None, box_jitter_px: float = 2.0,
+          gait: float = 1.3) -> Scene:
     """A random camera and ``n_tracks`` tracks of ``kind`` agents; see the module doc
-    (``box_jitter_px``: the boxes' sides and rows jittered by U(-this, this))."""
+    (``box_jitter_px``: the boxes' sides and rows jittered by U(-this, this); ``gait``: the
+    walkers' leg phase per frame, radians, 1.3 a step every 2.4 frames)."""
     rng, side_rng = np.random.default_rng(seed), np.random.default_rng([seed, 1])
     K, n, d, pitch, roll = camera(rng, pitch_deg)
     up = -n
@@ -226,9 +231,9 @@ def scene(kind: str, seed: int, *, detection: str = "mask", outliers: float = 0.
             pos = pos + speed * fwd
             side = np.cross(up, fwd)
             pieces = [pos + P[:, :1] * fwd + P[:, 1:2] * side + P[:, 2:3] * up
-                      for P in parts(bkind, hgt, i, phase, dims)]
-            X = pos + (P := body(bkind, hgt, i, phase, dims))[:, :1] * fwd + P[:, 1:2] * side \
-                + P[:, 2:3] * up
+                      for P in parts(bkind, hgt, i, phase, dims, gait)]
+            P = body(bkind, hgt, i, phase, dims, gait)
+            X = pos + P[:, :1] * fwd + P[:, 1:2] * side + P[:, 2:3] * up
             if X[:, 2].min() < 0.3:
                 break
             u, v = _project(K, X)

@@ -5,7 +5,11 @@ Unknowns: the normal (pitch, roll), one extent vector per class group present
 (:mod:`staticdepth.geometry.agent_shape`: people are foot and head disks ``(e_f, e_h)``,
 two-wheelers and vehicles boxes ``(a, b)``; each with a weak Gaussian prior,
 ``shape_prior_weight`` pixels per prior standard deviation; a group with fewer than 3 tracks
-keeps the prior means), where masks show walkers' feet both apart and overlapping the one-foot
+keeps the prior means; people none of whose observations has a top column, i.e. seen as boxes,
+have the head extent's prior centred on the fitted foot extent, :data:`HEAD_TIE_SD` apart: the rows
+alone drove a 0.3 m cylinder's head to 0.006-0.057 of its height and every track 4-10% too tall;
+only where their boxes are rigid by :func:`staticdepth.geometry.agent_gait.box_gait`),
+where masks show walkers' feet both apart and overlapping the one-foot
 frames' extra foot extent ``e_1`` (:mod:`staticdepth.geometry.agent_walker`), the log of 1 /
 camera height (tying every track's height to its class's typical height, robustly: children and
 outliers weigh little) and per track ``s_j = H_j / d``.
@@ -39,6 +43,7 @@ from scipy.sparse import lil_matrix
 
 from staticdepth.geometry.agent_cylinder import (_BIG, AgentObservations, gauss_newton_track_scales,
                                                  median_track_scales)
+from staticdepth.geometry.agent_gait import box_gait
 from staticdepth.geometry.agent_plane_sides import WIDTH_SD, anchored, width_tracks
 from staticdepth.geometry.agent_shape import (GROUPS, group_of_class, predict_top,
                                               track_headings)
@@ -47,6 +52,10 @@ from staticdepth.geometry.agent_walker import (MIN_ONE_FOOT, ONE_FOOT_BOUNDS, ON
 from staticdepth.geometry.camera import normal_from_pitch_roll
 
 MIN_SHAPE_TRACKS = 3
+# people with no top column (seen as boxes): the head extent's prior is centred on the foot's,
+# this sd apart (the rows alone drove a 0.3 m cylinder's head to 0.006-0.057 against 0.17),
+# where their boxes show no gait (agent_gait.box_gait)
+HEAD_TIE_SD = 0.02
 
 
 def _normal(pitch: float, roll: float) -> np.ndarray:
@@ -83,6 +92,14 @@ class _Problem:
         # people seen as boxes (no top column): their widths, each track's body radius free
         self.width_idx = np.flatnonzero(~box_obs & ~self.has_u & np.isfinite(obs.left)
                                         & np.isfinite(obs.right))
+        # people none of whose observations has a top column: the head prior tied to the foot
+        # where their boxes show no gait (a walker's box bottom is its front foot, its foot
+        # extent holds the stride; agent_gait); a subset's problem takes its parent's verdict
+        ppl = ~box_obs & (self.group == 0)
+        self.tie_possible = (0 in self.free and bool(ppl.any())
+                             and not bool(np.any(self.has_u & ppl)))
+        self.head_tie = self.tie_possible and box_gait(
+            obs.idx[ppl], (obs.right - obs.left)[ppl], obs.h[ppl]) == "rigid"
         self.k_s = k + 1                  # index of s_1 (k: log of 1 / camera height in metres)
         mh = np.array([GROUPS[g].typical_height for g in self.track_group])
         self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
@@ -164,10 +181,15 @@ class _Problem:
                                                / self.sigma[self.has_u], nan=_BIG)]
         r = np.r_[r, cols]
         sd = np.concatenate([GROUPS[g].prior_sd for g in self.present] or [np.zeros(0)])
+        mean = self.prior_theta()
+        if self.head_tie:      # the head's extent about the foot's (people seen as boxes)
+            f = self.slices[0].start - 2
+            mean[f + 1], sd = theta[f], sd.copy()
+            sd[f + 1] = HEAD_TIE_SD
         # heights: log s_j = log H_class - log d + eps, robust (children, outliers)
         z = (np.log(s) - self.log_h - lam) / self.log_sd
         zr = np.sign(z) * np.sqrt(2.0 * (np.sqrt(1.0 + z * z) - 1.0))
-        out = np.r_[r, prior_w * (theta - self.prior_theta()) / np.maximum(sd, 1e-9),
+        out = np.r_[r, prior_w * (theta - mean) / np.maximum(sd, 1e-9),
                     height_w * zr]
         if e1 is not None:
             out = np.r_[out, prior_w * (e1 - ONE_FOOT_PRIOR[0]) / ONE_FOOT_PRIOR[1]]
@@ -192,6 +214,8 @@ class _Problem:
         S[rows, self.k_s + self.obs.idx[ob]] = 1
         for k in range(self.n_shape):
             S[R + k, 2 + k] = 1
+        if self.head_tie:
+            S[R + self.slices[0].start - 1, self.slices[0].start] = 1
         tr = R + self.n_shape + np.arange(self.J)
         S[tr, self.k_s - 1] = 1
         S[tr, self.k_s + np.arange(self.J)] = 1
@@ -248,7 +272,8 @@ class _Problem:
         return best[:5]
 
     def take_feet(self, other: "_Problem") -> None:
-        """The one-foot extent and the ring radii's spread of ``other`` (a problem on a subset of
-        the observations)."""
+        """The one-foot extent, the ring radii's spread and the head tie's verdict of ``other`` (a
+        problem on a subset of the observations)."""
         self.e1 = other.e1 if self.one_free else 0.0
         self.width_sd = other.width_sd
+        self.head_tie = self.tie_possible and other.head_tie
