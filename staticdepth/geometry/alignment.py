@@ -287,8 +287,8 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
     ground there, or is it), ``min(depth, d_g / (n_g . r))``.
     ``extra_ground``/``keep_rel``/``occlude``/``info``: see ``upright_depth`` (pixels known to
     be ground by another cue; runs already standing at their contact kept, None: off; runs end at
-    the frame's agents; per-pixel categories for diagnostics, here also ``snapped`` and the
-    ``ground_mode`` map).
+    the frame's agents; per-pixel categories for diagnostics, here also ``snapped``, the
+    ``ground_mode`` map and ``raw``, the map the runs are traced on).
     """
     from staticdepth.geometry.alignment_upright import upright_depth
 
@@ -318,7 +318,7 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
             out = np.where(q > 0, np.minimum(out, np.float32(1.0) / np.where(q > 0, q, 1)), out)
     out[~valid] = np.nan
     if info is not None:
-        info.update(snapped=snap, ground_mode=g.depth)
+        info.update(snapped=snap, ground_mode=g.depth, raw=raw)
     return Alignment(out, g.plane_normal, g.plane_d, g.fallback_ratio,
                      int(np.count_nonzero(valid & ~snap & ~moved)), False)
 
