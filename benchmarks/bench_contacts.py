@@ -137,8 +137,7 @@ def analyse(seq: str, sets: dict, front: float, window: int) -> dict:
             bu = np.clip(np.rint(bu + np.nan_to_num(du[bv, bu])), 0, r.width - 1).astype(int)
             out["below"].append(np.where(bv + 1 < r.height,
                                          truth[np.minimum(bv + 1, r.height - 1), bu], 3))
-            prof = walk_profiles(info["raw"], gt, du, pix[fr], c.ravel()[pix[fr]],
-                                 window)
+            prof = walk_profiles(info["raw"], gt, du, pix[fr], c.ravel()[pix[fr]], window)
             for k, val in prof.items():
                 out[k].append(val)
             # the frame's median scale: aligned / true over the traced far front pixels and near
@@ -158,9 +157,11 @@ def analyse(seq: str, sets: dict, front: float, window: int) -> dict:
             front_runs |= tr & np.isin(c, front_ids)
             near_runs = tr & np.isin(c, np.unique(c.ravel()[pix[near]]))
             out["oracle-all"].append(frame_absrel(run_oracle(A, gt, vm, c, tr), gt, vm))
-            out["oracle-front"].append(frame_absrel(run_oracle(A, gt, vm, c, front_runs), gt, vm))
+            out["oracle-front"].append(frame_absrel(run_oracle(A, gt, vm, c, front_runs), gt,
+                                                    vm))
             out["oracle-near"].append(frame_absrel(run_oracle(A, gt, vm, c, near_runs), gt, vm))
-    return {k: (np.concatenate(v) if v and np.ndim(v[0]) else np.asarray(v)) for k, v in out.items()}
+    return {k: (np.concatenate(v) if v and np.ndim(v[0]) else np.asarray(v))
+            for k, v in out.items()}
 
 
 def report(name: str, res: dict, front: float, window: int) -> None:
@@ -182,7 +183,8 @@ def report(name: str, res: dict, front: float, window: int) -> None:
     print(f"  along their walk: the truth steps > 30% nearer on {edge.mean():.0%} (an occluding "
           f"edge crossed); network's largest 1-row nearer step there q50/90 "
           f"{np.nanpercentile(ns[edge], 50):.3f} / {np.nanpercentile(ns[edge], 90):.3f}, over "
-          f"{window} rows {np.nanpercentile(nw[edge], 50):.3f} / {np.nanpercentile(nw[edge], 90):.3f}")
+          f"{window} rows {np.nanpercentile(nw[edge], 50):.3f} / "
+          f"{np.nanpercentile(nw[edge], 90):.3f}")
     for t in (0.04, 0.08, 0.15, 0.3):
         print(f"    network {window}-row nearer step > {t}: {np.mean(nw[edge] > t):.0%} of the "
               f"edge-crossing walks")
@@ -191,9 +193,9 @@ def report(name: str, res: dict, front: float, window: int) -> None:
         print(f"  traced structures < 10 m: {len(rn)} px, contact ratio q10/50/90 "
               f"{' / '.join(f'{x:.2f}' for x in np.percentile(rn, [10, 50, 90]))}; aligned/true "
               f"q10/50/90 {' / '.join(f'{x:.2f}' for x in np.nanpercentile(sc, [10, 50, 90]))};"
-              f" the network's own (median units) {np.nanmedian(res['near_net']):.2f}; base took the"
-              f" plane (receding/walked rule) {res['near_cat'].mean():.0%}; at the base: " + ", ".join(f"{n} {np.mean(an == k):.0%}"
-                                           for k, n in enumerate(names)))
+              f" the network's own (median units) {np.nanmedian(res['near_net']):.2f}; base "
+              f"took the plane (receding/walked rule) {res['near_cat'].mean():.0%}; at the base: "
+              + ", ".join(f"{n} {np.mean(an == k):.0%}" for k, n in enumerate(names)))
 
 
 def main() -> None:

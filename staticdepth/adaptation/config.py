@@ -75,6 +75,9 @@ class AlignConfig:
     #                                  is ground, not a structure (null: off)
     occlude: bool = True             # upright: runs stop at the frame's agents (the foot behind
     #                                  an agent is hidden) and take a row neighbour's ratio
+    step_occlude: bool = True        # upright: runs that end at a depth step down to a nearer
+    #                                  pixel (its foot hidden by what stands in front) take a
+    #                                  row neighbour's ratio too (no agent mask: exportable)
     plane_bound: bool = True         # upright: no pixel below the agents' horizon farther than
     #                                  the plane along its ray (align outputs, the align command,
     #                                  export-model; not the pseudo labels)
@@ -184,7 +187,7 @@ def model_identity(spec: str) -> dict[str, Any]:
 # silently keep, e.g., the former pseudo labels). Raising one reruns that stage and the stages
 # after it, as a changed setting does.
 STAGE_VERSIONS = {"base": 1, "agents": 1, "ground_plane": 6, "pseudo_labels": 4, "finetune": 2,
-                  "align": 4, "scale": 1}
+                  "align": 5, "scale": 1}
 
 
 def _versioned(stage: str, settings: dict) -> str:
