@@ -276,7 +276,8 @@ class UprightAlignment(nn.Module):
         contact = ok & below & self.contact_ok
         link = follow(torch.where(ok & ~below & c_b, self.nxt, self.ar), _doublings(h))
         # a chain ending at a step down to a nearer pixel (not ground): its foot is hidden
-        cut = self._take(ok & ~below & (A > (1.0 + self.jump_rel) * a_b), link)
+        cut = self._take(ok & ~below & (A > (1.0 + self.jump_rel) * a_b), link) \
+            if self.step_occlude else None
         cid = self._take(torch.where(contact, self.ar, -torch.ones_like(self.ar)), link)
         # every contact walks down to the structure's foot: over ground the network sees nearer
         # than the plane, continuous with it, at most max_walk rows; a walk that stops stays.
