@@ -98,7 +98,8 @@ def upright_settings(cfg: dict) -> dict[str, Any]:
         recede_push=setting_from(cfg, "align.recede_push", None),
         contact_range=setting_from(cfg, "align.contact_range", None),
         walked_ratio=setting_from(cfg, "align.walked_ratio", None),
-        plane_bound=bool(setting_from(cfg, "align.plane_bound", False))))
+        plane_bound=bool(setting_from(cfg, "align.plane_bound", False)),
+        step_occlude=bool(setting_from(cfg, "align.step_occlude", False))))
 
 
 def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:

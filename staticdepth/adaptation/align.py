@@ -61,7 +61,8 @@ def upright_options(align) -> dict:
             "max_pull": np.inf if align.max_pull is None else align.max_pull,
             "recede_push": np.inf if align.recede_push is None else align.recede_push,
             "walked_ratio": np.inf if align.walked_ratio is None else align.walked_ratio,
-            "occlude": align.occlude, "plane_bound": align.plane_bound}
+            "occlude": align.occlude, "step_occlude": align.step_occlude,
+            "plane_bound": align.plane_bound}
 
 
 def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,

@@ -75,6 +75,10 @@ class AlignConfig:
     #                                  is ground, not a structure (null: off)
     occlude: bool = True             # upright: runs stop at the frame's agents (the foot behind
     #                                  an agent is hidden) and take a row neighbour's ratio
+    step_occlude: bool = False       # upright: runs that end at a depth step down to a nearer
+    #                                  pixel (its foot hidden by what stands in front) take a
+    #                                  row neighbour's ratio too (no agent mask: exportable);
+    #                                  off: neutral on i1-i4 / h1-h3 (issue 19, tenth round)
     plane_bound: bool = True         # upright: no pixel below the agents' horizon farther than
     #                                  the plane along its ray (align outputs, the align command,
     #                                  export-model; not the pseudo labels)

@@ -35,7 +35,11 @@ whose plane depth exceeds ``walked_ratio`` x its contact's is ground the network
 the plane, and the contacts are traced again over it. With ``occlude`` a run does not pass
 through the frame's agents (``not_ground``): a blurred network continues a wall's depth into the
 agent in front of it, and the wall took the agent's contact, nearer than its own hidden foot; the
-runs an agent cuts take a row neighbour's ratio (the same wall beside the agent). Afterwards (``align_upright``'s
+runs an agent cuts take a row neighbour's ratio (the same wall beside the agent). With
+``step_occlude`` so do the runs that end at a depth step down to a nearer pixel that is not ground:
+a network that resolves a nearer wall hiding a far wall's foot stops the far wall's run there, and
+that run kept the ground mode's scale, the ground's, not its own; an exported graph sees such steps
+(it has no agent mask). Afterwards (``align_upright``'s
 ``plane_bound``) no pixel below the horizon ends farther than the plane along its ray.
 
 A pure function of (depth, K, plane, ground mask[, agent mask]); ``geometry/alignment.py``
@@ -84,9 +88,11 @@ def contact_ratios(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndar
 
 
 def occluded_runs(A: np.ndarray, occluder: np.ndarray, ground: np.ndarray, du: np.ndarray,
-                  jump_rel: float) -> np.ndarray:
+                  jump_rel: float, steps: bool = False) -> np.ndarray:
     """(H, W) bool: pixels whose run (continuous depth down the vertical, not ground) ends on an
-    ``occluder`` pixel: whatever stands behind an agent has its foot hidden by it."""
+    ``occluder`` pixel: whatever stands behind an agent has its foot hidden by it. With
+    ``steps``, also those whose run ends at a depth step down to a nearer pixel that is not
+    ground: what stands in front hides the foot."""
     h, w = A.shape
     out = np.zeros((h, w), bool)
     cols = np.arange(w)
@@ -97,10 +103,13 @@ def occluded_runs(A: np.ndarray, occluder: np.ndarray, ground: np.ndarray, du: n
         ok &= (ub >= 0) & (ub < w)
         ub = np.clip(ub, 0, w - 1)
         a_b = A[v + 1, ub]
+        hidden = occluder[v + 1, ub]
         with np.errstate(invalid="ignore"):
-            cont = ~ground[v + 1, ub] & ~occluder[v + 1, ub] \
+            cont = ~ground[v + 1, ub] & ~hidden \
                 & (np.abs(A[v] - a_b) <= jump_rel * np.minimum(A[v], a_b))
-        out[v] = ok & (occluder[v + 1, ub] | (cont & out[v + 1, ub]))
+            if steps:
+                hidden = hidden | (~ground[v + 1, ub] & (A[v] > (1.0 + jump_rel) * a_b))
+        out[v] = ok & (hidden | (cont & out[v + 1, ub]))
     return out
 
 
@@ -215,6 +224,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   recede_push: float = np.inf, walked: np.ndarray | None = None,
                   walked_ratio: float = np.inf, extra_ground: np.ndarray | None = None,
                   keep_rel: float | None = KEEP_REL, occlude: bool = False,
+                  step_occlude: bool = False,
                   info: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
@@ -228,7 +238,9 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     ``moved`` (re-anchored) and ``contact`` (flat index of each pixel's contact, -1: none);
     ``keep_rel``: :func:`refine_contacts`' (None: off); ``occlude``: runs end at ``not_ground``
     (an agent hides the foot of what stands behind it) and those cut take a row neighbour's
-    ratio (:func:`fill_along_rows`, as ``fill`` does for every run without a contact). Returns
+    ratio (:func:`fill_along_rows`, as ``fill`` does for every run without a contact);
+    ``step_occlude``: so do the runs that end at a depth step down to a nearer pixel that is not
+    ground (what stands in front of a structure hides its foot; no agent mask needed). Returns
     the new map and the (H, W) bool mask of the pixels it set (re-anchored, planar, or snapped
     pixels found to be structures, which keep ``A``)."""
     if shape not in SHAPES:
@@ -309,9 +321,12 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     todo = (~ground | have) & np.isfinite(A)
     if fill:
         fill_along_rows(ratio, A, todo, jump_rel)
-    elif cut:       # runs an agent cut take a row neighbour's ratio (the same wall beside it)
-        fill_along_rows(ratio, A, todo & occluded_runs(A, not_ground, ground, du, jump_rel),
-                        jump_rel)
+    elif cut or step_occlude:
+        # runs an agent (or, with step_occlude, a nearer step) cut take a row neighbour's ratio
+        # (the same wall beside it)
+        occ = not_ground if cut else np.zeros((h, w), bool)
+        fill_along_rows(ratio, A, todo & occluded_runs(A, occ, ground, du, jump_rel,
+                                                       step_occlude), jump_rel)
     moved = todo & np.isfinite(ratio)
     if info is not None:    # per-pixel categories, for diagnostics (benchmarks/)
         info.update(ground=ground, planar=planar, traced=have, moved=moved, contact=idx)

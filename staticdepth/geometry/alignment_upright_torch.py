@@ -17,7 +17,9 @@ The numpy version's sequential scans become fixed-size index gathers:
   so the exported graph follows any frame); a walked-over ground pixel takes the contact that
   reached it at the earliest step (ScatterElements: the contacts reaching it at one step share
   the rest of the walk, so their writes are equal);
-- the fill along rows (``fill_along_rows``): left then right links, pointer doubling over W.
+- the fill along rows (``fill_along_rows``): left then right links, pointer doubling over W;
+  with ``step_occlude`` only the runs whose chain ends at a step down to a nearer pixel that is
+  not ground (``occluded_runs(..., steps=True)``: the chain's end, read through the same links).
 The trust rules (``fill``, ``max_pull``, ``contact_range``, ``recede_push``, ``walked_ratio``)
 and the plane's bound (``plane_bound``: a constant map of the plane's depth, an elementwise
 minimum) are those of the numpy version (the walked region is the ground mask). The arithmetic runs in
@@ -107,7 +109,7 @@ class UprightAlignment(nn.Module):
                  contact_range: float | None = None, recede_push: float = float("inf"),
                  walked_ratio: float = float("inf"), plane_bound: bool = False,
                  keep_rel: float | None = KEEP_REL, occlude: bool = False,
-                 max_points: int = 20000):
+                 step_occlude: bool = False, max_points: int = 20000):
         super().__init__()
         del occlude     # runs end at the frame's agents: an exported graph has no agent mask
         if shape not in SHAPES:
@@ -167,6 +169,7 @@ class UprightAlignment(nn.Module):
         self.keep_rel = None if keep_rel is None else float(keep_rel)
         self.register_buffer("walked", torch.tensor(np.asarray(ground_mask, bool).ravel()))
         self.plane_bound = bool(plane_bound)
+        self.step_occlude = bool(step_occlude)
         with np.errstate(divide="ignore"):       # align_upright's bound: the plane's depth
             bound = np.where(q > 0, np.float32(1.0) / np.where(q > 0, q, 1), np.inf)
         self.register_buffer("bound", torch.tensor(bound.astype(np.float32)))
@@ -221,14 +224,14 @@ class UprightAlignment(nn.Module):
             if self.recede_push < float("inf"):
                 planar = planar & (q * (self.recede_push * A) >= 1.0)
             ground = (ground & ~flat) | planar
-        have, foot, qc = self._contacts(A, ground, src)
+        have, foot, qc, cut = self._contacts(A, ground, src)
         if self.walked_ratio < float("inf"):
             # inside the walked region, a pixel more than walked_ratio x its contact's plane
             # depth away is ground the network did not recede (numpy: upright_depth)
             wg = self.walked & have & ~ground & (q > 0) & (q * self.walked_ratio < qc)
             planar = planar | wg
             ground = ground | wg
-            have, foot, qc = self._contacts(A, ground, src)
+            have, foot, qc, cut = self._contacts(A, ground, src)
         # the run's ratio at every pixel with a contact
         if self.shape == "network":
             ratio = (1.0 / qc) / self._take(src, foot)
@@ -246,6 +249,8 @@ class UprightAlignment(nn.Module):
         todo = (~ground | have).reshape(h, w)
         if self.fill:
             ratio = self._fill(ratio, A.reshape(h, w), todo)
+        elif self.step_occlude:     # runs a nearer step cut: a row neighbour's ratio
+            ratio = self._fill(ratio, A.reshape(h, w), todo & cut.reshape(h, w))
         moved = (todo & torch.isfinite(ratio)).reshape(-1)
         ratio = torch.clamp(torch.where(moved, ratio.reshape(-1), torch.ones_like(A)),
                             1.0 / self.max_ratio, self.max_ratio)
@@ -260,7 +265,8 @@ class UprightAlignment(nn.Module):
 
     def _contacts(self, A: torch.Tensor, ground: torch.Tensor, src: torch.Tensor):
         """contact_ratios + refine_contacts: (pixels with a contact, each one's walked contact
-        pixel, the contact's plane inverse depth)."""
+        pixel, the contact's plane inverse depth, pixels whose run ends at a step down to a
+        nearer pixel that is not ground: ``occluded_runs(..., steps=True)``)."""
         h, N = self.h, self.N
         # the march up the rows: contacts, links to the pixel below, chain ends
         below = self._take(ground.to(torch.int64), self.nxt) > 0
@@ -269,6 +275,9 @@ class UprightAlignment(nn.Module):
         ok = self.ok_n & ~ground
         contact = ok & below & self.contact_ok
         link = follow(torch.where(ok & ~below & c_b, self.nxt, self.ar), _doublings(h))
+        # a chain ending at a step down to a nearer pixel (not ground): its foot is hidden
+        cut = self._take(ok & ~below & (A > (1.0 + self.jump_rel) * a_b), link) \
+            if self.step_occlude else None
         cid = self._take(torch.where(contact, self.ar, -torch.ones_like(self.ar)), link)
         # every contact walks down to the structure's foot: over ground the network sees nearer
         # than the plane, continuous with it, at most max_walk rows; a walk that stops stays.
@@ -308,7 +317,7 @@ class UprightAlignment(nn.Module):
         cid = torch.clamp(cid, min=0)
         foot = self._take(self.ar.scatter(0, c_idx, pos), cid)
         qc = torch.zeros_like(self.q64).scatter(0, c_idx, self._contact_q(A, src, pos))
-        return have, foot, self._take(qc, cid)
+        return have, foot, self._take(qc, cid), cut
 
     def _contact_q(self, A: torch.Tensor, src: torch.Tensor, at: torch.Tensor) -> torch.Tensor:
         """numpy's ``_contact_q`` at the base positions ``at`` (flat indices): the walked contacts
