@@ -6,10 +6,9 @@ the agent's contact, nearer than its own foot. With ``occlude`` the run ends at 
 takes the ratio of the same wall beside it (whose foot is visible)."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from billboard_scene import billboard_camera
 from staticdepth.geometry.alignment import align_depth
 
 W, H, F = 160, 100, 100.0
@@ -18,21 +17,7 @@ W, H, F = 160, 100, 100.0
 def _scene(cam_height=1.5, pitch_deg=10.0, wall_m=14.0, wall_h=5.0, agent_m=6.0):
     """True depth, ground / wall / agent masks of a low camera: a wall (|lateral| < 6 m) and one
     agent (|lateral| < 0.4 m, 1.8 m tall) in front of its middle; sky 200 m."""
-    K = np.array([[F, 0, W / 2 - 0.5], [0, F, H / 2 - 0.5], [0, 0, 1.0]])
-    t = math.radians(pitch_deg)
-    n = np.array([0.0, math.cos(t), math.sin(t)])           # down, camera frame
-    fwd = np.array([0.0, -math.sin(t), math.cos(t)])        # horizontal forward
-    u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
-    r = np.stack([(u - K[0, 2]) / F, (v - K[1, 2]) / F, np.ones_like(u)], -1)
-    with np.errstate(divide="ignore"):
-        z_ground = np.where(r @ n > 1e-9, cam_height / (r @ n), np.inf)
-
-    def billboard(dist, half_w, height):
-        with np.errstate(divide="ignore"):
-            z = np.where(r @ fwd > 1e-9, dist / (r @ fwd), np.inf)
-        up = cam_height - (r * z[..., None]) @ n
-        return z, (up >= 0) & (up < height) & (np.abs(r[..., 0] * z) < half_w) & (z < z_ground)
-
+    K, n, z_ground, billboard = billboard_camera(cam_height, pitch_deg, W, H, F)
     z_wall, wall = billboard(wall_m, 6.0, wall_h)
     z_agent, agent = billboard(agent_m, 0.4, 1.8)
     depth = np.where(agent, z_agent, np.where(wall, z_wall, z_ground))

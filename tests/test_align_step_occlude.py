@@ -8,11 +8,10 @@ foot is visible: the far wall's own scale. The network here is exact up to one s
 structure (ground, near wall, far wall)."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
+from billboard_scene import billboard_camera
 from staticdepth.geometry.alignment import align_depth
 
 W, H, F = 160, 100, 100.0
@@ -23,21 +22,7 @@ def _scene(pitch_deg=10.0, far_m=14.0, near_m=6.0, near_h=1.2, near_half_w=1.5):
     """True depth and ground / far wall / near wall masks: a wall 14 m away (|lateral| < 6 m,
     5 m tall) and a lower wall 6 m away in front of its middle (|lateral| < 1.5 m, 1.2 m tall:
     its top is above the far wall's foot in the image); sky 200 m."""
-    K = np.array([[F, 0, W / 2 - 0.5], [0, F, H / 2 - 0.5], [0, 0, 1.0]])
-    t = math.radians(pitch_deg)
-    n = np.array([0.0, math.cos(t), math.sin(t)])           # down, camera frame
-    fwd = np.array([0.0, -math.sin(t), math.cos(t)])        # horizontal forward
-    u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
-    r = np.stack([(u - K[0, 2]) / F, (v - K[1, 2]) / F, np.ones_like(u)], -1)
-    with np.errstate(divide="ignore"):
-        z_ground = np.where(r @ n > 1e-9, CAM / (r @ n), np.inf)
-
-    def billboard(dist, half_w, height):
-        with np.errstate(divide="ignore"):
-            z = np.where(r @ fwd > 1e-9, dist / (r @ fwd), np.inf)
-        up = CAM - (r * z[..., None]) @ n
-        return z, (up >= 0) & (up < height) & (np.abs(r[..., 0] * z) < half_w) & (z < z_ground)
-
+    K, n, z_ground, billboard = billboard_camera(CAM, pitch_deg, W, H, F)
     z_far, far = billboard(far_m, 6.0, 5.0)
     z_near, near = billboard(near_m, near_half_w, near_h)
     depth = np.where(near, z_near, np.where(far, z_far, z_ground))
