@@ -60,10 +60,12 @@ KEEP_REL = 0.02         # a run standing within this of the plane's depth at its
 
 
 def contact_ratios(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndarray,
-                   jump_rel: float) -> tuple[np.ndarray, np.ndarray]:
+                   jump_rel: float, cut: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """March every row from the bottom up: each non-ground pixel inherits the contact of the
-    pixel below it on its vertical line when their depths are continuous, or becomes a contact
-    when that pixel is ground. Returns (H, W) the contact's plane inverse depth ``qc`` and the
+    pixel below it on its vertical line when their depths are continuous (and ``cut``, (H, W)
+    bool an edge between a pixel and the one below, is not set), or becomes a contact when that
+    pixel is ground. Returns (H, W) the contact's plane inverse depth ``qc`` and the
     contact's flat pixel index (NaN / -1 where a pixel has no contact)."""
     h, w = A.shape
     qc = np.full((h, w), np.nan, np.float64)
@@ -82,17 +84,22 @@ def contact_ratios(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndar
         idx[v, contact] = v * w + cols[contact]
         with np.errstate(invalid="ignore"):
             cont = ok & ~below & (np.abs(A[v] - a_b) <= jump_rel * np.minimum(A[v], a_b))
+        if cut is not None:
+            cont &= ~cut[v]
         qc[v, cont] = qc[v + 1, ub[cont]]
         idx[v, cont] = idx[v + 1, ub[cont]]
     return qc, idx
 
 
 def occluded_runs(A: np.ndarray, occluder: np.ndarray, ground: np.ndarray, du: np.ndarray,
-                  jump_rel: float, steps: bool = False) -> np.ndarray:
+                  jump_rel: float, steps: bool = False,
+                  cut: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool: pixels whose run (continuous depth down the vertical, not ground) ends on an
     ``occluder`` pixel: whatever stands behind an agent has its foot hidden by it. With
     ``steps``, also those whose run ends at a depth step down to a nearer pixel that is not
-    ground: what stands in front hides the foot."""
+    ground: what stands in front hides the foot. With ``cut`` ((H, W) bool, an image edge
+    between a pixel and the one below), also those whose run ends at such an edge above a pixel
+    that is not ground (the edge of a nearer occluder the network blurred through)."""
     h, w = A.shape
     out = np.zeros((h, w), bool)
     cols = np.arange(w)
@@ -109,6 +116,9 @@ def occluded_runs(A: np.ndarray, occluder: np.ndarray, ground: np.ndarray, du: n
                 & (np.abs(A[v] - a_b) <= jump_rel * np.minimum(A[v], a_b))
             if steps:
                 hidden = hidden | (~ground[v + 1, ub] & (A[v] > (1.0 + jump_rel) * a_b))
+            if cut is not None:
+                hidden = hidden | (~ground[v + 1, ub] & cut[v])
+                cont &= ~cut[v]
         out[v] = ok & (hidden | (cont & out[v + 1, ub]))
     return out
 
@@ -224,7 +234,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   recede_push: float = np.inf, walked: np.ndarray | None = None,
                   walked_ratio: float = np.inf, extra_ground: np.ndarray | None = None,
                   keep_rel: float | None = KEEP_REL, occlude: bool = False,
-                  step_occlude: bool = False,
+                  step_occlude: bool = False, edge_below: np.ndarray | None = None,
                   info: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
@@ -240,9 +250,14 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     (an agent hides the foot of what stands behind it) and those cut take a row neighbour's
     ratio (:func:`fill_along_rows`, as ``fill`` does for every run without a contact);
     ``step_occlude``: so do the runs that end at a depth step down to a nearer pixel that is not
-    ground (what stands in front of a structure hides its foot; no agent mask needed). Returns
-    the new map and the (H, W) bool mask of the pixels it set (re-anchored, planar, or snapped
-    pixels found to be structures, which keep ``A``)."""
+    ground (what stands in front of a structure hides its foot; no agent mask needed);
+    ``edge_below``: (H, W) bool, an image edge between a pixel and the one below it on its
+    vertical: runs do not cross it to a pixel that is not ground, and those it cuts take a row
+    neighbour's ratio (an occluder the network blurred through shows in the image, not in its
+    depth; benchmarks/bench_edge_stops.py's oracle, no setting: it did not help on i1-i4, even
+    cut at the true occluding edges, docs/gains.md). Returns the new map and the (H, W) bool
+    mask of the pixels it set (re-anchored, planar, or snapped pixels found to be structures,
+    which keep ``A``)."""
     if shape not in SHAPES:
         raise InputError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
     if not (np.isfinite(jump_rel) and jump_rel > 0):
@@ -262,7 +277,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     A_tr = np.where(not_ground, np.nan, A) if cut else A
 
     def trace(g):
-        qc, idx = contact_ratios(A_tr, g, q, du, jump_rel)
+        qc, idx = contact_ratios(A_tr, g, q, du, jump_rel, edge_below)
         refine_contacts(A_tr, g, q, du, qc, idx, jump_rel, near_rel, max_walk, src, keep_rel)
         return qc, idx, idx >= 0
 
@@ -321,12 +336,12 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     todo = (~ground | have) & np.isfinite(A)
     if fill:
         fill_along_rows(ratio, A, todo, jump_rel)
-    elif cut or step_occlude:
-        # runs an agent (or, with step_occlude, a nearer step) cut take a row neighbour's ratio
-        # (the same wall beside it)
+    elif cut or step_occlude or edge_below is not None:
+        # runs an agent (or, with step_occlude, a nearer step; with edge_below, an image edge)
+        # cut take a row neighbour's ratio (the same wall beside it)
         occ = not_ground if cut else np.zeros((h, w), bool)
         fill_along_rows(ratio, A, todo & occluded_runs(A, occ, ground, du, jump_rel,
-                                                       step_occlude), jump_rel)
+                                                       step_occlude, edge_below), jump_rel)
     moved = todo & np.isfinite(ratio)
     if info is not None:    # per-pixel categories, for diagnostics (benchmarks/)
         info.update(ground=ground, planar=planar, traced=have, moved=moved, contact=idx)
