@@ -19,7 +19,9 @@ predictions aligned again with adapt's settings (``--set align.KEY=VALUE`` over 
 2. ``--oracle``: the alignment again with ``edge_below`` = the image edges above each ``T``
    (alignment_upright: runs do not cross them to a pixel that is not ground and take a row
    neighbour's ratio), AbsRel (median scaling, per-frame mean as evaluate) per region beside base
-   and the plain alignment.
+   and the plain alignment; and cut at the true occluding edges (``truth-cut``: the ceiling of
+   the cut itself), where the front pixels end: filled from a row neighbour, kept the ground
+   mode, or still traced (no true edge one row tall on their walk).
 
 Usage:
   python benchmarks/bench_edge_stops.py --work out/bench --runs i1-m1,i3-m1,i4-m1 \
@@ -156,7 +158,18 @@ def analyse(seq: str, sets: dict, thresholds: list[float], front: float, oracle:
                 # the mechanism's ceiling: cut at the true occluding edges (truth > 30% nearer)
                 with np.errstate(divide="ignore", invalid="ignore"):
                     T = edge_below(np.log(gt)[..., None], du) > np.log(1.3)
-                preds["truth-cut"] = aligned(T)
+                tinfo: dict = {}
+                preds["truth-cut"] = aligned(T, tinfo)
+                # the front pixels there: filled from a row neighbour, kept the ground mode, or
+                # still traced (|aligned / true - 1| in each frame's median units)
+                fp = pix[ratio < front]
+                state = np.where(tinfo["contact"].ravel()[fp] >= 0, 2,
+                                 np.where(tinfo["moved"].ravel()[fp], 0, 1))
+                for k, P in (("err_plain", A), ("err_cut", preds["truth-cut"])):
+                    med = float(np.median(gt[vm] / P[vm]))
+                    walks.setdefault(k, []).append(np.abs(med * P.ravel()[fp] / gt.ravel()[fp]
+                                                          - 1.0))
+                walks.setdefault("state", []).append(state)
                 with unfilled_cuts():   # cut runs keep the ground mode
                     preds["truth-cut-nofill"] = aligned(T)
                     preds.update({f"edge>{t:g}-nofill": aligned(E > t) for t in thresholds})
@@ -165,8 +178,14 @@ def analyse(seq: str, sets: dict, thresholds: list[float], front: float, oracle:
                     regions.setdefault(name, {}).setdefault(k, []).append(x)
     return {"gt": np.concatenate(walks["gt"]), "im": np.concatenate(walks["im"], 1),
             "front": np.concatenate(walks["front"]),
+            **{k: np.concatenate(walks[k]) for k in ("state", "err_plain", "err_cut")
+               if k in walks},
             "regions": {n: {k: float(np.mean(v)) for k, v in d.items()}
                         for n, d in regions.items()}}
+
+
+def q50(x: np.ndarray) -> float:
+    return float(np.median(x)) if len(x) else float("nan")
 
 
 def report(name: str, res: dict, thresholds: list[float]) -> None:
@@ -183,6 +202,13 @@ def report(name: str, res: dict, thresholds: list[float]) -> None:
         print(f"  T {t:<5g} recall {np.mean(at[edge]):4.0%}  early {np.mean(early[edge]):4.0%}"
               f"  (front walks with a true edge); false cuts {np.mean(stop[~fr]):4.0%} (right "
               f"contacts); precision {at[stop].mean() if stop.any() else np.nan:.0%}")
+    if "state" in res:
+        st, ep, ec = res["state"], res["err_plain"], res["err_cut"]
+        print(f"  front pixels cut at the true edges (truth-cut): |aligned/true - 1| q50 plain "
+              f"{np.median(ep):.2f} -> {np.median(ec):.2f}; " + ", ".join(
+                  f"{n} {np.mean(st == k):.0%} ({q50(ep[st == k]):.2f} -> {q50(ec[st == k]):.2f})"
+                  for k, n in enumerate(("filled from a row neighbour", "kept the ground mode",
+                                         "still traced"))))
     reg = res["regions"]
     base = reg["base"]
     print(f"  {'AbsRel':10s} " + " ".join(f"{k:>10s}" for k in REGIONS if k in base)
