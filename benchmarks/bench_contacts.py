@@ -70,10 +70,11 @@ def walk_profiles(src: np.ndarray, gt: np.ndarray, du: np.ndarray, pix: np.ndarr
 
 
 def frame_absrel(pred: np.ndarray, gt: np.ndarray, vm: np.ndarray) -> float:
-    from staticdepth.metrics import apply_protocol
+    """The frame's AbsRel as the evaluation computes it (median scaling, depth_metrics)."""
+    from staticdepth.metrics import apply_protocol, depth_metrics
 
     scaled, _ = apply_protocol(pred, gt, "median", vm)
-    return float(np.mean(np.abs(scaled[vm] - gt[vm]) / gt[vm]))
+    return depth_metrics(scaled, gt, max_depth=80.0, mask=vm)["abs_rel"]
 
 
 def run_oracle(A: np.ndarray, gt: np.ndarray, vm: np.ndarray, contact: np.ndarray,
