@@ -127,13 +127,17 @@ def contact_value(inv_depth: np.ndarray, mask: np.ndarray, conf: PseudoLabelConf
 
 
 def pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.ndarray,
-                 conf: PseudoLabelConfig = PRESETS["paper"]) -> tuple[np.ndarray, np.ndarray]:
+                 conf: PseudoLabelConfig = PRESETS["paper"],
+                 contacts: dict[int, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Label one frame.
 
     Args:
         inv_depth: (H, W) the network's relative inverse depth for this frame.
         instances: (H, W) uint16 instance map (0 = background).
         agents: this frame's AGENT_DTYPE rows (``instance_id``, ``class_id``).
+        contacts: instance id -> contact value known otherwise (a hidden foot placed from the
+            top, :func:`staticdepth.geometry.alignment.contacts_from_top`), used instead of
+            the value at its lowest pixel.
     Returns:
         label (H, W) float32 and the boolean mask of relabelled (agent) pixels.
     """
@@ -148,7 +152,8 @@ def pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.ndarra
     values: dict[int, float] = {}
     for iid, src in sources.items():
         if src not in values:
-            values[src] = contact_value(inv_depth, instances == src, conf)
+            values[src] = (contacts[src] if contacts and src in contacts
+                           else contact_value(inv_depth, instances == src, conf))
         m = instances == iid
         label[m] = values[src]
         agent_mask |= m

@@ -58,7 +58,8 @@ DET_DTYPE = np.dtype([("frame", np.int32), ("instance_id", np.int32), ("class_id
                       ("track", np.int32), ("foot_u", np.float32), ("foot_v", np.float32),
                       ("top_v", np.float32), ("left", np.float32), ("right", np.float32),
                       ("score", np.float32), ("border", np.bool_), ("top_u", np.float32),
-                      ("occluded", np.bool_), ("feet", np.uint8)])
+                      ("occluded", np.bool_), ("feet", np.uint8), ("foot_hidden", np.bool_),
+                      ("top_hidden", np.bool_)])
 
 
 @dataclass(frozen=True)
@@ -95,9 +96,9 @@ def detections_from_instances(instance_map: np.ndarray, rows: np.ndarray | None 
 
     rows: (K, 3) ``(instance_id, class_id, score)`` or a structured array with those fields
     (AGENT_DTYPE works; its ``track_id`` >= 0 is kept as the track); instances absent from
-    ``rows`` are ignored. None = every instance, class unknown (-1), score 1. ``occluded``: within
-    ``contact_px`` rows below the lowest row (columns of that row, +-1) or above the top row there
-    is another instance.
+    ``rows`` are ignored. None = every instance, class unknown (-1), score 1. ``foot_hidden`` /
+    ``top_hidden``: within ``contact_px`` rows below the lowest row (columns of that row, +-1) /
+    above the top row there is another instance; ``occluded``: either.
     """
     m = np.asarray(instance_map)
     if m.ndim != 2:
@@ -127,8 +128,9 @@ def detections_from_instances(instance_map: np.ndarray, rows: np.ndarray | None 
         # the silhouette's highest point (the fit then uses its sides)
         box = b - a == (out["right"][k] - out["left"][k] + 1) * (v_low - v_top + 1)
         out["top_u"][k] = np.nan if box else np.median(top_cols)
-        out["occluded"][k] = (_touches(m, uniq[k], v_low + 1, v_low + 1 + contact_px, low_cols)
-                              or _touches(m, uniq[k], v_top - contact_px, v_top, top_cols))
+        out["foot_hidden"][k] = _touches(m, uniq[k], v_low + 1, v_low + 1 + contact_px, low_cols)
+        out["top_hidden"][k] = _touches(m, uniq[k], v_top - contact_px, v_top, top_cols)
+    out["occluded"] = out["foot_hidden"] | out["top_hidden"]
     out["class_id"], out["score"], out["track"] = info[:, 0], info[:, 1], info[:, 2]
     out["border"] = ((out["left"] <= border_px - 1 + 1e-3) | (out["right"] >= w - border_px)
                      | (out["top_v"] <= border_px - 1 + 1e-3) | (out["foot_v"] >= h - border_px))

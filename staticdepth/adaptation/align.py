@@ -3,7 +3,8 @@
 ``align.mode`` (ground, upright or the paper's Eq. 2) with unit camera height (the outputs
 ``align`` and ``ft-align`` are in units of the camera height); the predicted plane is fitted on the feet's hull (eroded by
 ``align.erode_px``, default W/80) minus the frame's agents, unless that leaves fewer than 50
-pixels; with ``align.agents_at_contact`` each agent then takes the plane depth at its contact.
+pixels; with ``align.agents_at_contact`` each agent then takes the plane depth at its contact
+(people whose foot is hidden: from their top and fitted height, ``align.hidden_contact``).
 :func:`align_prediction` is the streamed, resumable per-frame writer that ``staticdepth align
 --sequence`` uses too.
 """
@@ -65,12 +66,21 @@ def upright_options(align) -> dict:
             "plane_bound": align.plane_bound}
 
 
+def person_heights(conf: AdaptConfig, plane: AgentPlane):
+    """The people's fitted heights for ``agents_at_contact`` (None with ``align.hidden_contact
+    = lowest`` or no person track)."""
+    from staticdepth.geometry.agent_contact import PersonHeights
+
+    return PersonHeights.from_plane(plane) if conf.align.hidden_contact == "top" else None
+
+
 def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,
                   instances: np.ndarray, rows: np.ndarray, Z: np.ndarray,
-                  plane_bound: bool = False) -> np.ndarray:
+                  plane_bound: bool = False, heights=None) -> np.ndarray:
     """One frame's depth ``Z`` aligned as adapt does it (units of the camera height).
     ``plane_bound``: ``align.plane_bound`` applies (the align stage's outputs pass it; the pseudo
-    labels do not: labels with it made the fine-tuned U-Net's ft-align worse, docs/gains.md)."""
+    labels do not: labels with it made the fine-tuned U-Net's ft-align worse, docs/gains.md).
+    ``heights``: :func:`person_heights` (people with a hidden foot placed from their top)."""
     m = instances > 0
     # the frame's agents leave the ground mask, unless they would leave too little of it
     agent_mask = m if np.count_nonzero(ground & ~m) >= 50 else None
@@ -78,17 +88,19 @@ def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: 
     A = align_depth(Z, K, normal, 1.0, ground, agent_mask=agent_mask, mode=conf.align.mode,
                     snap_rel=conf.align.snap_rel, **opts).depth
     if conf.align.agents_at_contact:
-        A = agents_at_contact(A, K, normal, 1.0, instances, rows, conf.pseudo_labels)[0]
+        A = agents_at_contact(A, K, normal, 1.0, instances, rows, conf.pseudo_labels,
+                              heights=heights)[0]
     return A
 
 
 def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, feet: np.ndarray,
         config_hash: str) -> None:
     ground = ground_region(conf, ws, feet)
+    heights = person_heights(conf, plane)
 
     def aligned(i: int, Z: np.ndarray) -> np.ndarray:
         return aligned_frame(conf, ws.K, plane.normal, ground, agents.instances(i),
-                             agents.rows(i), Z, plane_bound=True)
+                             agents.rows(i), Z, plane_bound=True, heights=heights)
 
     align_prediction(ws, {out: (src, aligned) for out, src in OUTPUTS.items()}, config_hash,
                      {"stage": "adapt", "metric": False, "units": "camera heights"})

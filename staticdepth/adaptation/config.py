@@ -45,6 +45,9 @@ class DetectorConfig:
             raise InputError(f"unknown detector {self.name!r} (one of {', '.join(DETECTORS)})")
 
 
+HIDDEN_CONTACTS = ("top", "lowest")
+
+
 @dataclass(frozen=True)
 class AlignConfig:
     erode_px: float | None = None    # ground mask: the feet's hull eroded by this (None: W/80)
@@ -82,6 +85,10 @@ class AlignConfig:
     plane_bound: bool = True         # upright: no pixel below the agents' horizon farther than
     #                                  the plane along its ray (align outputs, the align command,
     #                                  export-model; not the pseudo labels)
+    hidden_contact: str = "top"      # agents_at_contact, people whose mask ends on another
+    #                                  agent or the image's bottom: "top" = the contact from
+    #                                  their top and fitted height (geometry/agent_contact.py),
+    #                                  "lowest" = the plane at their lowest pixel
 
     def __post_init__(self):
         from staticdepth.geometry.alignment import ALIGN_MODES
@@ -108,6 +115,9 @@ class AlignConfig:
         if self.walked_ratio is not None and not (math.isfinite(self.walked_ratio)
                                                   and self.walked_ratio >= 1):
             raise InputError(f"align.walked_ratio must be >= 1 or null, got {self.walked_ratio}")
+        if self.hidden_contact not in HIDDEN_CONTACTS:
+            raise InputError(f"align.hidden_contact must be one of {HIDDEN_CONTACTS}, got "
+                             f"{self.hidden_contact!r}")
         if self.contact_range is not None and not (math.isfinite(self.contact_range)
                                                    and self.contact_range > 0):
             raise InputError(f"align.contact_range must be > 0 or null, got {self.contact_range}")
@@ -187,8 +197,8 @@ def model_identity(spec: str) -> dict[str, Any]:
 # being reused (the stage hashes name outputs by settings; without this an upgrade would
 # silently keep, e.g., the former pseudo labels). Raising one reruns that stage and the stages
 # after it, as a changed setting does.
-STAGE_VERSIONS = {"base": 1, "agents": 1, "ground_plane": 7, "pseudo_labels": 4, "finetune": 2,
-                  "align": 4, "scale": 1}
+STAGE_VERSIONS = {"base": 1, "agents": 1, "ground_plane": 7, "pseudo_labels": 5, "finetune": 2,
+                  "align": 5, "scale": 1}
 
 
 def _versioned(stage: str, settings: dict) -> str:

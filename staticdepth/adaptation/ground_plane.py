@@ -39,8 +39,8 @@ def _load(ws: Workspace, config_hash: str) -> tuple[AgentPlane, np.ndarray] | No
         return None
     plane = AgentPlane.from_dict(d["plane"], path)
     classes = {int(k): int(v) for k, v in d["track_classes"].items()}
-    plane = replace(plane, extra={"classes": np.array([classes[int(t)]
-                                                       for t in plane.track_ids])})
+    plane = replace(plane, extra={**plane.extra, "classes": np.array([classes[int(t)]
+                                                                      for t in plane.track_ids])})
     return plane, np.asarray(d["feet"], dtype=np.float64).reshape(-1, 2)
 
 

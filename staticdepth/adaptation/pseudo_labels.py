@@ -51,7 +51,7 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
             return plane_pseudo_label(inv, agents.instances(i), agents.rows(i), plane_inv, ground,
                                       pl, label_ground=pl.label_ground)
     elif pl.source == "aligned":
-        from staticdepth.adaptation.align import aligned_frame, ground_region
+        from staticdepth.adaptation.align import aligned_frame, ground_region, person_heights
         from staticdepth.geometry.alignment import depth_from_inverse
         from staticdepth.geometry.projection import ray_grid
 
@@ -62,11 +62,12 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
                                          ws.height, pl.contact_row_px)
                      if pl.grazing != "off" else None)
         dense: list = []            # computed on the first frame labelled (not when skipped)
+        heights = person_heights(conf, plane)
 
         def label_frame(i, inv):
             inst = agents.instances(i)
             A = aligned_frame(conf, ws.K, plane.normal, ground, inst, agents.rows(i),
-                              depth_from_inverse(inv))
+                              depth_from_inverse(inv), heights=heights)
             if (pl.dense_mode or pl.untrusted in ("base", "depth", "ignore")) and not dense:
                 dense.extend(_dense(conf, ws, agents, plane, ground))
             if pl.dense_mode:           # stable pixels of the dense mode, off the frame's agents
@@ -115,7 +116,7 @@ def _dense(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, 
     keeps stable within ``dense_spread``) - :func:`staticdepth.pseudo_labels.stable_depth`."""
     from dataclasses import replace
 
-    from staticdepth.adaptation.align import aligned_frame
+    from staticdepth.adaptation.align import aligned_frame, person_heights
     from staticdepth.geometry.alignment import depth_from_inverse
     from staticdepth.pseudo_labels import stable_depth
 
@@ -125,11 +126,12 @@ def _dense(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, 
     picks = np.unique(np.linspace(0, len(split) - 1, min(pl.dense_frames, len(split))).round()
                       .astype(int))
     depths, static = [], []
+    heights = person_heights(dconf, plane)
     with ws.frame_file("inverse-base.h5") as inv:
         for k in progress(picks, desc="stable labels"):
             i = split[k]
             inst = agents.instances(i)
             depths.append(aligned_frame(dconf, ws.K, plane.normal, ground, inst, agents.rows(i),
-                                        depth_from_inverse(inv[i])))
+                                        depth_from_inverse(inv[i]), heights=heights))
             static.append(inst == 0)
     return stable_depth(np.stack(depths), np.stack(static), pl.dense_spread)
