@@ -45,9 +45,9 @@ def _ransac(K, prob: _Problem, conf, rng):
     best, need, it = None, conf.ransac_iters, 0
     while it < min(need, conf.ransac_iters):
         it += 1
-        sub = _Problem(K, obs.subset(rng.choice(J, 3, replace=False)), prob.kappa)
+        sub = _Problem(K, obs.subset(rng.choice(J, 3, replace=False)), prob.kappa,
+                       head_tie=prob.head_tie)              # the verdict of every track
         sub.width_idx = sub.width_idx[:0]     # rows (and box sides) only: the widths are slow
-        sub.head_tie = sub.tie_possible and prob.head_tie    # the verdict of every track
         start = _affine_start(K, sub.obs) or (30.0, 0.0)
         p, r, _, _, _ = sub.fit(conf, [start], sub.prior_theta(), max_nfev=30, free_shape=False)
         n = _normal(p, r)
@@ -77,8 +77,8 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
         starts = [pitch_roll_from_normal(n_h)]
     else:
         inl = np.ones(J, bool)
-    sub = _Problem(K, obs.subset(np.flatnonzero(inl)), prob.kappa)
-    sub.head_tie = sub.tie_possible and prob.head_tie     # the gait verdict of every track
+    sub = _Problem(K, obs.subset(np.flatnonzero(inl)), prob.kappa,
+                   head_tie=prob.head_tie)                  # the gait verdict of every track
     aff = _affine_start(K, sub.obs)
     if aff is not None:
         starts.insert(1, aff)

@@ -66,7 +66,8 @@ class _Problem:
     """The observations with their class groups; packs and unpacks the parameter vector
     ``[pitch, roll, extents of the groups present..., s_1..s_J]``."""
 
-    def __init__(self, K: np.ndarray, obs: AgentObservations, relative_noise: float = 0.0):
+    def __init__(self, K: np.ndarray, obs: AgentObservations, relative_noise: float = 0.0,
+                 head_tie: bool | None = None):
         self.K, self.obs, self.kappa = K, obs, relative_noise
         self.J, self.N = len(obs.ids), len(obs.top_v)
         self.track_group = group_of_class(obs.cls)
@@ -94,12 +95,15 @@ class _Problem:
                                         & np.isfinite(obs.right))
         # people none of whose observations has a top column: the head prior tied to the foot
         # where their boxes show no gait (a walker's box bottom is its front foot, its foot
-        # extent holds the stride; agent_gait); a subset's problem takes its parent's verdict
+        # extent holds the stride; agent_gait); a subset of the fit's tracks passes the verdict
+        # of every track (``head_tie``) instead of judging its own few
         ppl = ~box_obs & (self.group == 0)
         self.tie_possible = (0 in self.free and bool(ppl.any())
                              and not bool(np.any(self.has_u & ppl)))
-        self.head_tie = self.tie_possible and box_gait(
-            obs.idx[ppl], (obs.right - obs.left)[ppl], obs.h[ppl]) == "rigid"
+        if head_tie is None:
+            head_tie = self.tie_possible and box_gait(
+                obs.idx[ppl], (obs.right - obs.left)[ppl], obs.h[ppl]) == "rigid"
+        self.head_tie = self.tie_possible and bool(head_tie)
         self.k_s = k + 1                  # index of s_1 (k: log of 1 / camera height in metres)
         mh = np.array([GROUPS[g].typical_height for g in self.track_group])
         self.log_h, self.log_sd = np.log(mh[:, 0]), mh[:, 1]
