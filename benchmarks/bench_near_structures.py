@@ -23,10 +23,11 @@ Beside those, per run: the frame's AbsRel (median scaling) now, with the near st
 ground mode's depth, and at the truth (the oracles), and the near structures' AbsRel.
 
 ``--compare``: instead, AbsRel per region (median scaling, per-frame mean as ``evaluate``) of
-base, ``align`` and ``align`` with the colour foot (``upright_depth(image=...)``: the median of the
-adaptation frames; alignment_upright's ``FOOT_DIFF`` and ``FOOT_PULL``; a traced pixel whose colour run down the
-vertical goes on below its contact stands at the run's foot), the near structures as a region
-(``near``), and the regions more than 3% worse than base.
+base, ``align`` and ``align`` with the colour foot (``align.colour_foot``:
+``upright_depth(image=...)`` with the median of the adaptation frames,
+adaptation.align.static_image, and alignment_upright's ``FOOT_DIFF`` / ``FOOT_PULL``: a traced
+pixel whose colour run down the vertical goes on below its contact stands at the run's foot), the
+near structures as a region (``near``), and the regions more than 3% worse than base.
 
 Usage:
   python benchmarks/bench_near_structures.py --work out/bench --runs i4-m1,h3-m1 [--near 10]
@@ -44,7 +45,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from bench_align_regions import kept_run_parser, kept_runs, run_settings, walked_region  # noqa
 from bench_contacts import frame_absrel  # noqa
-from bench_edge_stops import REGIONS, frame_regions, median_image  # noqa
+from bench_edge_stops import REGIONS, frame_regions  # noqa
 
 TRUTH = ("G", "S", "A", "last-row")
 RULES = ("snapped", "plane-recede", "plane-walked", "traced", "filled", "refused-pull",
@@ -214,6 +215,7 @@ def report(name: str, res: dict) -> None:
 
 def compare(seq: str, sets: dict, near_m: float) -> dict:
     """Per prediction (base, align, align with the colour foot), per region: the frames' AbsRel."""
+    from staticdepth.adaptation.align import static_image
     from staticdepth.dataset.h5 import SequenceReader
     from staticdepth.evaluate import region_masks
     from staticdepth.geometry.alignment import agents_at_contact
@@ -225,7 +227,7 @@ def compare(seq: str, sets: dict, near_m: float) -> dict:
         K = r.camera.K
         mount = (r.meta.mounting.normal, r.meta.mounting.height_m)
         rows, walked = walked_region(r, conf)
-        img = median_image(r)
+        img = static_image(r, r.split("adapt"))       # as adapt's align stage
         for i in r.split("eval"):
             Z, gt, inst = r.prediction("base", i), r.depth(i), r.instances(i)
             m = inst > 0

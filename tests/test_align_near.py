@@ -10,6 +10,8 @@ across the image's columns as the vertical does. A closed-form scene (tests/bill
 the image is drawn from its masks."""
 from __future__ import annotations
 
+import types
+
 import numpy as np
 
 from billboard_scene import billboard_camera
@@ -88,3 +90,35 @@ def test_a_post_of_the_grounds_colour_has_no_foot():
     on = _aligned(net, K, n, ground, image=img)
     assert np.array_equal(on[post], off[post])
     assert np.median(on[post & (off / Z > 2)] / Z[post & (off / Z > 2)]) > 2.3
+
+
+def test_adapt_applies_the_setting_through_aligned_frame():
+    """``align.colour_foot`` (off by default) is what takes the image into adapt's alignment."""
+    from staticdepth.adaptation.align import aligned_frame
+    from staticdepth.adaptation.config import build_config
+
+    K, n, Z, net, ground, far, post, img = _scene()
+    none = np.zeros(Z.shape, np.int32)
+    rows = np.zeros(0, dtype=[("instance_id", "i4")])
+    no_agents = {"align.agents_at_contact": False}                  # the scene has none
+    on_conf = build_config({**no_agents, "align.colour_foot": True})
+    args = (K, n, ground, none, rows, net)          # units of the camera height
+    plain = aligned_frame(build_config(no_agents), *args, image=img)
+    on = aligned_frame(on_conf, *args, image=img)
+    assert np.array_equal(aligned_frame(on_conf, *args), plain)     # no image: no rule
+    # the same maps as the rule's own test above (metres there, camera heights here)
+    np.testing.assert_allclose(on * CAM, _aligned(net, K, n, ground, image=img), rtol=1e-5)
+    np.testing.assert_allclose(plain * CAM, _aligned(net, K, n, ground), rtol=1e-5)
+    assert not np.allclose(on, plain)
+
+
+def test_the_align_command_refuses_the_setting_it_cannot_apply():
+    from staticdepth.adaptation.config import build_config
+    from staticdepth.align import align_map
+    from staticdepth.errors import InputError
+
+    K, n, Z, net, ground = _scene()[:5]
+    plane = types.SimpleNamespace(normal=n)        # the command's plane file, its normal only
+    with np.testing.assert_raises_regex(InputError, "colour_foot"):
+        align_map(net, K, plane, ground,
+                  align_conf=build_config({"align.colour_foot": True}).align)

@@ -146,7 +146,8 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
                 recede_push: float = np.inf, walked_ratio: float = np.inf,
                 plane_bound: bool = False, extra_ground: np.ndarray | None = None,
                 keep_rel: float | None = KEEP_REL, occlude: bool = False,
-                step_occlude: bool = False, info: dict | None = None) -> Alignment:
+                step_occlude: bool = False, image: np.ndarray | None = None,
+                info: dict | None = None) -> Alignment:
     """Align a relative depth map (H, W) to the agents' ground plane ``n_g . P = d_g``.
 
     ground_mask: (H, W) bool where the ground is expected; ``agent_mask`` pixels are removed from
@@ -157,7 +158,8 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
     Raises InputError for an empty ground mask (also after removing the agents), too few valid
     depths in it, a non-finite or zero ``n_g``, a ``d_g`` that is not positive, or when no ground
     pixel can be aligned; the output is never a map of NaN where the input had depths.
-    ``extra_ground``, ``keep_rel``, ``occlude``, ``step_occlude``, ``info``: the upright mode's
+    ``extra_ground``, ``keep_rel``, ``occlude``, ``step_occlude``, ``image``, ``info``: the
+    upright mode's
     (``align_upright``).
     """
     Z = np.asarray(depth, dtype=np.float32)
@@ -193,7 +195,7 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
                              contact_range=contact_range, recede_push=recede_push,
                              walked_ratio=walked_ratio, plane_bound=plane_bound,
                              extra_ground=extra_ground, keep_rel=keep_rel, occlude=occlude,
-                             step_occlude=step_occlude, info=info)
+                             step_occlude=step_occlude, image=image, info=info)
     n_p, d_p = fit_predicted_plane(Z, K, G)
     a, b, c = n_p
     s2 = a * a + b * b
