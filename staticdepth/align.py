@@ -125,6 +125,8 @@ def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: n
     Z = depth_from_inverse(pred) if inverse else pred
     d_g = camera_height_m if camera_height_m is not None else 1.0
     conf = AlignConfig() if align_conf is None else align_conf
+    if conf.colour_foot:
+        raise InputError("align.colour_foot needs the sequence's adaptation frames: run adapt")
     if near_plane_rel is not None and conf.mode != "eq2":
         raise InputError(f"--near-plane selects pixels for Eq. 2: it needs --mode eq2, not "
                          f"{conf.mode!r}")

@@ -74,17 +74,28 @@ def person_heights(conf: AdaptConfig, plane: AgentPlane):
     return PersonHeights.from_plane(plane) if conf.align.hidden_contact == "top" else None
 
 
+def static_image(r, frames) -> np.ndarray:
+    """(H, W, C) float 0-1: the median of the left images of ``frames`` (at most 64, evenly
+    spread) of an open SequenceReader: the static camera's scene without its agents."""
+    frames = np.asarray(frames)[np.linspace(0, len(frames) - 1, min(len(frames), 64)).astype(int)]
+    return np.median(np.stack([r.left(i) for i in frames]), 0) / 255.0
+
+
 def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,
                   instances: np.ndarray, rows: np.ndarray, Z: np.ndarray,
-                  plane_bound: bool = False, heights=None) -> np.ndarray:
+                  plane_bound: bool = False, image: np.ndarray | None = None,
+                  heights=None) -> np.ndarray:
     """One frame's depth ``Z`` aligned as adapt does it (units of the camera height).
     ``plane_bound``: ``align.plane_bound`` applies (the align stage's outputs pass it; the pseudo
-    labels do not: labels with it made the fine-tuned U-Net's ft-align worse, docs/gains.md).
+    labels do not: labels with it made the fine-tuned U-Net's ft-align worse, docs/gains.md);
+    ``image``: the static scene (:func:`static_image`) for ``align.colour_foot``, likewise;
     ``heights``: :func:`person_heights` (people with a hidden foot placed from their top)."""
     m = instances > 0
     # the frame's agents leave the ground mask, unless they would leave too little of it
     agent_mask = m if np.count_nonzero(ground & ~m) >= 50 else None
     opts = {**upright_options(conf.align), "plane_bound": plane_bound and conf.align.plane_bound}
+    if image is not None and conf.align.colour_foot:    # align outputs only, as plane_bound
+        opts["image"] = image
     A = align_depth(Z, K, normal, 1.0, ground, agent_mask=agent_mask, mode=conf.align.mode,
                     snap_rel=conf.align.snap_rel, **opts).depth
     if conf.align.agents_at_contact:
@@ -97,10 +108,14 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, fee
         config_hash: str) -> None:
     ground = ground_region(conf, ws, feet)
     heights = person_heights(conf, plane)
+    image = None
+    if conf.align.colour_foot and conf.align.mode == "upright":
+        with ws.reader() as r:
+            image = static_image(r, ws.adapt_split)
 
     def aligned(i: int, Z: np.ndarray) -> np.ndarray:
         return aligned_frame(conf, ws.K, plane.normal, ground, agents.instances(i),
-                             agents.rows(i), Z, plane_bound=True, heights=heights)
+                             agents.rows(i), Z, plane_bound=True, image=image, heights=heights)
 
     align_prediction(ws, {out: (src, aligned) for out, src in OUTPUTS.items()}, config_hash,
                      {"stage": "adapt", "metric": False, "units": "camera heights"})

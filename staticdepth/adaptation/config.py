@@ -82,6 +82,11 @@ class AlignConfig:
     #                                  pixel (its foot hidden by what stands in front) take a
     #                                  row neighbour's ratio too (no agent mask: exportable);
     #                                  off: neutral on i1-i4 / h1-h3 (issue 19, tenth round)
+    colour_foot: bool = False        # upright: a traced pixel whose colour run down the vertical
+    #                                  (the adaptation frames' median image) goes on below its
+    #                                  contact stands on the vertical through the run's foot
+    #                                  (align outputs only; off: not the U-Net's 0.02 on i4 / h3,
+    #                                  issue 19 eleventh round, docs/gains.md)
     plane_bound: bool = True         # upright: no pixel below the agents' horizon farther than
     #                                  the plane along its ray (align outputs, the align command,
     #                                  export-model; not the pseudo labels)

@@ -146,7 +146,8 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
                 recede_push: float = np.inf, walked_ratio: float = np.inf,
                 plane_bound: bool = False, extra_ground: np.ndarray | None = None,
                 keep_rel: float | None = KEEP_REL, occlude: bool = False,
-                step_occlude: bool = False, info: dict | None = None) -> Alignment:
+                step_occlude: bool = False, image: np.ndarray | None = None,
+                info: dict | None = None) -> Alignment:
     """Align a relative depth map (H, W) to the agents' ground plane ``n_g . P = d_g``.
 
     ground_mask: (H, W) bool where the ground is expected; ``agent_mask`` pixels are removed from
@@ -157,7 +158,8 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
     Raises InputError for an empty ground mask (also after removing the agents), too few valid
     depths in it, a non-finite or zero ``n_g``, a ``d_g`` that is not positive, or when no ground
     pixel can be aligned; the output is never a map of NaN where the input had depths.
-    ``extra_ground``, ``keep_rel``, ``occlude``, ``step_occlude``, ``info``: the upright mode's
+    ``extra_ground``, ``keep_rel``, ``occlude``, ``step_occlude``, ``image``, ``info``: the
+    upright mode's
     (``align_upright``).
     """
     Z = np.asarray(depth, dtype=np.float32)
@@ -193,7 +195,7 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
                              contact_range=contact_range, recede_push=recede_push,
                              walked_ratio=walked_ratio, plane_bound=plane_bound,
                              extra_ground=extra_ground, keep_rel=keep_rel, occlude=occlude,
-                             step_occlude=step_occlude, info=info)
+                             step_occlude=step_occlude, image=image, info=info)
     n_p, d_p = fit_predicted_plane(Z, K, G)
     a, b, c = n_p
     s2 = a * a + b * b
@@ -280,17 +282,18 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
                   plane_bound: bool = False, extra_ground: np.ndarray | None = None,
                   keep_rel: float | None = KEEP_REL, occlude: bool = False,
                   step_occlude: bool = False, edge_below: np.ndarray | None = None,
-                  info: dict | None = None) -> Alignment:
+                  image: np.ndarray | None = None, info: dict | None = None) -> Alignment:
     """The ``ground`` mode, then every structure above the ground re-anchored at its contact with
     it (geometry/alignment_upright.py). The frame's agents (``agent_mask``) are never ground.
     ``n_fallback`` counts the pixels that were not re-anchored (neither ground nor traced to it).
     ``plane_bound``: no pixel below the agents' horizon ends farther than the plane along its
     ray (the ground is infinite: whatever a pixel sees below the horizon stands in front of the
     ground there, or is it), ``min(depth, d_g / (n_g . r))``.
-    ``extra_ground``/``keep_rel``/``occlude``/``step_occlude``/``edge_below``/``info``: see
-    ``upright_depth`` (pixels known to be ground by another cue; runs already standing at their
+    ``extra_ground``/``keep_rel``/``occlude``/``step_occlude``/``edge_below``/``image``/``info``:
+    see ``upright_depth`` (pixels known to be ground by another cue; runs already standing at their
     contact kept, None: off; runs end at the frame's agents; runs cut by a nearer depth step, or
-    by an image edge (benchmarks/bench_edge_stops.py), filled along rows; per-pixel categories
+    by an image edge (benchmarks/bench_edge_stops.py), filled along rows; traced pixels whose
+    colour runs on below their contact placed at their colour foot; per-pixel categories
     for diagnostics, here also ``snapped``, the ``ground_mode`` map and
     ``raw``, the map the runs are traced on).
     """
@@ -314,7 +317,7 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
                                recede_push=recede_push, walked=np.asarray(ground_mask, bool),
                                walked_ratio=walked_ratio, info=info,
                                extra_ground=extra_ground, keep_rel=keep_rel, occlude=occlude,
-                               step_occlude=step_occlude, edge_below=edge_below,
+                               step_occlude=step_occlude, edge_below=edge_below, image=image,
                                not_ground=None if agent_mask is None
                                else np.asarray(agent_mask, bool))
     valid = np.isfinite(g.depth)

@@ -51,12 +51,15 @@ from __future__ import annotations
 import numpy as np
 
 from staticdepth.errors import InputError
-from staticdepth.geometry.alignment_vertical import down_step, receding
+from staticdepth.geometry.alignment_vertical import (colour_foot, down_step, receding,
+                                                    vertical_depth)
 from staticdepth.geometry.projection import ray_grid
 
 SHAPES = ("network", "vertical")
 RECEDE = (0.1, 8.0)     # ground: the network's depth grows up the vertical 0.1-8x as fast as the plane's
 KEEP_REL = 0.02         # a run standing within this of the plane's depth at its contact keeps it
+FOOT_DIFF = 0.2         # colour_foot: a channel step (0-1) this large ends a structure's colour run
+FOOT_PULL = 3.0         # colour_foot: a foot at most this x nearer than the re-anchored depth
 
 
 def contact_ratios(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndarray,
@@ -235,6 +238,8 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   walked_ratio: float = np.inf, extra_ground: np.ndarray | None = None,
                   keep_rel: float | None = KEEP_REL, occlude: bool = False,
                   step_occlude: bool = False, edge_below: np.ndarray | None = None,
+                  image: np.ndarray | None = None, foot_diff: float = FOOT_DIFF,
+                  foot_pull: float = FOOT_PULL,
                   info: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
@@ -255,9 +260,13 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     vertical: runs do not cross it to a pixel that is not ground, and those it cuts take a row
     neighbour's ratio (an occluder the network blurred through shows in the image, not in its
     depth; benchmarks/bench_edge_stops.py's oracle, no setting: it did not help on i1-i4, even
-    cut at the true occluding edges, docs/gains.md). Returns the new map and the (H, W) bool
-    mask of the pixels it set (re-anchored, planar, or snapped pixels found to be structures,
-    which keep ``A``)."""
+    cut at the true occluding edges, docs/gains.md); ``image``: (H, W, C) the static scene's
+    colours, 0-1 (e.g. the median of the adaptation frames): traced pixels whose colour run goes
+    on below their contact stand at its foot (:func:`colour_foot`, ``foot_diff``, ``foot_pull``;
+    benchmarks/bench_near_structures.py); ``info`` also receives ``planar_walked`` (the
+    walked-region rule's pixels), ``contact_q`` and ``colour_foot``. Returns the new map and
+    the (H, W) bool mask of the pixels it set (re-anchored, planar, or snapped pixels found to
+    be structures, which keep ``A``)."""
     if shape not in SHAPES:
         raise InputError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
     if not (np.isfinite(jump_rel) and jump_rel > 0):
@@ -310,22 +319,19 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
             wg = walked & have & ~ground & (q > 0) & (q * walked_ratio < qc)
         if not_ground is not None:
             wg &= ~not_ground
+        if info is not None:
+            info["planar_walked"] = wg
         if wg.any():
             planar |= wg
             ground = ground | wg
             qc, idx, have = trace(ground)
     ratio = np.full((h, w), np.nan)
+    rays = ray_grid(np.asarray(K, dtype=np.float64), w, h).reshape(-1, 3)
     if shape == "network":
         ratio[have] = (1.0 / qc[have]) / src.ravel()[idx[have]]
     else:
-        r = ray_grid(np.asarray(K, dtype=np.float64), w, h).reshape(-1, 3)
-        rc = r[idx[have]]
-        F = rc / qc[have][:, None]                 # the contact's point (r_z = 1: P = Z r)
-        rp = r[np.flatnonzero(have)]
-        rn = rp @ n
-        lam = (np.einsum("ij,ij->i", rp, F) - rn * (F @ n)) / np.maximum(
-            np.einsum("ij,ij->i", rp, rp) - rn * rn, 1e-12)
-        ratio[have] = lam / src[have]              # ray r has r_z = 1: depth = lam
+        ratio[have] = vertical_depth(rays, n, idx[have], qc[have],
+                                     np.flatnonzero(have)) / src[have]
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio[~(ratio > 0)] = np.nan
         # contacts not to trust keep the ground mode: beyond max_contact (the plane's depth
@@ -344,10 +350,17 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                                                        step_occlude, edge_below), jump_rel)
     moved = todo & np.isfinite(ratio)
     if info is not None:    # per-pixel categories, for diagnostics (benchmarks/)
-        info.update(ground=ground, planar=planar, traced=have, moved=moved, contact=idx)
+        info.update(ground=ground, planar=planar, traced=have, moved=moved, contact=idx,
+                    contact_q=qc)
     ratio = np.clip(np.nan_to_num(ratio, nan=1.0), 1.0 / max_ratio, max_ratio)
     out = np.where(moved, src * ratio, A)
     with np.errstate(divide="ignore"):
         out = np.where(planar & ~moved, 1.0 / q, out)
+    if image is not None:
+        feet = colour_foot(out, image, q, du, rays, n, ground, moved & (idx >= 0), idx,
+                           not_ground, foot_diff, foot_pull)
+        moved = moved | feet
+        if info is not None:
+            info["colour_foot"] = feet
     # snapped pixels found to be structures keep their unsnapped depth where not re-anchored
     return out.astype(np.float32), moved | planar | (snapped & ~ground)

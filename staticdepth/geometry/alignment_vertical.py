@@ -1,9 +1,11 @@
 """The image of the vertical, for the ``upright`` alignment (geometry/alignment_upright.py) and
 its torch twin: the column step per row down it, a walk up it from every pixel, and how fast a
 depth map recedes along it compared with the ground plane's (the recession test that tells ground,
-which recedes, from a structure standing on it, which does not).
+which recedes, from a structure standing on it, which does not), and a colour run down it to a
+structure's foot in the image (``colour_feet``, ``colour_foot``) and the vertical line through
+a foot (``vertical_depth``).
 
-Pure numpy functions of (K, plane normal, depth maps); no I/O.
+Pure numpy functions of (K, plane normal, depth maps, an image); no I/O.
 """
 from __future__ import annotations
 
@@ -92,3 +94,74 @@ def receding(maps, q: np.ndarray, du: np.ndarray, span: int, jump_rel: float,
             flat &= (k < recede[0]) & ~(k_up >= recede[0])
             recedes |= (k_any >= recede[0]) & (k_any <= recede[1])
     return flat, recedes
+
+
+def colour_feet(image: np.ndarray, du: np.ndarray, pix: np.ndarray,
+                max_diff: float) -> np.ndarray:
+    """Flat index of the lowest pixel of each flat ``pix``'s colour run down its vertical: the
+    walk follows the image of the vertical at sub-pixel precision (``du`` accumulated: a thin pole
+    slants across columns) while the next pixel's colour differs from the current one by at most
+    ``max_diff`` on every channel (``image`` (H, W, C), 0-1). A structure the network does not
+    resolve keeps its own colour down to its foot, where the ground's begins."""
+    h, w = du.shape
+    img = np.asarray(image, dtype=np.float64).reshape(h, w, -1)
+    v, u = np.divmod(np.asarray(pix, dtype=np.int64), w)
+    uf = u.astype(np.float64)
+    cur = img[v, u]
+    act = np.ones(len(v), bool)
+    while act.any():
+        step = du[v, np.clip(np.rint(uf), 0, w - 1).astype(np.int64)]
+        un = uf + np.nan_to_num(step)
+        ui = np.rint(un).astype(np.int64)
+        act &= np.isfinite(step) & (v + 1 < h) & (ui >= 0) & (ui < w)
+        vn, ui = np.minimum(v + 1, h - 1), np.clip(ui, 0, w - 1)
+        nxt = img[vn, ui]
+        act &= np.abs(nxt - cur).max(-1) <= max_diff
+        v, uf = np.where(act, vn, v), np.where(act, un, uf)
+        u = np.where(act, ui, u)
+        cur = np.where(act[:, None], nxt, cur)
+    return v * w + u
+
+
+def vertical_depth(rays: np.ndarray, n: np.ndarray, foot: np.ndarray, q_foot: np.ndarray,
+                   pix: np.ndarray) -> np.ndarray:
+    """Depth of each flat ``pix`` on the vertical line through its flat ``foot`` pixel's point on
+    the plane (plane inverse depth ``q_foot`` there; ``rays`` (H W, 3) with r_z = 1, ``n`` the
+    unit normal): the point of the pixel's ray closest to that line."""
+    F = rays[foot] / q_foot[:, None]               # the foot's point (r_z = 1: P = Z r)
+    rp = rays[pix]
+    rn = rp @ n
+    return (np.einsum("ij,ij->i", rp, F) - rn * (F @ n)) / np.maximum(
+        np.einsum("ij,ij->i", rp, rp) - rn * rn, 1e-12)
+
+
+def colour_foot(out: np.ndarray, image: np.ndarray, q: np.ndarray, du: np.ndarray,
+                rays: np.ndarray, n: np.ndarray, ground: np.ndarray, traced: np.ndarray,
+                idx: np.ndarray, not_ground: np.ndarray | None, max_diff: float,
+                max_pull: float) -> np.ndarray:
+    """In place on ``out`` (the re-anchored map): a ``traced`` pixel whose colour run down the
+    vertical (alignment_vertical.colour_feet, ``image``) goes on below its contact (flat ``idx``)
+    and ends above a ``ground`` pixel that is no agent (``not_ground``) stands there: it takes the
+    vertical line through that foot, unless that is more than ``max_pull`` x nearer than
+    ``out``. A pole or crate the network does not resolve carries what stands behind it, and its
+    lower part recedes like the ground, so its run took a contact behind its foot; its colour does
+    not. Returns the (H, W) bool pixels it set."""
+    h, w = out.shape
+    pix = np.flatnonzero(traced)
+    done = np.zeros(h * w, bool)
+    if not len(pix):
+        return done.reshape(h, w)
+    fv, fu = np.divmod(colour_feet(image, du, pix, max_diff), w)
+    bv = np.minimum(fv + 1, h - 1)
+    bu = np.clip(np.rint(fu + np.nan_to_num(du[fv, fu])), 0, w - 1).astype(np.int64)
+    ok = (fv + 1 < h) & ground[bv, bu] & (q[fv, fu] > 0) & (fv > idx.ravel()[pix] // w)
+    if not_ground is not None:
+        ok &= ~not_ground[bv, bu]
+    qf = 0.5 * (q[fv, fu] + q[bv, bu])             # the foot lies between the two rows
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.where(ok, vertical_depth(rays, n, fv * w + fu, np.where(ok, qf, 1.0), pix),
+                     np.nan)
+        ok &= (d > 0) & (d * max_pull >= out.ravel()[pix])
+    out.ravel()[pix[ok]] = d[ok]
+    done[pix[ok]] = True
+    return done.reshape(h, w)

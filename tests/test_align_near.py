@@ -1,0 +1,124 @@
+"""``upright`` with ``image`` (the colour foot, benchmarks/bench_near_structures.py): a thin post
+the network does not resolve, in front of a far wall.
+
+The network sees what stands behind the post: the ground behind its lower part (which then
+recedes like the ground and is taken for it) and the far wall behind its upper part, so that part's
+run walks down the wall to the wall's foot and stands 15 m away instead of 6 m. The image shows
+the post's own colour down to its foot: with the colour foot, the traced part stands on the
+vertical through that foot. The camera looks down 25 deg, so the post, off the optical axis, slants
+across the image's columns as the vertical does. A closed-form scene (tests/billboard_scene.py);
+the image is drawn from its masks."""
+from __future__ import annotations
+
+import types
+
+import numpy as np
+
+from billboard_scene import billboard_camera
+from staticdepth.geometry.alignment import align_upright
+
+W, H, F = 160, 100, 100.0
+CAM = 3.0
+
+
+def _scene(post_grey=0.9):
+    """True depth, the network's (the scene without the post, half the scale), the ground mask,
+    the masks of the far wall and the post, and the image: a wall 15 m away (|lateral| < 8 m,
+    6 m tall), a post 6 m away, 3 m to the right, 0.1 m either side, 2.5 m tall; luminance
+    ground 0.6, wall 0.25 with stripes of 0.1 every 4 rows (under the rule's 0.2), post
+    ``post_grey``."""
+    K, n, z_ground, billboard = billboard_camera(CAM, 25.0, W, H, F)
+    z_far, far = billboard(15.0, 8.0, 6.0)
+    z_post, wide = billboard(6.0, 8.0, 2.5)
+    u = np.arange(W)[None, :]
+    lateral = (u - K[0, 2]) / F * z_post
+    post = wide & (np.abs(lateral - 3.0) < 0.1)
+    behind = np.where(far, z_far, z_ground)
+    depth = np.where(post, z_post, behind)
+    depth[~np.isfinite(depth)] = 200.0
+    net = np.where(np.isfinite(behind), behind, 200.0) * 0.5
+    ground = ~far & ~post & (z_ground < 60)
+    rows = np.arange(H)[:, None]
+    img = np.where(far, 0.25 + 0.1 * ((rows // 4) % 2), 0.6)
+    img = np.where(post, post_grey, img)
+    return K, n, depth.astype(np.float32), net.astype(np.float32), ground, far & ~post, post, img
+
+
+def _aligned(pred, K, n, ground, **kw):
+    from staticdepth.adaptation.align import upright_options
+    from staticdepth.adaptation.config import build_config
+
+    opts = {**upright_options(build_config({}).align), **kw}      # adapt's defaults
+    return align_upright(pred, K, n, CAM, ground, **opts).depth
+
+
+def test_the_scene_is_what_the_test_needs():
+    K, n, Z, net, ground, far, post = _scene()[:7]
+    assert post.sum() > 80 and far.sum() > 2000
+    # the post slants across the columns: its lowest and highest pixels 5+ columns apart
+    v, u = np.nonzero(post)
+    assert abs(u[v == v.max()].mean() - u[v == v.min()].mean()) > 5
+    # its upper part stands in front of the wall, its lower part in front of the ground
+    assert (post & np.roll(far, 2, axis=1)).sum() > 20 and (post & np.roll(ground, 2, 1)).sum() > 20
+
+
+def test_a_post_the_network_does_not_see_stands_on_its_colour_foot():
+    K, n, Z, net, ground, far, post, img = _scene()
+    info: dict = {}
+    off = _aligned(net, K, n, ground, info=info)
+    on = _aligned(net, K, n, ground, image=img)
+    upper = post & info["traced"]
+    assert upper.sum() > 20
+    # without the rule the post's upper part takes the far wall's contact: 15 / 6 = 2.5 x too far
+    assert np.median(off[upper] / Z[upper]) > 2.3
+    # with it, the vertical through the post's foot: exact up to the pixel grid
+    assert np.median(np.abs(on[upper] / Z[upper] - 1)) < 0.03
+    # the far wall's colour ends at its own foot: where its trace reached that foot it does not
+    # move; along its slanted side edges the trace, one column per row, fell off the wall onto
+    # the ground above the wall's foot (pushed 1.1-2.1 x): those stand on their foot now
+    err_off, err_on = np.abs(off[far] / Z[far] - 1), np.abs(on[far] / Z[far] - 1)
+    moved = on[far] != off[far]
+    assert 0 < moved.mean() < 0.05 and np.all(err_off[moved] > 0.1)
+    assert np.all(err_on[moved] < 0.03) and np.median(err_on) < 0.03
+
+
+def test_a_post_of_the_grounds_colour_has_no_foot():
+    """Its colour run goes on down the ground to the image's bottom: no foot, it stays where
+    the trace put it (2.5 x too far: the rule needs the image to show the foot)."""
+    K, n, Z, net, ground, far, post, img = _scene(post_grey=0.6)
+    off = _aligned(net, K, n, ground)
+    on = _aligned(net, K, n, ground, image=img)
+    assert np.array_equal(on[post], off[post])
+    assert np.median(on[post & (off / Z > 2)] / Z[post & (off / Z > 2)]) > 2.3
+
+
+def test_adapt_applies_the_setting_through_aligned_frame():
+    """``align.colour_foot`` (off by default) is what takes the image into adapt's alignment."""
+    from staticdepth.adaptation.align import aligned_frame
+    from staticdepth.adaptation.config import build_config
+
+    K, n, Z, net, ground, far, post, img = _scene()
+    none = np.zeros(Z.shape, np.int32)
+    rows = np.zeros(0, dtype=[("instance_id", "i4")])
+    no_agents = {"align.agents_at_contact": False}                  # the scene has none
+    on_conf = build_config({**no_agents, "align.colour_foot": True})
+    args = (K, n, ground, none, rows, net)          # units of the camera height
+    plain = aligned_frame(build_config(no_agents), *args, image=img)
+    on = aligned_frame(on_conf, *args, image=img)
+    assert np.array_equal(aligned_frame(on_conf, *args), plain)     # no image: no rule
+    # the same maps as the rule's own test above (metres there, camera heights here)
+    np.testing.assert_allclose(on * CAM, _aligned(net, K, n, ground, image=img), rtol=1e-5)
+    np.testing.assert_allclose(plain * CAM, _aligned(net, K, n, ground), rtol=1e-5)
+    assert not np.allclose(on, plain)
+
+
+def test_the_align_command_refuses_the_setting_it_cannot_apply():
+    from staticdepth.adaptation.config import build_config
+    from staticdepth.align import align_map
+    from staticdepth.errors import InputError
+
+    K, n, Z, net, ground = _scene()[:5]
+    plane = types.SimpleNamespace(normal=n)        # the command's plane file, its normal only
+    with np.testing.assert_raises_regex(InputError, "colour_foot"):
+        align_map(net, K, plane, ground,
+                  align_conf=build_config({"align.colour_foot": True}).align)
