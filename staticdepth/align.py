@@ -110,11 +110,14 @@ def save_npy_atomic(path: str | os.PathLike, array: np.ndarray) -> None:
 def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: np.ndarray, *,
               inverse: bool = False, camera_height_m: float | None = None,
               near_plane_rel: float | None = None, agent_mask: np.ndarray | None = None,
-              align_conf=None) -> tuple[np.ndarray, dict[str, Any]]:
+              align_conf=None, image: np.ndarray | None = None
+              ) -> tuple[np.ndarray, dict[str, Any]]:
     """Align one predicted map; returns the map and its info (plane fit, fallback, anchor scale).
     ``agent_mask`` (H, W) pixels leave the plane fit, are always aligned (eq2) or never ground
     (upright) and skip the anchor. ``align_conf``: an adaptation ``AlignConfig`` (default: the
-    config's defaults) whose mode and settings are used as adapt's align stage uses them."""
+    config's defaults) whose mode and settings are used as adapt's align stage uses them.
+    ``image``: the static scene (adaptation.align.static_image) for ``align.colour_foot``; without
+    it (a single map, no frames) the rule is not applied and the info says so."""
     from staticdepth.adaptation.align import upright_options
     from staticdepth.adaptation.config import AlignConfig
     from staticdepth.geometry.alignment import align_depth, depth_from_inverse
@@ -125,15 +128,16 @@ def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: n
     Z = depth_from_inverse(pred) if inverse else pred
     d_g = camera_height_m if camera_height_m is not None else 1.0
     conf = AlignConfig() if align_conf is None else align_conf
-    if conf.colour_foot:
-        raise InputError("align.colour_foot needs the sequence's adaptation frames: run adapt")
+    use_image = conf.colour_foot and conf.mode == "upright" and image is not None
     if near_plane_rel is not None and conf.mode != "eq2":
         raise InputError(f"--near-plane selects pixels for Eq. 2: it needs --mode eq2, not "
                          f"{conf.mode!r}")
     res = align_depth(Z, K, plane.normal, d_g, ground_mask, near_plane_rel=near_plane_rel,
                       agent_mask=agent_mask, mode=conf.mode, snap_rel=conf.snap_rel,
-                      **upright_options(conf))
+                      image=image if use_image else None, **upright_options(conf))
     info: dict[str, Any] = {"mode": conf.mode}
+    if conf.colour_foot and conf.mode == "upright" and not use_image:
+        info["colour_foot"] = "not applied: no frames (on a sequence, --sequence applies it)"
     if conf.mode == "eq2":
         info.update(pred_plane_normal=res.plane_normal.tolist(), pred_plane_d=res.plane_d,
                     fallback_ratio=res.fallback_ratio, fallback_pixels=res.n_fallback,
@@ -335,13 +339,21 @@ def _align_sequence(args, plane: AgentPlane, height, masks: _Masks):
         if masks.aux is not None and masks.aux not in r.aux_names():
             raise InputError(f"sequence has no aux map {masks.aux!r} (has {r.aux_names()})", seq)
 
+        image = None
+        conf = args.align_conf
+        if conf is not None and conf.colour_foot and conf.mode == "upright":
+            from staticdepth.adaptation.align import static_image
+
+            # as adapt's align stage (a sequence without an adaptation split: every frame)
+            image = static_image(r, ws.adapt_split if len(ws.adapt_split) else range(len(r)))
+
         def aligned(i: int, pred: np.ndarray) -> np.ndarray:
             try:
                 out, info = align_map(pred, K, plane, masks.ground(pred.shape, r, i),
                                       inverse=args.inverse, camera_height_m=height,
                                       near_plane_rel=args.near_plane,
                                       agent_mask=masks.agent(pred.shape),
-                                      align_conf=args.align_conf)
+                                      align_conf=args.align_conf, image=image)
             except InputError as e:
                 if e.path:
                     raise

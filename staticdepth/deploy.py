@@ -16,7 +16,8 @@ model's own ``predict`` and the numpy :func:`~staticdepth.geometry.alignment.ali
 same mode. Not in the graph: ``align.agents_at_contact`` (each detected agent takes the plane depth
 at its contact pixel) needs the frame's agent instances, which an image-only model has not; the
 reference leaves it out too, and the ONNX file's metadata says so (``agents_at_contact``). Nor is
-the per-frame removal of the agents' pixels from the ground mask (no detector in the loop).
+the per-frame removal of the agents' pixels from the ground mask (no detector in the loop), nor
+``align.colour_foot`` (it reads the adaptation frames' median image; metadata ``colour_foot``).
 Keys read from the adapt summary: ``plane.normal`` (or ``planes.agents.normal``),
 ``camera_height_m``, ``scale.ft-align`` (else the camera height), ``config.eps``,
 ``config.erode_px``, ``config.detector``, ``config.detector_model``, ``config.align.mode`` (an
@@ -78,7 +79,9 @@ def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str 
             "ground_from": how, "mode": mode,
             "snap_rel": float(setting_from(cfg, "align.snap_rel", 0.1)),
             "upright": upright_settings(cfg) if mode == "upright" else {},
-            "agents_at_contact": bool(setting_from(cfg, "align.agents_at_contact", False))}
+            "agents_at_contact": bool(setting_from(cfg, "align.agents_at_contact", False)),
+            "colour_foot": mode == "upright" and bool(setting_from(cfg, "align.colour_foot",
+                                                                    False))}
 
 
 def upright_settings(cfg: dict) -> dict[str, Any]:
@@ -212,6 +215,9 @@ def export_model(model_spec: str, summary_path: str, seq_path: str, out: str, *,
     if c["agents_at_contact"]:
         log("note: adapt gave each detected agent its contact depth (align.agents_at_contact); "
             "an image-only model cannot: agents keep the aligned network depth")
+    if c["colour_foot"]:
+        log("note: adapt stood unresolved structures on their colour foot in the adaptation "
+            "frames' median image (align.colour_foot); the exported graph does not")
     graph = metric_graph(model, c)
     dummy = torch.zeros((c["height"], c["width"], 3), dtype=torch.uint8)
     with atomic_path(out, "onnx") as tmp, warnings.catch_warnings():
@@ -242,6 +248,9 @@ def export_metadata(c: dict[str, Any], model_spec: str, summary_path: str) -> di
             "staticdepth.ground_from": str(c["ground_from"]),
             "staticdepth.agents_at_contact": ("not applied: it needs the frame's agent instances "
                                               "(adapt " + ("applied it" if c["agents_at_contact"]
+                                                           else "did not apply it either") + ")"),
+            "staticdepth.colour_foot": ("not applied: it needs the adaptation frames' median "
+                                        "image (adapt " + ("applied it" if c.get("colour_foot")
                                                            else "did not apply it either") + ")"),
             "staticdepth.model": model_spec, "staticdepth.summary": os.path.basename(summary_path)}
 

@@ -93,7 +93,7 @@ def test_a_post_of_the_grounds_colour_has_no_foot():
 
 
 def test_adapt_applies_the_setting_through_aligned_frame():
-    """``align.colour_foot`` (off by default) is what takes the image into adapt's alignment."""
+    """``align.colour_foot`` (on by default) is what takes the image into adapt's alignment."""
     from staticdepth.adaptation.align import aligned_frame
     from staticdepth.adaptation.config import build_config
 
@@ -103,7 +103,8 @@ def test_adapt_applies_the_setting_through_aligned_frame():
     no_agents = {"align.agents_at_contact": False}                  # the scene has none
     on_conf = build_config({**no_agents, "align.colour_foot": True})
     args = (K, n, ground, none, rows, net)          # units of the camera height
-    plain = aligned_frame(build_config(no_agents), *args, image=img)
+    plain = aligned_frame(build_config({**no_agents, "align.colour_foot": False}), *args,
+                          image=img)
     on = aligned_frame(on_conf, *args, image=img)
     assert np.array_equal(aligned_frame(on_conf, *args), plain)     # no image: no rule
     # the same maps as the rule's own test above (metres there, camera heights here)
@@ -112,13 +113,20 @@ def test_adapt_applies_the_setting_through_aligned_frame():
     assert not np.allclose(on, plain)
 
 
-def test_the_align_command_refuses_the_setting_it_cannot_apply():
+def test_the_align_command_applies_the_rule_only_with_the_frames():
     from staticdepth.adaptation.config import build_config
     from staticdepth.align import align_map
-    from staticdepth.errors import InputError
 
-    K, n, Z, net, ground = _scene()[:5]
+    K, n, Z, net, ground, far, post, img = _scene()
     plane = types.SimpleNamespace(normal=n)        # the command's plane file, its normal only
-    with np.testing.assert_raises_regex(InputError, "colour_foot"):
-        align_map(net, K, plane, ground,
-                  align_conf=build_config({"align.colour_foot": True}).align)
+    on = build_config({"align.colour_foot": True}).align
+    off = build_config({"align.colour_foot": False}).align
+    # a single map has no frames: the default does not apply and says so
+    single, info = align_map(net, K, plane, ground, align_conf=on, camera_height_m=CAM)
+    assert "not applied" in info["colour_foot"]
+    np.testing.assert_array_equal(single, align_map(net, K, plane, ground, align_conf=off,
+                                                    camera_height_m=CAM)[0])
+    # with the static image (`align --sequence`) it is adapt's rule
+    seq, info = align_map(net, K, plane, ground, align_conf=on, image=img, camera_height_m=CAM)
+    assert "colour_foot" not in info
+    np.testing.assert_allclose(seq, _aligned(net, K, n, ground, image=img), rtol=1e-5)
