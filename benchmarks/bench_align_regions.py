@@ -57,6 +57,31 @@ def run_settings(seq: str, sets: dict):
     return build_config({**summary["config"], **sets}), np.asarray(summary["plane"]["normal"])
 
 
+def run_image(r, conf):
+    """The static image adapt's align stage gives ``align.colour_foot`` (None when it is off)."""
+    from staticdepth.adaptation.align import static_image
+
+    on = conf.align.colour_foot and conf.align.mode == "upright"
+    return static_image(r, r.split("adapt")) if on else None
+
+
+def run_heights(seq: str, conf):
+    """The people's fitted heights adapt's align stage gives ``agents_at_contact`` (None with
+    ``align.hidden_contact=lowest``), from the run's ground_plane.json."""
+    from dataclasses import replace
+
+    from staticdepth.adaptation.align import person_heights
+    from staticdepth.geometry.agent_plane import AgentPlane
+
+    with open(seq + ".adapt/ground_plane.json") as f:
+        d = json.load(f)
+    plane = AgentPlane.from_dict(d["plane"])
+    classes = {int(k): int(v) for k, v in d["track_classes"].items()}
+    plane = replace(plane, extra={**plane.extra, "classes": np.array(
+        [classes[int(t)] for t in plane.track_ids])})
+    return person_heights(conf, plane)
+
+
 def walked_region(r, conf):
     """Of an open SequenceReader: the agents' rows per frame and the walked region (the feet's
     hull over the adaptation split, eroded as adapt's align stage does)."""
@@ -86,6 +111,7 @@ def analyse(seq: str, sets: dict, oracle: str | None) -> dict:
         K = r.camera.K
         mount = (r.meta.mounting.normal, r.meta.mounting.height_m)
         rows, walked = walked_region(r, conf)
+        img, heights = run_image(r, conf), run_heights(seq, conf)
         for i in r.split("eval"):
             Z, gt, inst = r.prediction("base", i), r.depth(i), r.instances(i)
             m = inst > 0
@@ -97,9 +123,11 @@ def analyse(seq: str, sets: dict, oracle: str | None) -> dict:
             info: dict = {}
             A = align_upright(Z, K, n_g, 1.0, walked if am is None else walked & ~am,
                               agent_mask=am, snap_rel=conf.align.snap_rel, info=info,
-                              extra_ground=extra, **upright_options(conf.align)).depth
+                              extra_ground=extra, image=img,
+                              **upright_options(conf.align)).depth
             if conf.align.agents_at_contact:
-                A = agents_at_contact(A, K, n_g, 1.0, inst, rows[i], conf.pseudo_labels)[0]
+                A = agents_at_contact(A, K, n_g, 1.0, inst, rows[i], conf.pseudo_labels,
+                                      heights=heights)[0]
             vm = valid_mask(gt, 1e-3, 80.0)
             errs = []
             for pred in (A, Z, info["ground_mode"]):

@@ -29,7 +29,8 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from bench_align_regions import kept_run_parser, kept_runs, run_settings, walked_region  # noqa
+from bench_align_regions import (kept_run_parser, kept_runs, run_heights,  # noqa: E402
+                                 run_image, run_settings, walked_region)
 
 
 def walk_profiles(src: np.ndarray, gt: np.ndarray, du: np.ndarray, pix: np.ndarray,
@@ -108,6 +109,7 @@ def analyse(seq: str, sets: dict, front: float, window: int) -> dict:
         K = r.camera.K
         mount = (r.meta.mounting.normal, r.meta.mounting.height_m)
         rows, walked = walked_region(r, conf)
+        img, heights = run_image(r, conf), run_heights(seq, conf)
         du = down_step(K, n_g / np.linalg.norm(n_g), r.width, r.height)
         for i in r.split("eval"):
             Z, gt, inst = r.prediction("base", i), r.depth(i), r.instances(i)
@@ -117,9 +119,10 @@ def analyse(seq: str, sets: dict, front: float, window: int) -> dict:
             info: dict = {}
             A = align_upright(Z, K, n_g, 1.0, walked if am is None else walked & ~am,
                               agent_mask=am, snap_rel=conf.align.snap_rel, info=info,
-                              **upright_options(conf.align)).depth
+                              image=img, **upright_options(conf.align)).depth
             if conf.align.agents_at_contact:
-                A = agents_at_contact(A, K, n_g, 1.0, inst, rows[i], conf.pseudo_labels)[0]
+                A = agents_at_contact(A, K, n_g, 1.0, inst, rows[i], conf.pseudo_labels,
+                                      heights=heights)[0]
             vm = valid_mask(gt, 1e-3, 80.0)
             truth = np.where(reg["ground"], 0, np.where(reg.get("agents", m), 2, 1))
             c = info["contact"]

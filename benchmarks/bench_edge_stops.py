@@ -38,14 +38,10 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from bench_align_regions import kept_run_parser, kept_runs, run_settings, walked_region  # noqa
+from bench_align_regions import (kept_run_parser, kept_runs, run_heights,  # noqa: E402
+                                 run_image, run_settings, walked_region)
 
 REGIONS = ("all", "ground", "agents", "structures", "0-10m", "10-20m", "20-40m", "40-80m")
-
-
-def median_image(r) -> np.ndarray:
-    """(H, W, 3) float 0-1: the median of the adaptation frames (the static scene, no agents)."""
-    return np.median(np.stack([r.left(i) for i in r.split("adapt")]), 0) / 255.0
 
 
 def edge_below(img: np.ndarray, du: np.ndarray) -> np.ndarray:
@@ -111,7 +107,7 @@ def frame_regions(pred: np.ndarray, gt: np.ndarray, masks: dict, vm: np.ndarray)
 
 
 def analyse(seq: str, sets: dict, thresholds: list[float], front: float, oracle: bool) -> dict:
-    from staticdepth.adaptation.align import upright_options
+    from staticdepth.adaptation.align import static_image, upright_options
     from staticdepth.dataset.h5 import SequenceReader
     from staticdepth.evaluate import region_masks
     from staticdepth.geometry.alignment import agents_at_contact, align_upright
@@ -125,8 +121,9 @@ def analyse(seq: str, sets: dict, thresholds: list[float], front: float, oracle:
         K = r.camera.K
         mount = (r.meta.mounting.normal, r.meta.mounting.height_m)
         rows, walked = walked_region(r, conf)
+        img, heights = run_image(r, conf), run_heights(seq, conf)
         du = down_step(K, n_g / np.linalg.norm(n_g), r.width, r.height)
-        E = edge_below(median_image(r), du)
+        E = edge_below(static_image(r, r.split("adapt")), du)
         for i in r.split("eval"):
             Z, gt, inst = r.prediction("base", i), r.depth(i), r.instances(i)
             m = inst > 0
@@ -137,9 +134,11 @@ def analyse(seq: str, sets: dict, thresholds: list[float], front: float, oracle:
             def aligned(edges, info=None):
                 A = align_upright(Z, K, n_g, 1.0, walked if am is None else walked & ~am,
                                   agent_mask=am, snap_rel=conf.align.snap_rel, info=info,
-                                  edge_below=edges, **upright_options(conf.align)).depth
+                                  edge_below=edges, image=img,
+                                  **upright_options(conf.align)).depth
                 if conf.align.agents_at_contact:
-                    A = agents_at_contact(A, K, n_g, 1.0, inst, rows[i], conf.pseudo_labels)[0]
+                    A = agents_at_contact(A, K, n_g, 1.0, inst, rows[i], conf.pseudo_labels,
+                                          heights=heights)[0]
                 return A
 
             info: dict = {}

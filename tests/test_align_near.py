@@ -93,7 +93,7 @@ def test_a_post_of_the_grounds_colour_has_no_foot():
 
 
 def test_adapt_applies_the_setting_through_aligned_frame():
-    """``align.colour_foot`` (on by default) is what takes the image into adapt's alignment."""
+    """``align.colour_foot`` (off by default) is what takes the image into adapt's alignment."""
     from staticdepth.adaptation.align import aligned_frame
     from staticdepth.adaptation.config import build_config
 
