@@ -93,7 +93,7 @@ def test_a_post_of_the_grounds_colour_has_no_foot():
 
 
 def test_adapt_applies_the_setting_through_aligned_frame():
-    """``align.colour_foot`` (off by default) is what takes the image into adapt's alignment."""
+    """``align.colour_foot`` (on by default) is what takes the image into adapt's alignment."""
     from staticdepth.adaptation.align import aligned_frame
     from staticdepth.adaptation.config import build_config
 
@@ -130,3 +130,27 @@ def test_the_align_command_applies_the_rule_only_with_the_frames():
     seq, info = align_map(net, K, plane, ground, align_conf=on, image=img, camera_height_m=CAM)
     assert "colour_foot" not in info
     np.testing.assert_allclose(seq, _aligned(net, K, n, ground, image=img), rtol=1e-5)
+
+
+def test_a_smooth_road_the_network_keeps_flat_is_not_pulled_onto_a_vertical(monkeypatch):
+    """The demo's failure (docs/gains.md, eleventh round): a band of road the network keeps at
+    one depth is traced like a wall; its colour runs on down to a lane marking, which would
+    stand it on the vertical through the marking. The road's colour is the walked ground's, so
+    the rule leaves it (alignment_upright.FOOT_GROUND_SHARE); with that test off it is pulled."""
+    import staticdepth.geometry.alignment_upright as au
+
+    K, n, z_ground, _ = billboard_camera(CAM, 25.0, W, H, F)
+    rows = np.arange(H)[:, None] * np.ones((1, W))
+    finite = np.isfinite(z_ground)
+    band = finite & (rows >= 40) & (rows < 50)            # kept flat by the network
+    net = np.where(finite, z_ground, 200.0) * 0.5
+    net = np.where(band, net[49:50, :], net)              # the band at its lowest row's depth
+    img = np.where(finite & (rows == 58), 0.95, 0.6)      # a lane marking below the band
+    img = np.where(~finite, 0.8, img)                     # sky
+    ground = finite & (z_ground < 60)
+    on = _aligned(net.astype(np.float32), K, n, ground, image=img)
+    off = _aligned(net.astype(np.float32), K, n, ground)
+    assert np.array_equal(on, off)
+    monkeypatch.setattr(au, "FOOT_GROUND_SHARE", 2.0)   # no pixel is ground-coloured
+    pulled = _aligned(net.astype(np.float32), K, n, ground, image=img)
+    assert np.median(pulled[band] / off[band]) < 0.95

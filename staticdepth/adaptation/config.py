@@ -82,14 +82,12 @@ class AlignConfig:
     #                                  pixel (its foot hidden by what stands in front) take a
     #                                  row neighbour's ratio too (no agent mask: exportable);
     #                                  off: neutral on i1-i4 / h1-h3 (issue 19, tenth round)
-    colour_foot: bool = False        # upright: a traced pixel whose colour run down the vertical
+    colour_foot: bool = True         # upright: a traced pixel whose colour run down the vertical
     #                                  (the adaptation frames' median image) goes on below its
-    #                                  contact stands on the vertical through the run's foot
-    #                                  (align outputs and `align --sequence`; not the pseudo
-    #                                  labels, not export-model); off: better on all 14 runs of
-    #                                  the independent scenes, but on the demo's smooth road it
-    #                                  pulls ground onto verticals (align 0.086 -> 0.180;
-    #                                  issue 19, eleventh round, docs/gains.md)
+    #                                  contact, and is not a colour common on the walked ground,
+    #                                  stands on the vertical through the run's foot (align
+    #                                  outputs and `align --sequence`; not the pseudo labels, not
+    #                                  export-model; issue 19, eleventh round, docs/gains.md)
     plane_bound: bool = True         # upright: no pixel below the agents' horizon farther than
     #                                  the plane along its ray (align outputs, the align command,
     #                                  export-model; not the pseudo labels)
@@ -206,7 +204,7 @@ def model_identity(spec: str) -> dict[str, Any]:
 # silently keep, e.g., the former pseudo labels). Raising one reruns that stage and the stages
 # after it, as a changed setting does.
 STAGE_VERSIONS = {"base": 1, "agents": 1, "ground_plane": 7, "pseudo_labels": 5, "finetune": 2,
-                  "align": 5, "scale": 1}
+                  "align": 6, "scale": 1}
 
 
 def _versioned(stage: str, settings: dict) -> str:

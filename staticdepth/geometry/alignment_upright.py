@@ -51,8 +51,8 @@ from __future__ import annotations
 import numpy as np
 
 from staticdepth.errors import InputError
-from staticdepth.geometry.alignment_vertical import (colour_foot, down_step, receding,
-                                                    vertical_depth)
+from staticdepth.geometry.alignment_vertical import (colour_foot, down_step, ground_coloured,
+                                                    receding, vertical_depth)
 from staticdepth.geometry.projection import ray_grid
 
 SHAPES = ("network", "vertical")
@@ -60,6 +60,7 @@ RECEDE = (0.1, 8.0)     # ground: the network's depth grows up the vertical 0.1-
 KEEP_REL = 0.02         # a run standing within this of the plane's depth at its contact keeps it
 FOOT_DIFF = 0.2         # colour_foot: a channel step (0-1) this large ends a structure's colour run
 FOOT_PULL = 3.0         # colour_foot: a foot at most this x nearer than the re-anchored depth
+FOOT_GROUND_SHARE = 0.02    # colour_foot: not from a colour this common on the walked ground
 
 
 def contact_ratios(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndarray,
@@ -357,7 +358,11 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     with np.errstate(divide="ignore"):
         out = np.where(planar & ~moved, 1.0 / q, out)
     if image is not None:
-        feet = colour_foot(out, image, q, du, rays, n, ground, moved & (idx >= 0), idx,
+        # not the ground's own colours: a smooth road the network keeps flat is traced like a
+        # wall, and its colour runs on down to a marking or a kerb
+        cand = moved & (idx >= 0) & ~ground_coloured(image, ground & (
+            walked if walked is not None else True), FOOT_GROUND_SHARE)
+        feet = colour_foot(out, image, q, du, rays, n, ground, cand, idx,
                            not_ground, foot_diff, foot_pull)
         moved = moved | feet
         if info is not None:

@@ -123,6 +123,23 @@ def colour_feet(image: np.ndarray, du: np.ndarray, pix: np.ndarray,
     return v * w + u
 
 
+def ground_coloured(image: np.ndarray, ground: np.ndarray, share: float,
+                    levels: int = 8) -> np.ndarray:
+    """(H, W) bool: pixels whose colour (``image`` (H, W, C), 0-1, each channel in ``levels``
+    bins) holds at least ``share`` of the ``ground`` pixels' colours."""
+    img = np.asarray(image, dtype=np.float64)
+    img = img.reshape(img.shape[0], img.shape[1], -1)
+    q = np.clip((img * levels).astype(np.int64), 0, levels - 1)
+    code = np.zeros(q.shape[:2], np.int64)
+    for c in range(q.shape[2]):
+        code = code * levels + q[..., c]
+    g = np.asarray(ground, bool)
+    if not g.any():
+        return np.zeros(code.shape, bool)
+    hist = np.bincount(code[g], minlength=levels ** q.shape[2])
+    return hist[code] >= share * g.sum()
+
+
 def vertical_depth(rays: np.ndarray, n: np.ndarray, foot: np.ndarray, q_foot: np.ndarray,
                    pix: np.ndarray) -> np.ndarray:
     """Depth of each flat ``pix`` on the vertical line through its flat ``foot`` pixel's point on
