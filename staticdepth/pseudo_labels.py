@@ -136,7 +136,7 @@ def pseudo_label(inv_depth: np.ndarray, instances: np.ndarray, agents: np.ndarra
         instances: (H, W) uint16 instance map (0 = background).
         agents: this frame's AGENT_DTYPE rows (``instance_id``, ``class_id``).
         contacts: instance id -> contact value known otherwise (a hidden foot placed from the
-            top, :func:`staticdepth.geometry.alignment.contacts_from_top`), used instead of
+            top, :func:`staticdepth.geometry.agent_contact.contacts_from_top`), used instead of
             the value at its lowest pixel.
     Returns:
         label (H, W) float32 and the boolean mask of relabelled (agent) pixels.

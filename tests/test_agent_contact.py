@@ -1,5 +1,6 @@
 """People whose foot is hidden (behind another agent, or below the image) get their contact from
-their top and fitted height (staticdepth/geometry/agent_contact.py, alignment.contacts_from_top).
+their top and fitted height (staticdepth/geometry/agent_contact.py: contact_from_top,
+contacts_from_top).
 
 The scene is rendered here, apart from the plane fit's model: bodies are point clouds of an
 ellipsoid trunk on two legs (not the disk model the estimate assumes), projected into an instance

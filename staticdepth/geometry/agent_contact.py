@@ -78,3 +78,35 @@ class PersonHeights:
                                                       plane.track_scale[keep])},
                    float(np.median(plane.track_scale[keep])),
                    (max(float(ext[0]), 0.0), max(float(ext[1]), 0.0)))
+
+
+def contacts_from_top(K: np.ndarray, n_g, d_g: float, instances: np.ndarray, rows: np.ndarray,
+                      heights, inv_plane: np.ndarray, conf, contact_px: int = 2,
+                      edge_px: float = 0.5) -> dict[int, float]:
+    """instance id -> contact inverse depth (units of 1 / d_g) of the people whose lowest mask
+    pixel is not their foot: another instance within ``contact_px`` rows below it, or the image's
+    bottom row; their top must be seen (not at the top row, no instance above it). The contact
+    follows from the top (``edge_px`` above the top row: the silhouette's edge; the middle of a
+    box detection's top) and the person's height (:func:`contact_from_top`), bounded by the lowest pixel's plane depth: a foot below the lowest pixel
+    is nearer than it."""
+    from staticdepth.pseudo_labels import contact_value
+    from staticdepth.tracking import detections_from_instances
+
+    if rows is None or not len(rows):
+        return {}
+    h = np.shape(instances)[0]
+    det = detections_from_instances(instances, rows, border_px=1, contact_px=contact_px)
+    pick = (np.isin(det["class_id"], PEOPLE_CLASSES)
+            & (det["foot_hidden"] | (det["foot_v"] >= h - 1.5))
+            & ~det["top_hidden"] & (det["top_v"] > 0))
+    det = det[pick]
+    if not len(det):
+        return {}
+    top_u = np.where(np.isfinite(det["top_u"]), det["top_u"], 0.5 * (det["left"] + det["right"]))
+    z = contact_from_top(K, n_g, d_g, top_u, det["top_v"] - edge_px, heights.of(det["track"]),
+                         heights.extents)
+    out = {}
+    for iid, zk in zip(det["instance_id"].tolist(), z.tolist()):
+        if np.isfinite(zk):
+            out[int(iid)] = max(1.0 / zk, contact_value(inv_plane, instances == iid, conf))
+    return out

@@ -379,10 +379,12 @@ def agents_at_contact(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, instanc
     instance ids; rows: the frame's AGENT_DTYPE rows; conf: a PseudoLabelConfig (default paper).
     ``heights`` (a :class:`~staticdepth.geometry.agent_contact.PersonHeights`): people whose
     mask ends on another agent or at the image's bottom row, with their top seen, take the
-    contact their top and height give (:func:`contacts_from_top`) instead of the plane's depth
+    contact their top and height give (:func:`~staticdepth.geometry.agent_contact.
+    contacts_from_top`) instead of the plane's depth
     at their lowest pixel, which lies behind them. Agents whose contact lies above the agents'
     horizon keep their depth. Returns the new map and the (H, W) bool mask of changed pixels.
     """
+    from staticdepth.geometry.agent_contact import contacts_from_top
     from staticdepth.pseudo_labels import PRESETS, pseudo_label
 
     Z = np.asarray(depth, dtype=np.float32)
@@ -399,40 +401,6 @@ def agents_at_contact(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, instanc
     out[mask] = 1.0 / label[mask]
     out[~np.isfinite(Z)] = np.nan
     return out, mask & np.isfinite(Z)
-
-
-def contacts_from_top(K: np.ndarray, n_g, d_g: float, instances: np.ndarray, rows: np.ndarray,
-                      heights, inv_plane: np.ndarray, conf, contact_px: int = 2,
-                      edge_px: float = 0.5) -> dict[int, float]:
-    """instance id -> contact inverse depth (units of 1 / d_g) of the people whose lowest mask
-    pixel is not their foot: another instance within ``contact_px`` rows below it, or the image's
-    bottom row; their top must be seen (not at the top row, no instance above it). The contact
-    follows from the top (``edge_px`` above the top row: the silhouette's edge; the middle of a
-    box detection's top) and the person's height (:func:`staticdepth.geometry.agent_contact.
-    contact_from_top`), bounded by the lowest pixel's plane depth: a foot below the lowest pixel
-    is nearer than it."""
-    from staticdepth.geometry.agent_contact import PEOPLE_CLASSES, contact_from_top
-    from staticdepth.pseudo_labels import contact_value
-    from staticdepth.tracking import detections_from_instances
-
-    if rows is None or not len(rows):
-        return {}
-    h = np.shape(instances)[0]
-    det = detections_from_instances(instances, rows, border_px=1, contact_px=contact_px)
-    pick = (np.isin(det["class_id"], PEOPLE_CLASSES)
-            & (det["foot_hidden"] | (det["foot_v"] >= h - 1.5))
-            & ~det["top_hidden"] & (det["top_v"] > 0))
-    det = det[pick]
-    if not len(det):
-        return {}
-    top_u = np.where(np.isfinite(det["top_u"]), det["top_u"], 0.5 * (det["left"] + det["right"]))
-    z = contact_from_top(K, n_g, d_g, top_u, det["top_v"] - edge_px, heights.of(det["track"]),
-                         heights.extents)
-    out = {}
-    for iid, zk in zip(det["instance_id"].tolist(), z.tolist()):
-        if np.isfinite(zk):
-            out[int(iid)] = max(1.0 / zk, contact_value(inv_plane, instances == iid, conf))
-    return out
 
 
 def _median_ratio(ratio: np.ndarray, where: np.ndarray, max_points: int = 20000) -> float:
