@@ -51,7 +51,8 @@ def box_points(x: float, y: float, rng, size=(2.0, 1.0, 1.1)) -> np.ndarray:
     w, ln, h = size
     p = rng.uniform(-0.5, 0.5, (60000, 3)) * np.array([w, ln, h])
     face = rng.integers(0, 3, len(p))
-    p[np.arange(len(p)), face] = np.sign(p[np.arange(len(p)), face]) * np.array([w, ln, h])[face] / 2
+    k = np.arange(len(p))
+    p[k, face] = np.sign(p[k, face]) * np.array([w, ln, h])[face] / 2
     p[:, 2] += h / 2
     base = N * 1.0 + (x * RIGHT + y * FWD) / CAM_H
     return base + (p[:, :1] * RIGHT + p[:, 1:2] * FWD - p[:, 2:3] * N) / CAM_H

@@ -87,8 +87,8 @@ def contacts_from_top(K: np.ndarray, n_g, d_g: float, instances: np.ndarray, row
     pixel is not their foot: another instance within ``contact_px`` rows below it, or the image's
     bottom row; their top must be seen (not at the top row, no instance above it). The contact
     follows from the top (``edge_px`` above the top row: the silhouette's edge; the middle of a
-    box detection's top) and the person's height (:func:`contact_from_top`), bounded by the lowest pixel's plane depth: a foot below the lowest pixel
-    is nearer than it."""
+    box detection's top) and the person's height (:func:`contact_from_top`), bounded by the
+    lowest pixel's plane depth: a foot below the lowest pixel is nearer than it."""
     from staticdepth.pseudo_labels import contact_value
     from staticdepth.tracking import detections_from_instances
 
