@@ -54,9 +54,9 @@ def test_untrusted_pixels_take_the_base_value_or_leave_the_loss(tmp_path, scene)
     shutil.copy(clip, seq)
     base = {"model": f"torch:{model}", "detector.name": "gt", "finetune.epochs": 0,
             "tracking.min_height_px": 3, "plane.bootstrap": 0,
-            # the labels align without the plane's bound (align.plane_bound shapes adapt's
+            # the labels align without the plane's bound and the colour foot (both shape adapt's
             # `align` output only): off here, the stored `align` is the labels' alignment
-            "align.plane_bound": False}
+            "align.plane_bound": False, "align.colour_foot": False}
     adapt(seq, build_config(base), log=lambda m: None)
     label = _labels(seq)
     with SequenceReader(seq) as r:
@@ -147,7 +147,8 @@ def test_frames_without_a_receding_ground_keep_shift_free_labels(tmp_path, scene
     shutil.copy(clip, seq)
     conf = build_config({"model": f"torch:{model}", "detector.name": "gt", "finetune.epochs": 0,
                          "tracking.min_height_px": 3, "plane.bootstrap": 0,
-                         "align.plane_bound": False, "pseudo_labels.untrusted": "ignore"})
+                         "align.plane_bound": False, "align.colour_foot": False,
+                         "pseudo_labels.untrusted": "ignore"})
     summary = adapt(seq, conf, log=lambda m: None)
     label = _labels(seq)
     with SequenceReader(seq) as r:
