@@ -59,10 +59,9 @@ def run_settings(seq: str, sets: dict):
 
 def run_image(r, conf):
     """The static image adapt's align stage gives ``align.colour_foot`` (None when it is off)."""
-    from staticdepth.adaptation.align import static_image
+    from staticdepth.adaptation.align import align_image
 
-    on = conf.align.colour_foot and conf.align.mode == "upright"
-    return static_image(r, r.split("adapt")) if on else None
+    return align_image(conf.align, r)
 
 
 def run_heights(seq: str, conf):

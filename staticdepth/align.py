@@ -128,7 +128,7 @@ def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: n
     Z = depth_from_inverse(pred) if inverse else pred
     d_g = camera_height_m if camera_height_m is not None else 1.0
     conf = AlignConfig() if align_conf is None else align_conf
-    use_image = conf.colour_foot and conf.mode == "upright" and image is not None
+    use_image = conf.uses_image and image is not None
     if near_plane_rel is not None and conf.mode != "eq2":
         raise InputError(f"--near-plane selects pixels for Eq. 2: it needs --mode eq2, not "
                          f"{conf.mode!r}")
@@ -136,7 +136,7 @@ def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: n
                       agent_mask=agent_mask, mode=conf.mode, snap_rel=conf.snap_rel,
                       image=image if use_image else None, **upright_options(conf))
     info: dict[str, Any] = {"mode": conf.mode}
-    if conf.colour_foot and conf.mode == "upright" and not use_image:
+    if conf.uses_image and not use_image:
         info["colour_foot"] = "not applied: no frames (on a sequence, --sequence applies it)"
     if conf.mode == "eq2":
         info.update(pred_plane_normal=res.plane_normal.tolist(), pred_plane_d=res.plane_d,
@@ -339,13 +339,9 @@ def _align_sequence(args, plane: AgentPlane, height, masks: _Masks):
         if masks.aux is not None and masks.aux not in r.aux_names():
             raise InputError(f"sequence has no aux map {masks.aux!r} (has {r.aux_names()})", seq)
 
-        image = None
-        conf = args.align_conf
-        if conf is not None and conf.colour_foot and conf.mode == "upright":
-            from staticdepth.adaptation.align import static_image
+        from staticdepth.adaptation.align import align_image
 
-            # as adapt's align stage (a sequence without an adaptation split: every frame)
-            image = static_image(r, ws.adapt_split if len(ws.adapt_split) else range(len(r)))
+        image = align_image(args.align_conf, r)         # as adapt's align stage
 
         def aligned(i: int, pred: np.ndarray) -> np.ndarray:
             try:

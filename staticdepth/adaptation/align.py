@@ -81,6 +81,15 @@ def static_image(r, frames) -> np.ndarray:
     return np.median(np.stack([r.left(i) for i in frames]), 0) / 255.0
 
 
+def align_image(align, r) -> np.ndarray | None:
+    """The image an ``AlignConfig`` reads (``uses_image``): the static scene over the open
+    SequenceReader's adaptation split (a sequence without one: every frame); None when off."""
+    if not align.uses_image:
+        return None
+    frames = r.split("adapt")
+    return static_image(r, frames if len(frames) else range(len(r)))
+
+
 def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,
                   instances: np.ndarray, rows: np.ndarray, Z: np.ndarray,
                   plane_bound: bool = False, image: np.ndarray | None = None,
@@ -109,9 +118,9 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, fee
     ground = ground_region(conf, ws, feet)
     heights = person_heights(conf, plane)
     image = None
-    if conf.align.colour_foot and conf.align.mode == "upright":
+    if conf.align.uses_image:
         with ws.reader() as r:
-            image = static_image(r, ws.adapt_split)
+            image = align_image(conf.align, r)
 
     def aligned(i: int, Z: np.ndarray) -> np.ndarray:
         return aligned_frame(conf, ws.K, plane.normal, ground, agents.instances(i),

@@ -96,6 +96,11 @@ class AlignConfig:
     #                                  their top and fitted height (geometry/agent_contact.py),
     #                                  "lowest" = the plane at their lowest pixel
 
+    @property
+    def uses_image(self) -> bool:
+        """Whether this alignment reads the static scene's image (the colour foot, upright)."""
+        return self.colour_foot and self.mode == "upright"
+
     def __post_init__(self):
         from staticdepth.geometry.alignment import ALIGN_MODES
 
