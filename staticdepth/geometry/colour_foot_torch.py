@@ -62,11 +62,11 @@ class ColourFoot(nn.Module):
             ok &= d > 0
         bins, k = colour_bins(img)
         self.register_buffer("foot_ok", torch.tensor(ok))
-        self.register_buffer("foot_row", torch.tensor(fv, dtype=torch.int64))
+        # colour_foot's "the foot below the contact's row": contact < the foot row's first pixel
+        self.register_buffer("foot_row0", torch.tensor(fv * w, dtype=torch.int64))
         self.register_buffer("below", torch.tensor(bv * w + bu, dtype=torch.int64))
         self.register_buffer("depth", torch.tensor(np.where(ok, d, 0.0), dtype=torch.float64))
         self.register_buffer("bins", torch.tensor(bins, dtype=torch.int64))
-        self.register_buffer("row", torch.tensor(pix // w, dtype=torch.int64))
         self.n_bins, self.foot_pull = k, float(foot_pull)
 
     def forward(self, out: torch.Tensor, moved: torch.Tensor, traced: torch.Tensor,
@@ -80,6 +80,6 @@ class ColourFoot(nn.Module):
         # colour_foot on the re-anchored pixels with a contact, not of a common ground colour
         ok = moved & traced & ~common & self.foot_ok \
             & torch.index_select(ground, 0, self.below) \
-            & (self.foot_row > torch.index_select(self.row, 0, contact)) \
+            & (contact < self.foot_row0) \
             & (self.depth * self.foot_pull >= out)
         return torch.where(ok, self.depth, out), moved | ok
