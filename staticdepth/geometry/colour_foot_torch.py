@@ -3,9 +3,10 @@ operations that export to ONNX, for the upright twin (geometry/alignment_upright
 
 The static image is a constant of a deployment (a fixed camera: the adaptation frames' median), so
 everything the rule reads from it is computed once, at construction, by the numpy functions
-themselves: each pixel's colour run's foot (``colour_feet`` over every pixel), the pixel below the
-foot, the depth of the vertical line through the foot (``vertical_depth``), and each pixel's
-colour bin (``ground_coloured``'s, found by asking it which pixels share a one-pixel ground's bin).
+themselves: the depth each pixel takes on the vertical line through its colour run's foot
+(``colour_foot`` on every pixel, the frame's part of its test passed), the foot's row and the pixel
+below it (``colour_feet``), and each pixel's colour bin (``ground_coloured``'s, found by asking it
+which pixels share a one-pixel ground's bin).
 What depends on the frame stays in the graph, elementwise gathers: the traced pixels and their
 contact rows, the frame's ground (after the recession and walked rules) below each foot, and
 ``ground_coloured``'s histogram of the walked ground's bins (a ScatterElements add over the
@@ -18,7 +19,7 @@ import torch
 from torch import nn
 
 from staticdepth.geometry.alignment_upright import FOOT_DIFF, FOOT_GROUND_SHARE, FOOT_PULL
-from staticdepth.geometry.alignment_vertical import colour_feet, ground_coloured, vertical_depth
+from staticdepth.geometry.alignment_vertical import colour_feet, colour_foot, ground_coloured
 
 
 def colour_bins(image: np.ndarray) -> tuple[np.ndarray, int]:
@@ -50,22 +51,22 @@ class ColourFoot(nn.Module):
         img = np.asarray(image)
         if img.shape[:2] != (h, w):
             raise ValueError(f"the colour foot's image is {img.shape}, the camera {w}x{h}")
-        N = h * w
-        pix = np.arange(N)
-        fv, fu = np.divmod(colour_feet(img, du, pix, foot_diff), w)
+        # colour_foot itself on every pixel, with the frame's part of its test passed (all ground,
+        # no contact, a zero depth): the depth each pixel takes where its foot stands, and where
+        # that is defined (a foot above the bottom row, below the horizon)
+        d = np.zeros((h, w))
+        ok = colour_foot(d, img, q, du, rays, n, np.ones((h, w), bool), np.ones((h, w), bool),
+                         np.full((h, w), -1), None, foot_diff, 1.0).ravel()
+        # the frame's part: the foot's row and the pixel below it (colour_foot's)
+        fv, fu = np.divmod(colour_feet(img, du, np.arange(h * w), foot_diff), w)
         bv = np.minimum(fv + 1, h - 1)
         bu = np.clip(np.rint(fu + np.nan_to_num(du[fv, fu])), 0, w - 1).astype(np.int64)
-        ok = (fv + 1 < h) & (q[fv, fu] > 0)
-        qf = 0.5 * (q[fv, fu] + q[bv, bu])             # as colour_foot: between the two rows
-        with np.errstate(invalid="ignore", divide="ignore"):
-            d = vertical_depth(rays, n, fv * w + fu, np.where(ok, qf, 1.0), pix)
-            ok &= d > 0
         bins, k = colour_bins(img)
         self.register_buffer("foot_ok", torch.tensor(ok))
         # colour_foot's "the foot below the contact's row": contact < the foot row's first pixel
         self.register_buffer("foot_row0", torch.tensor(fv * w, dtype=torch.int64))
         self.register_buffer("below", torch.tensor(bv * w + bu, dtype=torch.int64))
-        self.register_buffer("depth", torch.tensor(np.where(ok, d, 0.0), dtype=torch.float64))
+        self.register_buffer("depth", torch.tensor(d.ravel(), dtype=torch.float64))
         self.register_buffer("bins", torch.tensor(bins, dtype=torch.int64))
         self.n_bins, self.foot_pull = k, float(foot_pull)
 
