@@ -52,17 +52,16 @@ class ColourFoot(nn.Module):
         if img.shape[:2] != (h, w):
             raise ValueError(f"the colour foot's image is {img.shape}, the camera {w}x{h}")
         # colour_foot itself on every pixel, with the frame's part of its test passed (all ground,
-        # no contact, a zero depth): the depth each pixel takes where its foot stands, and where
-        # that is defined (a foot above the bottom row, below the horizon)
+        # no contact, a zero depth): the depth each pixel takes where its foot stands, > 0 where
+        # that is defined (a foot above the bottom row, below the horizon), else left at 0
         d = np.zeros((h, w))
-        ok = colour_foot(d, img, q, du, rays, n, np.ones((h, w), bool), np.ones((h, w), bool),
-                         np.full((h, w), -1), None, foot_diff, 1.0).ravel()
+        colour_foot(d, img, q, du, rays, n, np.ones((h, w), bool), np.ones((h, w), bool),
+                    np.full((h, w), -1), None, foot_diff, 1.0)
         # the frame's part: the foot's row and the pixel below it (colour_foot's)
         fv, fu = np.divmod(colour_feet(img, du, np.arange(h * w), foot_diff), w)
         bv = np.minimum(fv + 1, h - 1)
         bu = np.clip(np.rint(fu + np.nan_to_num(du[fv, fu])), 0, w - 1).astype(np.int64)
         bins, k = colour_bins(img)
-        self.register_buffer("foot_ok", torch.tensor(ok))
         # colour_foot's "the foot below the contact's row": contact < the foot row's first pixel
         self.register_buffer("foot_row0", torch.tensor(fv * w, dtype=torch.int64))
         self.register_buffer("below", torch.tensor(bv * w + bu, dtype=torch.int64))
@@ -79,7 +78,7 @@ class ColourFoot(nn.Module):
         hist = torch.zeros(self.n_bins, dtype=torch.float64).scatter_add(0, self.bins, g)
         common = (torch.index_select(hist, 0, self.bins) >= FOOT_GROUND_SHARE * n_g) & (n_g > 0)
         # colour_foot on the re-anchored pixels with a contact, not of a common ground colour
-        ok = moved & traced & ~common & self.foot_ok \
+        ok = moved & traced & ~common & (self.depth > 0) \
             & torch.index_select(ground, 0, self.below) \
             & (contact < self.foot_row0) \
             & (self.depth * self.foot_pull >= out)
