@@ -7,7 +7,8 @@ A synthetic scene (``demo`` preset) with its true plane stands for an adapted ca
 the given built-in network, else the user cache's, else one trained here by ``train_builtin``
 (``--train-frames`` street frames, ``--train-epochs``, 128x64, seed 0: a small run, so that the
 alignment fits a network's real output rather than a random one's). For each alignment mode the
-export bakes (``align.mode`` of the summary), both paths run on the CPU with the same number of
+export bakes (``align.mode`` of the summary, adapt's other align defaults: in ``upright`` the
+colour foot on the rendered frames' median image), both paths run on the CPU with the same number of
 threads over the same frames; printed: frames per second of each, their ratio (goal >= 2), the
 median / 99th-percentile relative difference of the metric depth (goal <= 0.5%), and the AbsRel
 against the scene's true depth of both (metric protocol).
@@ -95,7 +96,7 @@ def main() -> None:
                               for g, r_ in zip(got, ref)])
         absrel = [float(np.mean([evaluate(p, gt, "metric")["abs_rel"] for p, gt in zip(x, gts)]))
                   for x in (ref, got)]
-        print(f"-- align.mode {mode}")
+        print(f"-- align.mode {mode} (colour foot: {onnx.metadata['staticdepth.colour_foot']})")
         print(f"torch/numpy pipeline: {fps_ref:.2f} frames/s")
         print(f"exported ONNX:        {fps_onnx:.2f} frames/s")
         print(f"ratio ONNX / pipeline: {fps_onnx / fps_ref:.2f}x (goal >= 2)")

@@ -13,17 +13,20 @@ whole chain of ``adapt`` after fine-tuning fits in one graph:
 
 The reference it is checked against, :func:`metric_depth_reference`, is the same chain with the
 model's own ``predict`` and the numpy :func:`~staticdepth.geometry.alignment.align_depth` in the
-same mode. Not in the graph: ``align.agents_at_contact`` (each detected agent takes the plane depth
-at its contact pixel) needs the frame's agent instances, which an image-only model has not; the
-reference leaves it out too, and the ONNX file's metadata says so (``agents_at_contact``). Nor is
-the per-frame removal of the agents' pixels from the ground mask (no detector in the loop), nor
-``align.colour_foot`` (it reads the adaptation frames' median image; metadata ``colour_foot``).
+same mode. ``align.colour_foot`` (upright) is in both: the adaptation frames' median image, read
+from the sequence as adapt reads it (adaptation.align.align_image), is a constant of the camera,
+and so are its colour runs' feet (geometry/colour_foot_torch.py); metadata ``colour_foot`` says
+whether it applies (as in adapt: an older summary without the setting, no). Not in the graph:
+``align.agents_at_contact`` (each detected agent takes the plane depth at its contact pixel) needs
+the frame's agent instances, which an image-only model has not; the reference leaves it out too,
+and the ONNX file's metadata says so (``agents_at_contact``). Nor is the per-frame removal of the
+agents' pixels from the ground mask (no detector in the loop).
 Keys read from the adapt summary: ``plane.normal`` (or ``planes.agents.normal``),
 ``camera_height_m``, ``scale.ft-align`` (else the camera height), ``config.eps``,
 ``config.erode_px``, ``config.detector``, ``config.detector_model``, ``config.align.mode`` (an
 older summary without it: ``eq2``), ``config.align.snap_rel``, the upright mode's
 ``config.align.shape/jump_rel/recede_min/recede_max/fill/max_pull/contact_range/recede_push/
-walked_ratio``, and
+walked_ratio/plane_bound/step_occlude/colour_foot``, and
 ``ground_polygon`` when present
 (the ground region's vertices in pixels; otherwise the feet hull is rebuilt from the sequence's
 agents or by running the summary's detector again).
@@ -43,7 +46,9 @@ from staticdepth.config import setting_from
 # -- the constants of a deployment -------------------------------------------------------------
 def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str | None = None,
                          log=print) -> dict[str, Any]:
-    """K, size, plane normal, scale, eps and the ground mask for the exported graph."""
+    """K, size, plane normal, scale, eps, the ground mask and (``align.colour_foot``) the static
+    image for the exported graph."""
+    from staticdepth.adaptation.align import align_image, upright_options
     from staticdepth.dataset.h5 import SequenceReader
     from staticdepth.geometry.camera import read_json
     from staticdepth.locate import plane_from_summary
@@ -70,29 +75,29 @@ def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str 
             how = "the summary's ground_polygon"
         else:
             G, how = _ground_from_feet(r, cfg, log)
-    mode = setting_from(cfg, "align.mode", "eq2")
-    if mode not in ("eq2", "ground", "upright"):
-        raise InputError(f"align.mode {mode!r} has no exported form (eq2, ground, upright)",
-                         summary_path)
+        mode = setting_from(cfg, "align.mode", "eq2")
+        if mode not in ("eq2", "ground", "upright"):
+            raise InputError(f"align.mode {mode!r} has no exported form (eq2, ground, upright)",
+                             summary_path)
+        ac = _align_config(cfg, mode)
+        image = align_image(ac, r)           # adapt's: None where the setting is off
     return {"K": K, "width": W, "height": H, "normal": n_g, "camera_height_m": h_c,
             "scale": scale, "eps": float(setting_from(cfg, "predict.eps", 1e-6)), "ground": G,
             "ground_from": how, "mode": mode,
             "snap_rel": float(setting_from(cfg, "align.snap_rel", 0.1)),
-            "upright": upright_settings(cfg) if mode == "upright" else {},
+            "upright": upright_options(ac) if mode == "upright" else {},
             "agents_at_contact": bool(setting_from(cfg, "align.agents_at_contact", False)),
-            "colour_foot": mode == "upright" and bool(setting_from(cfg, "align.colour_foot",
-                                                                    False))}
+            "image": image}
 
 
-def upright_settings(cfg: dict) -> dict[str, Any]:
-    """The upright mode's keywords (align_depth's) from a summary's config (AlignConfig's
-    defaults where absent)."""
-    from staticdepth.adaptation.align import upright_options
+def _align_config(cfg: dict, mode: str):
+    """The AlignConfig of a summary's config in ``mode`` (AlignConfig's defaults where absent;
+    older summaries: no upright limits, no plane bound, no colour foot)."""
     from staticdepth.adaptation.config import AlignConfig
 
     d = AlignConfig()
-    return upright_options(AlignConfig(
-        mode="upright", shape=str(setting_from(cfg, "align.shape", d.shape)),
+    return AlignConfig(
+        mode=mode, shape=str(setting_from(cfg, "align.shape", d.shape)),
         jump_rel=float(setting_from(cfg, "align.jump_rel", d.jump_rel)),
         recede_min=float(setting_from(cfg, "align.recede_min", d.recede_min)),
         recede_max=float(setting_from(cfg, "align.recede_max", d.recede_max)),
@@ -102,7 +107,8 @@ def upright_settings(cfg: dict) -> dict[str, Any]:
         contact_range=setting_from(cfg, "align.contact_range", None),
         walked_ratio=setting_from(cfg, "align.walked_ratio", None),
         plane_bound=bool(setting_from(cfg, "align.plane_bound", False)),
-        step_occlude=bool(setting_from(cfg, "align.step_occlude", False))))
+        step_occlude=bool(setting_from(cfg, "align.step_occlude", False)),
+        colour_foot=bool(setting_from(cfg, "align.colour_foot", False)))
 
 
 def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:
@@ -145,12 +151,12 @@ def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:
 
 def metric_depth_reference(model, image: np.ndarray, c: dict[str, Any]) -> np.ndarray:
     """The pipeline the export must reproduce: predict, 1/max(D, eps), align (numpy, the summary's
-    mode; no agents_at_contact), x scale."""
+    mode, the colour foot on the static image when it applies; no agents_at_contact), x scale."""
     from staticdepth.geometry.alignment import align_depth, depth_from_inverse
 
     Z = depth_from_inverse(model.predict(image), c["eps"])
     return align_depth(Z, c["K"], c["normal"], 1.0, c["ground"], mode=c["mode"],
-                       snap_rel=c["snap_rel"], **c.get("upright", {})
+                       snap_rel=c["snap_rel"], image=c.get("image"), **c.get("upright", {})
                        ).depth * np.float32(c["scale"])
 
 
@@ -173,7 +179,7 @@ def metric_graph(model, c: dict[str, Any]):
             self.net = model.net
             self.align = alignment_module(c["mode"], c["K"], c["width"], c["height"],
                                           c["normal"], 1.0, c["ground"], snap_rel=c["snap_rel"],
-                                          **c.get("upright", {}))
+                                          image=c.get("image"), **c.get("upright", {}))
             self.eps, self.scale = float(c["eps"]), float(c["scale"])
 
         def forward(self, image: torch.Tensor) -> torch.Tensor:
@@ -215,9 +221,6 @@ def export_model(model_spec: str, summary_path: str, seq_path: str, out: str, *,
     if c["agents_at_contact"]:
         log("note: adapt gave each detected agent its contact depth (align.agents_at_contact); "
             "an image-only model cannot: agents keep the aligned network depth")
-    if c["colour_foot"]:
-        log("note: adapt stood unresolved structures on their colour foot in the adaptation "
-            "frames' median image (align.colour_foot); the exported graph does not")
     graph = metric_graph(model, c)
     dummy = torch.zeros((c["height"], c["width"], 3), dtype=torch.uint8)
     with atomic_path(out, "onnx") as tmp, warnings.catch_warnings():
@@ -249,9 +252,10 @@ def export_metadata(c: dict[str, Any], model_spec: str, summary_path: str) -> di
             "staticdepth.agents_at_contact": ("not applied: it needs the frame's agent instances "
                                               "(adapt " + ("applied it" if c["agents_at_contact"]
                                                            else "did not apply it either") + ")"),
-            "staticdepth.colour_foot": ("not applied: it needs the adaptation frames' median "
-                                        "image (adapt " + ("applied it" if c.get("colour_foot")
-                                                           else "did not apply it either") + ")"),
+            "staticdepth.colour_foot": ("applied: the adaptation frames' median image"
+                                        if c.get("image") is not None else "not applied (adapt "
+                                        "did not apply it either: align.colour_foot off or "
+                                        "absent, or align.mode not upright)"),
             "staticdepth.model": model_spec, "staticdepth.summary": os.path.basename(summary_path)}
 
 

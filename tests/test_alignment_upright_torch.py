@@ -5,7 +5,10 @@ The prediction is the frame's true depth through a MiDaS-like inverse-depth scal
 every structure (facades, walls, poles, crates) 25-35% too near and multiplicative noise: the
 upright mode re-anchors a third of the image, so the march, the walk to the foot, the recession
 test and the row fill all decide something. Measured (i1, 320x160): ONNX vs numpy max relative
-difference 3e-5, max absolute 1.3e-3 camera heights on depths up to ~50 (float32 output)."""
+difference 3e-5, max absolute 1.3e-3 camera heights on depths up to ~50 (float32 output).
+The colour foot (``image=``) on a closed-form crate in front of a wall and on i1 with its rendered
+image (adapt's defaults: 2453 pixels moved by the rule; eager twin vs numpy max relative
+difference 3.5e-7; i2-i4: 682-1824 pixels, <= 1e-6)."""
 from __future__ import annotations
 
 import math
@@ -208,3 +211,119 @@ def test_upright_onnx_follows_a_frame_without_contacts(frame, tmp_path):
         for Zf, ref in zip((flat, wall), refs):
             got = sess.run(None, {"z": Zf})[0]
             assert _rel(got, ref).max() < 1e-4, (i, _rel(got, ref).max())
+
+
+# -- the colour foot (image=: geometry/colour_foot_torch.py) -------------------------------------
+def _adapt_upright():
+    from staticdepth.adaptation.align import upright_options
+    from staticdepth.adaptation.config import build_config
+
+    return upright_options(build_config({}).align)          # adapt's defaults, colour foot's too
+
+
+def _crate_scene():
+    """A crate 5 m ahead (2 m tall, 1.2 m wide, 1.5 m right) in front of a wall 10 m ahead, seen
+    by a camera 3 m up looking down 25 deg (tests/billboard_scene.py, closed form): the network
+    sees the scene without the crate, so the crate's upper part carries the wall's depth and its
+    run takes the wall's contact (2x too far); the image shows the crate's own colour down to its
+    foot (tests/test_align_near.py's post, here a crate in RGB)."""
+    from billboard_scene import billboard_camera
+
+    W, H = 160, 100
+    K, n, z_ground, billboard = billboard_camera(3.0, 25.0, W, H, 100.0)
+    z_wall, wall = billboard(10.0, 8.0, 6.0)
+    z_crate, wide = billboard(5.0, 8.0, 2.0)
+    crate = wide & (np.abs((np.arange(W)[None, :] - K[0, 2]) / 100.0 * z_crate - 1.5) < 0.6)
+    behind = np.where(wall, z_wall, z_ground)
+    depth = np.where(crate, z_crate, behind)
+    net = (np.where(np.isfinite(behind), behind, 200.0) * 0.5).astype(np.float32)
+    ground = ~wall & ~crate & (z_ground < 60)
+    stripes = 0.25 + 0.1 * ((np.arange(H)[:, None] // 4) % 2)
+    img = np.repeat(np.where(wall, stripes, 0.6)[..., None], 3, -1)
+    img[crate] = [0.8, 0.5, 0.2]
+    return K, n, depth, net, ground, crate, img
+
+
+def test_torch_colour_foot_matches_numpy_on_a_crate(tmp_path):
+    K, n, depth, net, ground, crate, img = _crate_scene()
+    kw = _adapt_upright()
+    info: dict = {}
+    ref = align_depth(net, K, n, 3.0, ground, mode="upright", image=img, info=info, **kw).depth
+    off = align_depth(net, K, n, 3.0, ground, mode="upright", **kw).depth
+    up = crate & info["traced"]
+    assert up.sum() > 100 and (info["colour_foot"] & crate).sum() > 100    # the rule fired
+    assert np.median(off[up] / depth[up]) > 1.9                   # the wall's contact: 10 / 5
+    assert abs(np.median(ref[up] / depth[up]) - 1) < 0.03         # its own foot
+    mod = UprightAlignment(K, 160, 100, n, 3.0, ground, image=img, **kw)
+    out = mod(torch.from_numpy(net)).numpy()
+    assert _rel(out, ref).max() < 1e-5, _rel(out, ref).max()
+    sess = _onnx_session(mod, net, tmp_path)
+    for s_f, t_f in [(1.0, 0.0), (2.0, 0.01)]:             # each frame its own scale and shift
+        Zf = (1.0 / (s_f / net + t_f)).astype(np.float32)
+        ref = align_depth(Zf, K, n, 3.0, ground, mode="upright", image=img, **kw).depth
+        got = sess.run(None, {"z": Zf})[0]
+        assert _rel(got, ref).max() < 1e-4, _rel(got, ref).max()
+
+
+def test_torch_colour_foot_matches_numpy_on_an_indep_scene(frame, tmp_path):
+    """i1 (structures 25-35% too near) with its rendered image: the rule moves thousands of
+    pixels; the graph, eager and exported, moves the same."""
+    from tests.indep_scenes import SCENES, Scene
+
+    Z, K, n, G, reg = frame
+    img = Scene(SCENES[0], 320, 160).render(3)["left"] / 255.0
+    kw = _adapt_upright()
+    ref = align_depth(Z, K, n, 1.0, G, mode="upright", image=img, **kw).depth
+    off = align_depth(Z, K, n, 1.0, G, mode="upright", **kw).depth
+    assert (ref != off).sum() > 1000
+    mod = UprightAlignment(K, 320, 160, n, 1.0, G, image=img, **kw)
+    out = mod(torch.from_numpy(Z)).numpy()
+    assert _rel(out, ref).max() < 1e-5, _rel(out, ref).max()
+    got = _onnx_session(mod, Z, tmp_path).run(None, {"z": Z})[0]
+    assert _rel(got, ref).max() < 1e-4, _rel(got, ref).max()
+
+
+def test_colour_bins_are_ground_coloureds():
+    """The graph's histogram over the constant bins gives ground_coloured's answer for any ground
+    mask and share."""
+    from staticdepth.geometry.alignment_vertical import ground_coloured
+    from staticdepth.geometry.colour_foot_torch import colour_bins
+
+    rng = np.random.default_rng(1)
+    img = rng.uniform(0, 1, (30, 40, 3)) ** 3                 # many bins, unevenly filled
+    bins, k = colour_bins(img)
+    assert 20 < k <= 512 and bins.min() == 0 and bins.max() == k - 1
+    for share in (0.001, 0.01, 0.05):
+        g = rng.random((30, 40)) < 0.3
+        hist = np.bincount(bins[g.ravel()], minlength=k)
+        mine = (hist[bins] >= share * g.sum()).reshape(30, 40)
+        assert np.array_equal(mine, ground_coloured(img, g, share))
+        assert 0 < mine.sum() < mine.size
+
+
+def test_torch_colour_foot_leaves_the_walked_grounds_colour(monkeypatch):
+    """tests/test_align_near.py's smooth road: a band the network keeps flat is traced like a
+    wall and its colour runs on to a lane marking; its colour is the walked ground's (the frame's
+    histogram in the graph), so neither version pulls it; with that test off both do."""
+    import staticdepth.geometry.alignment_upright as au
+    import staticdepth.geometry.colour_foot_torch as cft
+    from billboard_scene import billboard_camera
+
+    K, n, z_ground, _ = billboard_camera(3.0, 25.0, 160, 100, 100.0)
+    rows = np.arange(100)[:, None] * np.ones((1, 160))
+    finite = np.isfinite(z_ground)
+    band = finite & (rows >= 40) & (rows < 50)
+    net = np.where(finite, z_ground, 200.0) * 0.5
+    net = np.where(band, net[49:50, :], net).astype(np.float32)
+    img = np.where(~finite, 0.8, np.where(finite & (rows == 58), 0.95, 0.6))
+    ground = finite & (z_ground < 60)
+    kw = _adapt_upright()
+    off = align_depth(net, K, n, 3.0, ground, mode="upright", **kw).depth
+    for share in (au.FOOT_GROUND_SHARE, 2.0):          # 2.0: no pixel is ground-coloured
+        monkeypatch.setattr(au, "FOOT_GROUND_SHARE", share)
+        monkeypatch.setattr(cft, "FOOT_GROUND_SHARE", share)
+        ref = align_depth(net, K, n, 3.0, ground, mode="upright", image=img, **kw).depth
+        assert (np.median(ref[band] / off[band]) < 0.95) == (share > 1)
+        out = UprightAlignment(K, 160, 100, n, 3.0, ground, image=img, **kw)(
+            torch.from_numpy(net)).numpy()
+        assert _rel(out, ref).max() < 1e-5, (share, _rel(out, ref).max())

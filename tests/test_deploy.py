@@ -116,8 +116,12 @@ def test_export_of_an_adapted_camera(adapted_camera, mode, capsys):
     assert onnx.metadata["staticdepth.align_mode"] == mode
     assert ("jump_rel=0.08" in onnx.metadata.get("staticdepth.upright", "")) == (mode == "upright")
     assert onnx.metadata["staticdepth.agents_at_contact"].startswith("not applied")
+    # adapt's default colour foot, on the adaptation frames' median image, in the upright graph
+    assert onnx.metadata["staticdepth.colour_foot"].startswith(
+        "applied" if mode == "upright" else "not applied")
     model = load_model(f"builtin:{d / 'ft.pt'}")
     c = deployment_constants(str(summ), str(seq))
+    assert (c["image"] is not None) == (mode == "upright")
     fits, rel, err_onnx, err_adapt, vs_adapt = set(), [], [], [], []
     with SequenceReader(seq) as r:
         for i in r.split("eval"):
@@ -125,15 +129,16 @@ def test_export_of_an_adapted_camera(adapted_camera, mode, capsys):
             got, ref = onnx.predict(img), metric_depth_reference(model, img, c)
             rel.append(np.median(np.abs(got - ref) / ref))
             Z = depth_from_inverse(model.predict(img), c["eps"])
-            a = align_depth(Z, c["K"], c["normal"], 1.0, c["ground"], mode=mode, **c["upright"])
+            a = align_depth(Z, c["K"], c["normal"], 1.0, c["ground"], mode=mode, image=c["image"],
+                            **c["upright"])
             fits.add(tuple(np.round(a.plane_normal, 5)))
             err_onnx.append(evaluate(got, gt, "metric")["abs_rel"])
             if mode == "upright":                   # adapt's own output
                 stored = r.prediction("ft-align-metric", i)
                 m = r.instances(i) > 0
                 mine = align_depth(Z, c["K"], c["normal"], 1.0, c["ground"], agent_mask=m,
-                                   mode=mode, snap_rel=c["snap_rel"], **c["upright"]
-                                   ).depth * np.float32(c["scale"])
+                                   mode=mode, snap_rel=c["snap_rel"], image=c["image"],
+                                   **c["upright"]).depth * np.float32(c["scale"])
                 assert np.median(np.abs(mine - stored) / stored) < 1e-5
                 err_adapt.append(evaluate(stored, gt, "metric")["abs_rel"])
                 vs_adapt.append(np.median(np.abs(got - stored) / stored))
@@ -145,6 +150,53 @@ def test_export_of_an_adapted_camera(adapted_camera, mode, capsys):
                                         f"{max(vs_adapt):.3f} per frame)" if err_adapt else ""))
     if err_adapt:
         assert abs(np.mean(err_onnx) - np.mean(err_adapt)) < 0.02
+
+
+def test_export_applies_the_colour_foot_as_adapt_did(adapted_camera, tmp_path):
+    """The summary's align.colour_foot decides: on (adapt's default), the graph stands the
+    structures the rule moves on their colour foot, as numpy does on adapt's median image; off,
+    or an older summary without the setting, the graph is the one without the rule (and says
+    so), as adapt ran it."""
+    from staticdepth.adaptation.align import static_image
+    from staticdepth.deploy import MetricOnnx, deployment_constants, metric_depth_reference
+    from staticdepth.geometry.alignment import align_depth, depth_from_inverse
+    from staticdepth.models import load_model
+
+    d, seq, summary = adapted_camera
+    s = json.loads(summary.read_text())
+    assert s["config"]["align"]["colour_foot"] is True                 # adapt's default
+    older = json.loads(summary.read_text())
+    del older["config"]["align"]["colour_foot"]
+    (tmp_path / "old.adapt.json").write_text(json.dumps(older))
+    model = load_model(f"builtin:{d / 'ft.pt'}")
+    c = deployment_constants(str(summary), str(seq))
+    c_old = deployment_constants(str(tmp_path / "old.adapt.json"), str(seq))
+    with SequenceReader(seq) as r:
+        assert np.array_equal(c["image"], static_image(r, r.split("adapt")))
+        frames = [r.left(i) for i in r.split("eval")[:3]]
+    assert c_old["image"] is None and c_old["upright"] == c["upright"]
+    moved = 0
+    for img in frames:
+        Z = depth_from_inverse(model.predict(img), c["eps"])
+        on, off = (align_depth(Z, c["K"], c["normal"], 1.0, c["ground"], mode="upright",
+                               image=im, **c["upright"]).depth for im in (c["image"], None))
+        moved += int((on != off).sum())
+        np.testing.assert_array_equal(metric_depth_reference(model, img, c),
+                                      on * np.float32(c["scale"]))
+        np.testing.assert_array_equal(metric_depth_reference(model, img, c_old),
+                                      off * np.float32(c["scale"]))
+    assert moved > 20                                   # the rule moves pixels on this camera
+    for summ, ref_c, meta in ((summary, c, "applied"), (tmp_path / "old.adapt.json", c_old,
+                                                        "not applied")):
+        out = tmp_path / f"{meta[:3]}.onnx"
+        assert main(["export-model", "--model", f"builtin:{d / 'ft.pt'}", "--summary",
+                     str(summ), "--sequence", str(seq), "--out", str(out),
+                     "--check-frames", "1"]) == 0
+        onnx = MetricOnnx(str(out))
+        assert onnx.metadata["staticdepth.colour_foot"].startswith(meta)
+        for img in frames:
+            ref = metric_depth_reference(model, img, ref_c)
+            assert np.abs(onnx.predict(img) - ref).max() <= 1e-4 * ref.max()
 
 
 def test_predict_formats(deployment, capsys):

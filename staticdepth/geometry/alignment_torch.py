@@ -192,9 +192,12 @@ class GroundAlignment(nn.Module):
 
 def alignment_module(mode: str, K: np.ndarray, width: int, height: int, n_g, d_g: float,
                      ground_mask: np.ndarray, *, eps: float = 1e-3, snap_rel: float = 0.1,
-                     **upright) -> nn.Module:
-    """The exportable twin of ``align_depth(..., mode=mode, snap_rel=snap_rel, **upright)``
-    (``upright``: the upright mode's keywords; geometry/alignment_upright_torch.py)."""
+                     image: np.ndarray | None = None, **upright) -> nn.Module:
+    """The exportable twin of ``align_depth(..., mode=mode, snap_rel=snap_rel, image=image,
+    **upright)`` (``upright``: the upright mode's keywords, ``image`` its colour foot's static
+    scene; geometry/alignment_upright_torch.py)."""
+    if image is not None and mode != "upright":
+        raise ValueError(f"the colour foot (image) is the upright mode's, not {mode!r}'s")
     if mode == "eq2":
         return PlaneAlignment(K, width, height, n_g, d_g, ground_mask, eps=eps)
     if mode == "ground":
@@ -203,5 +206,5 @@ def alignment_module(mode: str, K: np.ndarray, width: int, height: int, n_g, d_g
         from staticdepth.geometry.alignment_upright_torch import UprightAlignment
 
         return UprightAlignment(K, width, height, n_g, d_g, ground_mask, snap_rel=snap_rel,
-                                **upright)
+                                image=image, **upright)
     raise ValueError(f"no exportable alignment for mode {mode!r} (eq2, ground, upright)")

@@ -20,11 +20,12 @@ The numpy version's sequential scans become fixed-size index gathers:
 - the fill along rows (``fill_along_rows``): left then right links, pointer doubling over W;
   with ``step_occlude`` only the runs whose chain ends at a step down to a nearer pixel that is
   not ground (``occluded_runs(..., steps=True)``: the chain's end, read through the same links).
-The trust rules (``fill``, ``max_pull``, ``contact_range``, ``recede_push``, ``walked_ratio``)
-and the plane's bound (``plane_bound``: a constant map of the plane's depth, an elementwise
-minimum) are those of the numpy version (the walked region is the ground mask). The arithmetic runs in
-float64, as the numpy version's does, so that its threshold decisions (recession, depth steps)
-come out the same.
+The trust rules (``fill``, ``max_pull``, ``contact_range``, ``recede_push``, ``walked_ratio``),
+the colour foot (``image``: the static scene's colours, whose feet are constants of the graph;
+geometry/colour_foot_torch.py) and the plane's bound (``plane_bound``: a constant map of the
+plane's depth, an elementwise minimum) are those of the numpy version (the walked region is the
+ground mask). The arithmetic runs in float64, as the numpy version's does, so that its threshold
+decisions (recession, depth steps) come out the same.
 """
 from __future__ import annotations
 
@@ -37,6 +38,7 @@ from torch import nn
 from staticdepth.geometry.alignment_torch import GroundAlignment, masked_median
 from staticdepth.geometry.alignment_upright import KEEP_REL, RECEDE, SHAPES
 from staticdepth.geometry.alignment_vertical import down_step, line_shift, walk_up
+from staticdepth.geometry.colour_foot_torch import ColourFoot
 from staticdepth.geometry.projection import ray_grid
 
 
@@ -95,7 +97,7 @@ def _tables(K, n, w, h, q, span, jump_rel):
     av = np.maximum(vv - 1, 0)
     au = np.clip(np.rint(uf + np.nan_to_num(line_shift(K, n, w, h, -1)[vv, uf])), 0,
                  w - 1).astype(np.int64)
-    return dict(nxt=nxt, ok_n=ok_n, qv=qv, paths=paths, path_consts=consts,
+    return dict(du=du, nxt=nxt, ok_n=ok_n, qv=qv, paths=paths, path_consts=consts,
                 rec_ok=okr.ravel(), g_pl=np.nan_to_num(g_pl, nan=1.0).ravel(), m=m, up=up,
                 up_ok=up_ok, above=av * w + au, has_above=vv > 0)
 
@@ -111,7 +113,8 @@ class UprightAlignment(nn.Module):
                  contact_range: float | None = None, recede_push: float = float("inf"),
                  walked_ratio: float = float("inf"), plane_bound: bool = False,
                  keep_rel: float | None = KEEP_REL, occlude: bool = False,
-                 step_occlude: bool = False, max_points: int = 20000):
+                 step_occlude: bool = False, image: np.ndarray | None = None,
+                 max_points: int = 20000):
         super().__init__()
         del occlude     # runs end at the frame's agents: an exported graph has no agent mask
         if shape not in SHAPES:
@@ -175,6 +178,8 @@ class UprightAlignment(nn.Module):
         with np.errstate(divide="ignore"):       # align_upright's bound: the plane's depth
             bound = np.where(q > 0, np.float32(1.0) / np.where(q > 0, q, 1), np.inf)
         self.register_buffer("bound", torch.tensor(bound.astype(np.float32)))
+        # the colour foot: the static image's constants (geometry/colour_foot_torch.py)
+        self.colour = None if image is None else ColourFoot(image, t["du"], q, r, n)
 
     def _cont(self, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         return torch.abs(a - b) <= self.jump_rel * torch.minimum(a, b)
@@ -258,6 +263,8 @@ class UprightAlignment(nn.Module):
                             1.0 / self.max_ratio, self.max_ratio)
         out = torch.where(moved, src * ratio, A)
         out = torch.where(planar & ~moved, 1.0 / q, out)
+        if self.colour is not None:
+            out, moved = self.colour(out, moved, have, foot, ground, self.walked)
         out = out.to(torch.float32).reshape(h, w)
         # snapped pixels found to be structures keep their unsnapped depth (numpy: upright_depth)
         out = torch.where((moved | planar | (snapped & ~ground)).reshape(h, w), out, g_out)
