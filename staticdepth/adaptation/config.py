@@ -86,8 +86,8 @@ class AlignConfig:
     #                                  (the adaptation frames' median image) goes on below its
     #                                  contact, and is not a colour common on the walked ground,
     #                                  stands on the vertical through the run's foot (align
-    #                                  outputs and `align --sequence`; not the pseudo labels, not
-    #                                  export-model; issue 19, eleventh round, docs/gains.md)
+    #                                  outputs, `align --sequence` and export-model; not the
+    #                                  pseudo labels; issue 19, eleventh round, docs/gains.md)
     plane_bound: bool = True         # upright: no pixel below the agents' horizon farther than
     #                                  the plane along its ray (align outputs, the align command,
     #                                  export-model; not the pseudo labels)

@@ -143,34 +143,51 @@ def colour_feet(image: np.ndarray, du: np.ndarray, pix: np.ndarray,
     img = np.asarray(image, dtype=np.float64).reshape(h, w, -1)
     v, u = np.divmod(np.asarray(pix, dtype=np.int64), w)
     cur = img[v, u]
-    act = np.ones(len(v), bool)
-    while act.any():
-        step = du[v, u]
-        ui = np.rint(u + np.nan_to_num(step)).astype(np.int64)
-        act &= np.isfinite(step) & (v + 1 < h) & (ui >= 0) & (ui < w)
-        vn, ui = np.minimum(v + 1, h - 1), np.clip(ui, 0, w - 1)
-        nxt = img[vn, ui]
-        act &= np.abs(nxt - cur).max(-1) <= max_diff
-        v, u = np.where(act, vn, v), np.where(act, ui, u)
-        cur = np.where(act[:, None], nxt, cur)
+    act = np.arange(len(v))             # the walks still going: each step looks at those only
+    while len(act):
+        va, ua = v[act], u[act]
+        step = du[va, ua]
+        ui = np.rint(ua + np.nan_to_num(step)).astype(np.int64)
+        ok = np.isfinite(step) & (va + 1 < h) & (ui >= 0) & (ui < w)
+        act, va, ui = act[ok], va[ok] + 1, ui[ok]
+        nxt = img[va, ui]
+        ok = np.abs(nxt - cur[act]).max(-1) <= max_diff
+        act, va, ui, nxt = act[ok], va[ok], ui[ok], nxt[ok]
+        v[act], u[act], cur[act] = va, ui, nxt
     return v * w + u
 
 
-def ground_coloured(image: np.ndarray, ground: np.ndarray, share: float,
-                    levels: int = 8) -> np.ndarray:
-    """(H, W) bool: pixels whose colour (``image`` (H, W, C), 0-1, each channel in ``levels``
-    bins) holds at least ``share`` of the ``ground`` pixels' colours."""
+def colour_codes(image: np.ndarray, levels: int = 8) -> np.ndarray:
+    """(H, W) int64 colour bin of each pixel of ``image`` (H, W, C), 0-1: each channel in
+    ``levels`` bins."""
     img = np.asarray(image, dtype=np.float64)
     img = img.reshape(img.shape[0], img.shape[1], -1)
     q = np.clip((img * levels).astype(np.int64), 0, levels - 1)
     code = np.zeros(q.shape[:2], np.int64)
     for c in range(q.shape[2]):
         code = code * levels + q[..., c]
+    return code
+
+
+def ground_coloured(image: np.ndarray, ground: np.ndarray, share: float,
+                    levels: int = 8) -> np.ndarray:
+    """(H, W) bool: pixels whose colour bin (:func:`colour_codes`) holds at least ``share`` of
+    the ``ground`` pixels' colours."""
+    code = colour_codes(image, levels)
     g = np.asarray(ground, bool)
     if not g.any():
         return np.zeros(code.shape, bool)
-    hist = np.bincount(code[g], minlength=levels ** q.shape[2])
+    hist = np.bincount(code[g], minlength=int(code.max()) + 1)
     return hist[code] >= share * g.sum()
+
+
+def below_feet(feet: np.ndarray, du: np.ndarray) -> np.ndarray:
+    """Flat index of the pixel one row below each flat ``feet`` pixel on its vertical (the last
+    row: the same row)."""
+    h, w = du.shape
+    fv, fu = np.divmod(np.asarray(feet, dtype=np.int64), w)
+    bu = np.clip(np.rint(fu + np.nan_to_num(du[fv, fu])), 0, w - 1).astype(np.int64)
+    return np.minimum(fv + 1, h - 1) * w + bu
 
 
 def vertical_depth(rays: np.ndarray, n: np.ndarray, foot: np.ndarray, q_foot: np.ndarray,
@@ -201,9 +218,9 @@ def colour_foot(out: np.ndarray, image: np.ndarray, q: np.ndarray, du: np.ndarra
     done = np.zeros(h * w, bool)
     if not len(pix):
         return done.reshape(h, w)
-    fv, fu = np.divmod(colour_feet(image, du, pix, max_diff), w)
-    bv = np.minimum(fv + 1, h - 1)
-    bu = np.clip(np.rint(fu + np.nan_to_num(du[fv, fu])), 0, w - 1).astype(np.int64)
+    feet = colour_feet(image, du, pix, max_diff)
+    fv, fu = np.divmod(feet, w)
+    bv, bu = np.divmod(below_feet(feet, du), w)
     ok = (fv + 1 < h) & ground[bv, bu] & (q[fv, fu] > 0) & (fv > idx.ravel()[pix] // w)
     if not_ground is not None:
         ok &= ~not_ground[bv, bu]

@@ -5,8 +5,8 @@ The static image is a constant of a deployment (a fixed camera: the adaptation f
 everything the rule reads from it is computed once, at construction, by the numpy functions
 themselves: the depth each pixel takes on the vertical line through its colour run's foot
 (``colour_foot`` on every pixel, the frame's part of its test passed), the foot's row and the pixel
-below it (``colour_feet``), and each pixel's colour bin (``ground_coloured``'s, found by asking it
-which pixels share a one-pixel ground's bin).
+below it (``colour_feet``, ``below_feet``), and each pixel's colour bin (``colour_codes``, which
+``ground_coloured`` reads).
 What depends on the frame stays in the graph, elementwise gathers: the traced pixels and their
 contact rows, the frame's ground (after the recession and walked rules) below each foot, and
 ``ground_coloured``'s histogram of the walked ground's bins (a ScatterElements add over the
@@ -19,25 +19,14 @@ import torch
 from torch import nn
 
 from staticdepth.geometry.alignment_upright import FOOT_DIFF, FOOT_GROUND_SHARE, FOOT_PULL
-from staticdepth.geometry.alignment_vertical import colour_feet, colour_foot, ground_coloured
+from staticdepth.geometry.alignment_vertical import below_feet, colour_codes, colour_feet, colour_foot
 
 
 def colour_bins(image: np.ndarray) -> tuple[np.ndarray, int]:
-    """(H W,) int64 bin per pixel (0..k-1) and k: pixels of one bin are those ``ground_coloured``
-    counts as one colour. Read from ``ground_coloured`` itself (a one-pixel ground marks its bin:
-    ``hist[code] >= 1``), one call per colour present, so that the twin follows its binning."""
-    h, w = image.shape[:2]
-    label = np.full(h * w, -1, np.int64)
-    one = np.zeros(h * w, bool)
-    k = 0
-    rest = np.arange(h * w)
-    while rest.size:
-        one[rest[0]] = True
-        label[ground_coloured(image, one.reshape(h, w), 1.0).ravel()] = k
-        one[rest[0]] = False
-        k += 1
-        rest = rest[label[rest] < 0]
-    return label, k
+    """(H W,) int64 bin per pixel (0..k-1) and k: ``ground_coloured``'s colour bins
+    (``colour_codes``), numbered over the colours present."""
+    _, label = np.unique(colour_codes(image).ravel(), return_inverse=True)
+    return label.astype(np.int64).ravel(), int(label.max()) + 1
 
 
 class ColourFoot(nn.Module):
@@ -58,13 +47,12 @@ class ColourFoot(nn.Module):
         colour_foot(d, img, q, du, rays, n, np.ones((h, w), bool), np.ones((h, w), bool),
                     np.full((h, w), -1), None, foot_diff, 1.0)
         # the frame's part: the foot's row and the pixel below it (colour_foot's)
-        fv, fu = np.divmod(colour_feet(img, du, np.arange(h * w), foot_diff), w)
-        bv = np.minimum(fv + 1, h - 1)
-        bu = np.clip(np.rint(fu + np.nan_to_num(du[fv, fu])), 0, w - 1).astype(np.int64)
+        feet = colour_feet(img, du, np.arange(h * w), foot_diff)
+        fv = feet // w
         bins, k = colour_bins(img)
         # colour_foot's "the foot below the contact's row": contact < the foot row's first pixel
         self.register_buffer("foot_row0", torch.tensor(fv * w, dtype=torch.int64))
-        self.register_buffer("below", torch.tensor(bv * w + bu, dtype=torch.int64))
+        self.register_buffer("below", torch.tensor(below_feet(feet, du), dtype=torch.int64))
         self.register_buffer("depth", torch.tensor(d.ravel(), dtype=torch.float64))
         self.register_buffer("bins", torch.tensor(bins, dtype=torch.int64))
         self.n_bins, self.foot_pull = k, float(foot_pull)
