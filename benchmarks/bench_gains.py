@@ -279,19 +279,22 @@ def markdown(results: dict) -> str:
 
 
 def held_out_specs(items: list[str]) -> dict:
-    """``--scene-spec NAME:HEIGHT:PITCH:SEED`` -> {name: SceneSpec}; i1-i4 keep their specs."""
+    """``--scene-spec NAME:HEIGHT:PITCH:SEED[:ROLL]`` -> {name: SceneSpec}; i1-i4 keep their
+    specs."""
     from tests.indep_scenes import SceneSpec
 
     out = {}
+    form = "NAME:HEIGHT_M:PITCH_DEG:SEED[:ROLL_DEG]"
     for item in items:
         parts = item.split(":")
         try:
             name, (height, pitch, seed) = parts[0], (float(parts[1]), float(parts[2]), int(parts[3]))
+            roll = float(parts[4]) if len(parts) == 5 else 0.0
         except (IndexError, ValueError):
-            sys.exit(f"--scene-spec {item!r}: expected NAME:HEIGHT_M:PITCH_DEG:SEED")
-        if len(parts) != 4 or name in {s.name for s in SCENES}:
-            sys.exit(f"--scene-spec {item!r}: expected NAME:HEIGHT_M:PITCH_DEG:SEED with a new name")
-        out[name] = SceneSpec(name, height, pitch, seed)
+            sys.exit(f"--scene-spec {item!r}: expected {form}")
+        if len(parts) not in (4, 5) or name in {s.name for s in SCENES}:
+            sys.exit(f"--scene-spec {item!r}: expected {form} with a new name")
+        out[name] = SceneSpec(name, height, pitch, seed, roll_deg=roll)
     return out
 
 
@@ -318,9 +321,9 @@ def main() -> None:
     ap.add_argument("--keep", action="store_true",
                     help="keep an earlier run's sequence and stages: adapt reruns only the stages "
                          "whose settings changed (e.g. fine-tuning over the same labels)")
-    ap.add_argument("--scene-spec", action="append", default=[], metavar="NAME:HEIGHT:PITCH:SEED",
+    ap.add_argument("--scene-spec", action="append", default=[], metavar="NAME:HEIGHT:PITCH:SEED[:ROLL]",
                     help="another scene of tests/indep_scenes.py's generator (camera height in m, "
-                         "pitch in degrees, seed): scenes held out from those a rule was chosen on")
+                         "pitch in degrees, seed, roll in degrees, default 0): scenes held out from those a rule was chosen on")
     ap.add_argument("--json")
     args = ap.parse_args()
     w, h = (int(x) for x in args.size.split("x"))

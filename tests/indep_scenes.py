@@ -38,6 +38,7 @@ class SceneSpec:
     people: int = 14
     vehicles: int = 3
     hfov_deg: float = 90.0
+    roll_deg: float = 0.0
 
 
 # C1/C2/C3-like mounts of the paper (CARLA 90 deg field of view) and a low one
@@ -137,11 +138,18 @@ class Scene:
         self.spec = spec
         rng = np.random.default_rng(spec.seed)
         self.camera = Camera.from_fov(width, height, spec.hfov_deg)
-        self.mounting = Mounting.from_pitch_roll(spec.height_m, spec.pitch_deg, 0.0, "generator")
-        t = math.radians(spec.pitch_deg)
-        # camera axes in the world (X right, Y forward, Z up): columns right, down, forward
-        self.R = np.array([[1, 0, 0], [0, -math.sin(t), math.cos(t)],
-                           [0, -math.cos(t), -math.sin(t)]], np.float32)
+        t, p = math.radians(spec.pitch_deg), math.radians(spec.roll_deg)
+        # camera axes in the world (X right, Y forward, Z up): columns right, down, forward,
+        # rolled by roll_deg about the forward axis
+        R = np.array([[1, 0, 0], [0, -math.sin(t), math.cos(t)],
+                      [0, -math.cos(t), -math.sin(t)]])
+        R = R @ np.array([[math.cos(p), -math.sin(p), 0], [math.sin(p), math.cos(p), 0],
+                          [0, 0, 1]])
+        self.R = R.astype(np.float32)
+        # the ground's normal (down) in the camera frame is R^T (0, 0, -1): staticdepth's roll
+        # has the other sign (tests/test_indep_scenes.py)
+        self.mounting = Mounting.from_pitch_roll(spec.height_m, spec.pitch_deg, -spec.roll_deg,
+                                                 "generator")
         self.origin = np.array([0.0, 0.0, spec.height_m], np.float32)
         u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
         K = self.camera.K

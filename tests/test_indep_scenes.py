@@ -14,7 +14,8 @@ from staticdepth.geometry.alignment import agents_at_contact, align_depth
 from staticdepth.geometry.projection import ray_grid
 from staticdepth.metrics import apply_protocol, depth_metrics, valid_mask
 from staticdepth.pseudo_labels import plane_pseudo_label, pseudo_label
-from tests.indep_scenes import BASELINE_M, SCENES, Scene
+from staticdepth.geometry.camera import pitch_roll_from_normal
+from tests.indep_scenes import BASELINE_M, SCENES, Scene, SceneSpec
 
 
 @pytest.fixture(scope="module")
@@ -24,6 +25,26 @@ def scenes():
 
 def test_depth_is_the_plane_on_the_ground_and_the_views_agree(scenes):
     for sc in scenes:
+        _check_truth(sc)
+
+
+def test_a_rolled_camera_renders_the_plane_its_mounting_says():
+    """A camera rolled 4 deg about its axis (``SceneSpec.roll_deg``; staticdepth's roll has the
+    other sign): the same truths, and the horizon tilts by the roll across the image."""
+    sc = Scene(SceneSpec("r", 5.4, 25.0, 21, roll_deg=4.0), 160, 80)
+    assert pitch_roll_from_normal(sc.mounting.normal) == pytest.approx((25.0, -4.0), abs=1e-6)
+    _check_truth(sc)
+    # the plane's horizon (ray . n = 0) at the image's left and right edges: about 160 px x
+    # tan(4 deg) = 11 px apart (the rendered ground follows that plane: _check_truth)
+    K, n = sc.camera.K, sc.mounting.normal
+    rows = [(K[1, 1] * (-(u - K[0, 2]) / K[0, 0] * n[0] - n[2]) / n[1]) + K[1, 2]
+            for u in (0.0, 159.0)]
+    assert abs(rows[0] - rows[1]) == pytest.approx(159 * K[1, 1] / K[0, 0] * np.tan(np.radians(
+        4.0)), rel=0.1)
+
+
+def _check_truth(sc):
+    if True:
         f = sc.render(3)
         K, n, h = sc.camera.K, sc.mounting.normal, sc.mounting.height_m
         q = ray_grid(K, 160, 80) @ n
