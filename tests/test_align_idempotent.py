@@ -80,10 +80,9 @@ def test_a_run_standing_on_its_contact_is_kept_not_retraced_higher():
     """keep_rel: a re-anchored run's lowest pixels lie within the snapping tolerance of the plane,
     and where they recede the second pass takes them for ground; the run walks on over them to
     the contact it stands on and keeps its depth. Without that (keep_rel None) i1's frame moves
-    4.7% of its pixels by more than 1% the second time (AbsRel 0.0079 -> 0.0089; with it 0.13%,
-    0.0076 -> 0.0077)."""
+    7% of its pixels by more than 1% the second time (AbsRel 0.0130 -> 0.0173)."""
     gt, valid, once, twice = _independent(0, keep_rel=None)
-    assert np.mean(np.abs(twice / once - 1)[valid] > 0.01) > 0.03
-    assert _absrel(twice, gt, valid) - _absrel(once, gt, valid) > 0.0005
+    assert np.mean(np.abs(twice / once - 1)[valid] > 0.01) > 0.04
+    assert _absrel(twice, gt, valid) - _absrel(once, gt, valid) > 0.002
 
 

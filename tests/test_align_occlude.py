@@ -94,7 +94,4 @@ def test_the_cut_wall_aligned_again_stays():
     once = _aligned(_blurred(Z, wall, agent, wall_error=0.7), K, n, ground, agent)
     twice = _aligned(once, K, n, ground, agent)
     assert _rel(once, Z, wall) < 0.04
-    # all but a few pixels just above the foot where the vertical's line steps a column (a
-    # chain's pixel off its line by half a pixel or more: 12 of 3000, by up to 22%)
-    moved = np.abs(twice[wall] - once[wall]) / once[wall]
-    assert np.mean(moved > 0.01) < 0.01 and np.median(moved) < 1e-4
+    assert np.max(np.abs(twice[wall] - once[wall]) / once[wall]) < 0.01

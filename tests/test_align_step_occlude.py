@@ -86,8 +86,7 @@ def test_a_far_wall_behind_a_nearer_wall_takes_its_own_scale():
     on = _aligned(pred, K, n, ground, step_occlude=True)
     # the near wall and the far wall beside it stand on their own feet either way
     assert _rel(off, Z, near) < 0.04 and _rel(on, Z, near) < 0.04
-    assert _rel(off, Z, beside) < 0.04
-    assert _rel(on, Z, beside) == pytest.approx(_rel(off, Z, beside), abs=1e-4)
+    assert _rel(off, Z, beside) < 0.04 and _rel(on, Z, beside) == _rel(off, Z, beside)
     # above the near wall the far wall's run stops at the step: without the rule it keeps the
     # ground mode's scale (the ground's: the network's 0.6 x), not the far wall's own
     assert _rel(off, Z, hidden) > 0.3
@@ -103,10 +102,7 @@ def test_the_far_wall_aligned_again_stays():
     once = _aligned(_network(Z, far, near), K, n, ground, step_occlude=True)
     twice = _aligned(once, K, n, ground, step_occlude=True)
     assert _rel(once, Z, far) < 0.04
-    # all but a few pixels just above the foot where the vertical's line steps a column (a
-    # chain's pixel off its line by half a pixel or more: 12 of 3000, by up to 22%)
-    moved = np.abs(twice[far] - once[far]) / once[far]
-    assert np.mean(moved > 0.01) < 0.01 and np.median(moved) < 1e-4
+    assert np.max(np.abs(twice[far] - once[far]) / once[far]) < 0.01
 
 
 def test_the_torch_twin_matches_numpy_and_exports():

@@ -8,7 +8,7 @@ import pytest
 
 from staticdepth.errors import InputError
 from staticdepth.geometry.alignment import align_depth, depth_from_inverse
-from staticdepth.geometry.alignment_vertical import down_step, vertical_slope
+from staticdepth.geometry.alignment_vertical import down_step
 from tests.test_alignment import dpt_failure, scene
 
 
@@ -16,54 +16,21 @@ def _absrel(pred, gt, m):
     return float(np.mean(np.abs(pred[m] - gt[m]) / gt[m]))
 
 
-def test_vertical_slope_is_the_image_of_a_vertical_line():
+def test_down_step_follows_the_image_of_a_vertical_line():
     K = np.array([[100.0, 0, 79.5], [0, 100.0, 39.5], [0, 0, 1]])
     t, roll = math.radians(30), math.radians(5)
     n = np.array([math.sin(roll), math.cos(roll) * math.cos(t), math.cos(roll) * math.sin(t)])
+    du = down_step(K, n, 160, 80)
     rng = np.random.default_rng(1)
     for _ in range(20):
         u, v, Z = rng.uniform(0, 159), rng.uniform(0, 79), rng.uniform(3, 30)
         P = Z * np.linalg.solve(K, [u, v, 1.0])
         p1 = K @ (P + 1e-4 * n)                 # a point a little lower on the vertical
         slope = (p1[0] / p1[2] - u) / (p1[1] / p1[2] - v)
-        assert vertical_slope(K, n, u, v) == pytest.approx(slope, rel=1e-6, abs=1e-9)
+        iu, iv = int(round(u)), int(round(v))
+        assert du[iv, iu] == pytest.approx(slope, abs=0.02 + 0.02 * abs(slope))
     level = down_step(K, np.array([0.0, 1.0, 0.0]), 160, 80)
     np.testing.assert_allclose(level, 0.0, atol=1e-12)     # level camera: verticals are columns
-
-
-@pytest.mark.parametrize("pitch,roll", [(30, 5), (15, 2), (45, -4), (10, 0.5)])
-def test_down_step_chains_stay_on_one_vertical_line(pitch, roll):
-    """Followed pixel by pixel (``rint(u + du)``), a chain keeps within half the line family's
-    spacing plus half a pixel of the true image of the vertical through its start pixel over the
-    whole image height; a slope rounded afresh at each row drifts by tens of pixels."""
-    w, h = 320, 160
-    K = np.array([[300.0, 0, 159.5], [0, 300.0, 79.5], [0, 0, 1]])
-    t, r = math.radians(pitch), math.radians(roll)
-    n = np.array([math.sin(r), math.cos(r) * math.cos(t), math.cos(r) * math.sin(t)])
-    du = down_step(K, n, w, h)
-    slope = vertical_slope(K, n, np.arange(w)[None, :], np.arange(h)[:, None])
-    vp = K @ n
-    row_v = vp[1] / vp[2]                               # the vertical vanishing point's row
-    a_n = K @ n
-    rng = np.random.default_rng(0)
-    drift = 0.0
-    for _ in range(100):
-        u0, v0 = int(rng.integers(0, w)), int(rng.integers(0, h - 40))
-        a = K @ (10.0 * np.linalg.solve(K, [u0, v0, 1.0]))
-        bound = 0.5 + 0.5 * (row_v - v0) / (row_v - (h - 1)) + 1e-9
-        un = uo = u0
-        for v in range(v0, h - 1):
-            lam = ((v + 1) * a[2] - a[1]) / (a_n[1] - (v + 1) * a_n[2])
-            p = a + lam * a_n
-            true_u = p[0] / p[2]                        # the line's column on row v + 1
-            un = int(np.rint(un + du[v, un]))
-            if 0 <= uo < w:
-                uo = int(np.rint(uo + slope[v, uo]))
-            if not (0 <= un < w and 0 <= true_u < w):
-                break
-            assert abs(un - true_u) <= bound, (u0, v0, v)
-            drift = max(drift, abs(uo - true_u))
-    assert drift > 10.0            # the scene slants enough for the rounding to matter
 
 
 def test_an_exact_prediction_stays_exact_and_a_wrong_wall_is_fixed():
@@ -174,14 +141,9 @@ def test_untrusted_contacts_keep_the_ground_mode():
     ok = align_depth(pred, K, n, 5.0, mask, mode="upright", max_pull=2.0, contact_range=1.2,
                      fill=False).depth
     assert _absrel(g, Z, wall) > 0.3 and _absrel(ok, Z, wall) < 0.07
-    # the wall's pixels off its rim: a rim pixel's vertical may run within a pixel of the edge,
-    # over the ground beside the wall, and the recession test then takes it for ground
-    inner = wall & np.roll(wall, 1, 0) & np.roll(wall, -1, 0) & np.roll(wall, 1, 1) \
-        & np.roll(wall, -1, 1)
-    assert inner.sum() > 0.8 * wall.sum()
     for kw in ({"max_pull": 1.25}, {"contact_range": 0.5}):
         refused = align_depth(pred, K, n, 5.0, mask, mode="upright", **kw).depth
-        np.testing.assert_allclose(refused[inner], g[inner], rtol=1e-6)
+        np.testing.assert_allclose(refused[wall], g[wall], rtol=1e-6)
         assert _absrel(refused, Z, mask) < 1e-4                 # the ground stays on the plane
     with pytest.raises(InputError, match="max_pull"):
         from staticdepth.adaptation.config import build_config

@@ -33,8 +33,7 @@ def scene(pitch_deg: float = 30.0, cam_height: float = 5.0, f: float = 100.0):
     with np.errstate(divide="ignore"):
         z_wall = np.where(r @ fwd > 1e-9, 12.0 / (r @ fwd), np.inf)
     up = -(r * z_wall[..., None]) @ n + cam_height        # height of the wall point over ground
-    # 7.2 m wide, its side edges vertical lines (30 px either side of the centre at 12 m)
-    wall = (z_wall < z_ground) & (up < 2.0) & (np.abs(r[..., 0] * z_wall) < 3.6)
+    wall = (z_wall < z_ground) & (up < 2.0) & (np.abs(u - W / 2) < 30)
     depth = np.where(wall, z_wall, z_ground)
     sky = ~np.isfinite(depth)
     depth[sky] = 200.0

@@ -52,7 +52,7 @@ import numpy as np
 
 from staticdepth.errors import InputError
 from staticdepth.geometry.alignment_vertical import (colour_foot, down_step, ground_coloured,
-                                                    line_shift, receding, vertical_depth)
+                                                    receding, vertical_depth)
 from staticdepth.geometry.projection import ray_grid
 
 SHAPES = ("network", "vertical")
@@ -156,16 +156,15 @@ def _walk_down(A, ground, q, du, cv, cu, nearer: float, steps: int, jump_rel: fl
     return cv, cu, walked_pix, walked_c
 
 
-def _contact_q(A, q, up, cv, cu, S):
+def _contact_q(A, q, du, cv, cu, S):
     """The contact's plane inverse depth of runs based at (cv, cu): where the run's ``A q`` (1 on
     the plane, < 1 on a structure nearer than the plane) extrapolated from its two lowest pixels
     reaches 1, at most one row below the base (fraction ``x``), set so that the run scaled to
     ``1 / qc`` at its base has ``S q`` reaching 1 at that same ``x`` (``S``: the shape the run
-    keeps): an aligned run, traced again, finds its contact where it was. ``up``: the column
-    shift one row up the vertical (alignment_vertical.line_shift)."""
+    keeps): an aligned run, traced again, finds its contact where it was."""
     w = A.shape[1]
     av = np.maximum(cv - 1, 0)
-    au = np.clip(np.rint(cu + np.nan_to_num(up[cv, cu])), 0, w - 1).astype(np.int64)
+    au = np.clip(np.rint(cu - np.nan_to_num(du[av, cu])), 0, w - 1).astype(np.int64)
     r0, ra = A[cv, cu] * q[cv, cu], A[av, au] * q[av, au]
     with np.errstate(invalid="ignore", divide="ignore"):
         x = np.where((r0 - ra > 1e-6) & (av < cv), (1.0 - r0) / (r0 - ra), 0.5)
@@ -174,7 +173,7 @@ def _contact_q(A, q, up, cv, cu, S):
 
 
 def refine_contacts(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndarray,
-                    up: np.ndarray, qc: np.ndarray, idx: np.ndarray, jump_rel: float, near_rel: float,
+                    qc: np.ndarray, idx: np.ndarray, jump_rel: float, near_rel: float,
                     max_walk: int, src: np.ndarray | None = None,
                     keep_rel: float | None = None) -> None:
     """In place: move each contact down its vertical line over ground pixels that the network
@@ -198,14 +197,14 @@ def refine_contacts(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.nda
         lv, lu, lp, lc = _walk_down(A, ground, q, du, cv, cu, 1.0 - 1e-4, 2 * max_walk,
                                     jump_rel)
         with np.errstate(invalid="ignore"):
-            ok = (lv != cv) & (np.abs(_contact_q(A, q, up, lv, lu, S) * S[lv, lu] - 1.0)
+            ok = (lv != cv) & (np.abs(_contact_q(A, q, du, lv, lu, S) * S[lv, lu] - 1.0)
                                <= keep_rel)
         cv, cu = np.where(ok, lv, cv), np.where(ok, lu, cu)
         for pix, k in zip(lp, lc):
             walked_pix.append(pix[ok[k]])
             walked_c.append(k[ok[k]])
     base = cv * w + cu
-    new_q = _contact_q(A, q, up, cv, cu, S)
+    new_q = _contact_q(A, q, du, cv, cu, S)
     lut_i = np.full(h * w, -1, np.int64)
     lut_q = np.full(h * w, np.nan)
     lut_i[C], lut_q[C] = base, new_q
@@ -280,7 +279,6 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     n = np.asarray(n_g, dtype=np.float64)
     n = n / np.linalg.norm(n)
     du = down_step(K, n, w, h)
-    up = line_shift(K, n, w, h, -1)
     src = A if native is None else np.asarray(native, dtype=np.float64)
     max_walk = max(2, h // 16)
 
@@ -290,8 +288,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
 
     def trace(g):
         qc, idx = contact_ratios(A_tr, g, q, du, jump_rel, edge_below)
-        refine_contacts(A_tr, g, q, du, up, qc, idx, jump_rel, near_rel, max_walk, src,
-                        keep_rel)
+        refine_contacts(A_tr, g, q, du, qc, idx, jump_rel, near_rel, max_walk, src, keep_rel)
         return qc, idx, idx >= 0
 
     snapped = ground
@@ -301,7 +298,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
         # ground where either recedes, a structure on the plane's depth where neither does, so
         # that a run this alignment re-anchored is not taken for ground when aligned again
         flat, recedes = receding((A,) if native is None else (A, src), q, du, span,
-                                  jump_rel, recede, line_shift(K, n, w, h, -span))
+                                  jump_rel, recede)
         with np.errstate(invalid="ignore"):
             planar = recedes & ~ground
             # the plane at most recede_push x farther than the pixel's ground-mode depth

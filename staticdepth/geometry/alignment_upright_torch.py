@@ -37,7 +37,7 @@ from torch import nn
 
 from staticdepth.geometry.alignment_torch import GroundAlignment, masked_median
 from staticdepth.geometry.alignment_upright import KEEP_REL, RECEDE, SHAPES
-from staticdepth.geometry.alignment_vertical import down_step, line_shift, walk_up
+from staticdepth.geometry.alignment_vertical import down_step, walk_up
 from staticdepth.geometry.colour_foot_torch import ColourFoot
 from staticdepth.geometry.projection import ray_grid
 
@@ -87,16 +87,14 @@ def _tables(K, n, w, h, q, span, jump_rel):
         g_pl = np.log(q_prev / q[:m])
         okr &= (q[:m] > 0) & (g_pl > 1e-6)
     vu = np.arange(h)[:, None] - span
-    uu = np.clip(np.rint(cols[None, :] + np.nan_to_num(line_shift(K, n, w, h, -span))), 0,
-                 w - 1).astype(np.int64)
+    uu = np.clip(np.rint(cols[None, :] - span * np.nan_to_num(du)), 0, w - 1).astype(np.int64)
     up = (np.maximum(vu, 0) * w + uu).ravel()
     up_ok = np.broadcast_to(vu >= 0, (h, w)).ravel()
     # the pixel above a contact's final position (refine_contacts' interpolation)
     vv = np.repeat(np.arange(h), w)
     uf = np.tile(cols, h)
     av = np.maximum(vv - 1, 0)
-    au = np.clip(np.rint(uf + np.nan_to_num(line_shift(K, n, w, h, -1)[vv, uf])), 0,
-                 w - 1).astype(np.int64)
+    au = np.clip(np.rint(uf - np.nan_to_num(du[av, uf])), 0, w - 1).astype(np.int64)
     return dict(du=du, nxt=nxt, ok_n=ok_n, qv=qv, paths=paths, path_consts=consts,
                 rec_ok=okr.ravel(), g_pl=np.nan_to_num(g_pl, nan=1.0).ravel(), m=m, up=up,
                 up_ok=up_ok, above=av * w + au, has_above=vv > 0)

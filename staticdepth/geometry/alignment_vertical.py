@@ -12,56 +12,20 @@ from __future__ import annotations
 import numpy as np
 
 
-def vertical_slope(K: np.ndarray, n: np.ndarray, u, v) -> np.ndarray:
-    """Column change per row down the image of the vertical direction ``n`` (pointing into the
-    ground) through the image points ``(u, v)`` (arrays, any shape; outside the image too): the
-    slope of that line, the same all along it; NaN where moving down the vertical does not move
-    down the image (beyond the nadir's image row)."""
+def down_step(K: np.ndarray, n: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(H, W) horizontal pixel shift ``du`` per one row down along the image of the vertical
+    direction ``n`` (pointing into the ground) at each pixel; NaN where moving down the vertical
+    does not move down the image (beyond the nadir's image row)."""
     K = np.asarray(K, dtype=np.float64)
     fx, fy, cx, cy, sk = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
-    y = (np.asarray(v, dtype=np.float64) - cy) / fy
-    x = (np.asarray(u, dtype=np.float64) - cx - sk * y) / fx
+    y = ((np.arange(height) - cy) / fy)[:, None]
+    x = (np.arange(width)[None, :] - cx - sk * y) / fx
     dx = n[0] - x * n[2]          # d(normalised coordinates) of P + l n, times Z
     dy = n[1] - y * n[2]
     dv = fy * dy
     du = fx * dx + sk * dy
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(dv > 1e-9, du / np.where(dv > 1e-9, dv, 1.0), np.nan)
-
-
-def line_shift(K: np.ndarray, n: np.ndarray, width: int, height: int,
-               rows: int) -> np.ndarray:
-    """(H, W) column shift from each pixel to its vertical line's point ``rows`` rows lower
-    (negative: higher). Each pixel belongs to the nearest line of one family: the images of the
-    verticals through the pixel centres of the image row nearest the vertical vanishing point
-    ``K n``, where the family is densest (1 px apart, farther apart on every other row, so that a
-    chain's next pixel belongs to the same line). Chains ``u -> rint(u + shift[v, u])`` thus
-    follow one line exactly, within half a pixel, over any number of rows; a slope rounded
-    afresh at every row goes straight down where the vertical slants by less than half a pixel
-    per row, off a thin pole or a slanted wall's edge. Where the vanishing point's row lies
-    inside the image the lines meet there and the plain slope is used. NaN where moving down
-    the vertical does not move down the image."""
-    n = np.asarray(n, dtype=np.float64)
-    v = np.arange(height, dtype=np.float64)[:, None]
-    u = np.arange(width, dtype=np.float64)[None, :]
-    s = vertical_slope(K, n, u, v)
-    vp = np.asarray(K, dtype=np.float64) @ n
-    row = vp[1] / vp[2] if abs(vp[2]) > 1e-12 else np.copysign(np.inf, vp[1])
-    if row >= height - 1:
-        anchor = height - 1.0
-    elif row <= 0:
-        anchor = 0.0
-    else:
-        return rows * s
-    with np.errstate(invalid="ignore"):
-        line = np.rint(u + (anchor - v) * s)         # the line's column on the anchor row
-        return line + (v + rows - anchor) * vertical_slope(K, n, line, anchor) - u
-
-
-def down_step(K: np.ndarray, n: np.ndarray, width: int, height: int) -> np.ndarray:
-    """(H, W) column shift ``du`` from each pixel to its vertical line's point one row down
-    (:func:`line_shift`): every walk down the vertical steps ``u -> rint(u + du[v, u])``."""
-    return line_shift(K, n, width, height, 1)
 
 
 def walk_up(du: np.ndarray, n: int, span: int):
@@ -71,11 +35,11 @@ def walk_up(du: np.ndarray, n: int, span: int):
     step per row."""
     w = du.shape[1]
     vs = np.arange(n)[:, None]
-    ui = np.broadcast_to(np.arange(w)[None, :], (n, w))
+    u = np.broadcast_to(np.arange(w, dtype=np.float64)[None, :], (n, w)).copy()
     inside = np.ones((n, w), bool)
     for j in range(1, span + 1):
-        step = du[vs + j - 1, np.clip(ui, 0, w - 1)]
-        ui = np.rint(ui + np.nan_to_num(step)).astype(np.int64)
+        u = u + np.nan_to_num(du[vs + j - 1, np.clip(np.rint(u), 0, w - 1).astype(np.int64)])
+        ui = np.rint(u).astype(np.int64)
         inside &= (ui >= 0) & (ui < w)
         yield vs + j, np.clip(ui, 0, w - 1), inside
 
@@ -114,14 +78,14 @@ def recession(maps, q: np.ndarray, du: np.ndarray, span: int,
 
 
 def receding(maps, q: np.ndarray, du: np.ndarray, span: int, jump_rel: float,
-              recede: tuple[float, float], up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+              recede: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) bool: ``flat`` (on no map of ``maps`` does the pixel or the pixel ``span`` rows
     above it recede: a structure, if the plane's depth snapped it) and ``recedes`` (on some map
     the depth grows up the vertical ``recede`` times as fast as the plane's, measured from above
-    at a step; ``up``: :func:`line_shift` ``span`` rows up)."""
+    at a step)."""
     h, w = q.shape
     vu = np.arange(h)[:, None] - span
-    uu = np.clip(np.rint(np.arange(w)[None, :] + np.nan_to_num(up)), 0, w - 1)
+    uu = np.clip(np.rint(np.arange(w)[None, :] - span * np.nan_to_num(du)), 0, w - 1)
     flat, recedes = np.ones((h, w), bool), np.zeros((h, w), bool)
     for k in recession(maps, q, du, span, jump_rel):
         k_up = np.where(vu >= 0, k[np.maximum(vu, 0), uu.astype(np.int64)], np.nan)
@@ -135,25 +99,27 @@ def receding(maps, q: np.ndarray, du: np.ndarray, span: int, jump_rel: float,
 def colour_feet(image: np.ndarray, du: np.ndarray, pix: np.ndarray,
                 max_diff: float) -> np.ndarray:
     """Flat index of the lowest pixel of each flat ``pix``'s colour run down its vertical: the
-    walk follows :func:`down_step`'s chain (one line of the vertical: a thin pole slants across
-    columns) while the next pixel's colour differs from the current one by at most ``max_diff``
-    on every channel (``image`` (H, W, C), 0-1). A structure the network does not resolve keeps
-    its own colour down to its foot, where the ground's begins."""
+    walk follows the image of the vertical at sub-pixel precision (``du`` accumulated: a thin pole
+    slants across columns) while the next pixel's colour differs from the current one by at most
+    ``max_diff`` on every channel (``image`` (H, W, C), 0-1). A structure the network does not
+    resolve keeps its own colour down to its foot, where the ground's begins."""
     h, w = du.shape
     img = np.asarray(image, dtype=np.float64).reshape(h, w, -1)
     v, u = np.divmod(np.asarray(pix, dtype=np.int64), w)
+    uf = u.astype(np.float64)
     cur = img[v, u]
     act = np.arange(len(v))             # the walks still going: each step looks at those only
     while len(act):
-        va, ua = v[act], u[act]
-        step = du[va, ua]
-        ui = np.rint(ua + np.nan_to_num(step)).astype(np.int64)
+        va, fa = v[act], uf[act]
+        step = du[va, np.clip(np.rint(fa), 0, w - 1).astype(np.int64)]
+        un = fa + np.nan_to_num(step)
+        ui = np.rint(un).astype(np.int64)
         ok = np.isfinite(step) & (va + 1 < h) & (ui >= 0) & (ui < w)
-        act, va, ui = act[ok], va[ok] + 1, ui[ok]
+        act, va, ui, un = act[ok], va[ok] + 1, ui[ok], un[ok]
         nxt = img[va, ui]
         ok = np.abs(nxt - cur[act]).max(-1) <= max_diff
-        act, va, ui, nxt = act[ok], va[ok], ui[ok], nxt[ok]
-        v[act], u[act], cur[act] = va, ui, nxt
+        act, va, ui, un, nxt = act[ok], va[ok], ui[ok], un[ok], nxt[ok]
+        v[act], u[act], uf[act], cur[act] = va, ui, un, nxt
     return v * w + u
 
 
