@@ -8,8 +8,8 @@ the given built-in network, else the user cache's, else one trained here by ``tr
 (``--train-frames`` street frames, ``--train-epochs``, 128x64, seed 0: a small run, so that the
 alignment fits a network's real output rather than a random one's). For each alignment mode the
 export bakes (``align.mode`` of the summary, adapt's other align defaults: in ``upright`` the
-colour foot on the rendered frames' median image), both paths run on the CPU with the same number of
-threads over the same frames; printed: frames per second of each, their ratio (goal >= 2), the
+colour foot on the rendered frames' median image), both paths run on the CPU with the same number
+of threads over the same frames; printed: frames per second of each, their ratio (goal >= 2), the
 median / 99th-percentile relative difference of the metric depth (goal <= 0.5%), and the AbsRel
 against the scene's true depth of both (metric protocol).
 """

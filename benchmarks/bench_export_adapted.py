@@ -128,9 +128,10 @@ def main() -> None:
                   f"{onr.max() if onr.size else float('nan'):.4f} median "
                   f"{np.median(onr) if onr.size else float('nan'):.4f}; vs its numpy reference "
                   f"max {vs_np.max():.2e}")
-            print(f"   {'':12s} >= {AWAY} px from adapt's agents ({100 * far.size / allp.size:.1f}%"
-                  f" of the pixels): max {far.max():.4f} mean {far.mean():.5f}; rule's pixels there "
-                  f"max {far_r.max() if far_r.size else float('nan'):.4f} median "
+            share = 100 * far.size / allp.size
+            print(f"   {'':12s} >= {AWAY} px from adapt's agents ({share:.1f}%"
+                  f" of the pixels): max {far.max():.4f} mean {far.mean():.5f}; rule's pixels "
+                  f"there max {far_r.max() if far_r.size else float('nan'):.4f} median "
                   f"{np.median(far_r) if far_r.size else float('nan'):.4f}")
         print(f"   ONNX frames/s (best of {args.repeats} interleaved passes): without "
               f"{len(frames) / best['without']:.2f}, with {len(frames) / best['with']:.2f}; "

@@ -321,9 +321,11 @@ def main() -> None:
     ap.add_argument("--keep", action="store_true",
                     help="keep an earlier run's sequence and stages: adapt reruns only the stages "
                          "whose settings changed (e.g. fine-tuning over the same labels)")
-    ap.add_argument("--scene-spec", action="append", default=[], metavar="NAME:HEIGHT:PITCH:SEED[:ROLL]",
+    ap.add_argument("--scene-spec", action="append", default=[],
+                    metavar="NAME:HEIGHT:PITCH:SEED[:ROLL]",
                     help="another scene of tests/indep_scenes.py's generator (camera height in m, "
-                         "pitch in degrees, seed, roll in degrees, default 0): scenes held out from those a rule was chosen on")
+                         "pitch in degrees, seed, roll in degrees, default 0): scenes held out "
+                         "from those a rule was chosen on")
     ap.add_argument("--json")
     args = ap.parse_args()
     w, h = (int(x) for x in args.size.split("x"))
