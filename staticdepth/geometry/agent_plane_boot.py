@@ -53,7 +53,6 @@ import numpy as np
 
 from staticdepth.geometry.agent_plane_joint import _expand, _normal, _Problem
 from staticdepth.geometry.agent_plane_laplace import laplace_uncertainty
-from staticdepth.geometry.agent_shape import GROUPS
 from staticdepth.geometry.camera import pitch_roll_from_normal
 from staticdepth.geometry.plane import angle_between_deg
 
@@ -148,8 +147,10 @@ def combined_variance(bootstrap_deg: float, laplace_deg: float, misfit_deg: floa
 def boxed_share(prob: _Problem, inl: np.ndarray) -> float:
     """The share of the inlier tracks ``inl`` ((J,) bool) that are people none of whose
     observations has a top column (people seen as boxes)."""
-    topped = np.bincount(prob.obs.idx, weights=prob.has_u.astype(float), minlength=prob.J) > 0
-    people = np.array([GROUPS[g].outline == "disk" for g in prob.track_group], bool)
+    def per_track(obs_flag):
+        return np.bincount(prob.obs.idx, weights=obs_flag.astype(float), minlength=prob.J) > 0
+
+    topped, people = per_track(prob.has_u), per_track(prob.people)
     return float(np.mean(people[inl] & ~topped[inl])) if np.any(inl) else 0.0
 
 

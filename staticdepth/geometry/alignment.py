@@ -381,7 +381,8 @@ def agents_at_contact(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, instanc
     mask ends on another agent or at the image's bottom row, with their top seen, take the
     contact their top and height give (``agent_contact.contacts_from_top``) instead of the
     plane's depth at their lowest pixel, which lies behind them. Agents whose contact lies above
-    the agents' horizon keep their depth. Returns the new map and the (H, W) bool mask of changed pixels.
+    the agents' horizon keep their depth. Returns the new map and the (H, W) bool mask of
+    changed pixels.
     """
     from staticdepth.geometry.agent_contact import contacts_from_top
     from staticdepth.pseudo_labels import PRESETS, pseudo_label

@@ -171,20 +171,21 @@ def vertical_depth(rays: np.ndarray, n: np.ndarray, foot: np.ndarray, q_foot: np
 def colour_foot(out: np.ndarray, image: np.ndarray, q: np.ndarray, du: np.ndarray,
                 rays: np.ndarray, n: np.ndarray, ground: np.ndarray, traced: np.ndarray,
                 idx: np.ndarray, not_ground: np.ndarray | None, max_diff: float,
-                max_pull: float) -> np.ndarray:
+                max_pull: float, feet: np.ndarray | None = None) -> np.ndarray:
     """In place on ``out`` (the re-anchored map): a ``traced`` pixel whose colour run down the
     vertical (alignment_vertical.colour_feet, ``image``) goes on below its contact (flat ``idx``)
     and ends above a ``ground`` pixel that is no agent (``not_ground``) stands there: it takes the
     vertical line through that foot, unless that is more than ``max_pull`` x nearer than
     ``out``. A pole or crate the network does not resolve carries what stands behind it, and its
     lower part recedes like the ground, so its run took a contact behind its foot; its colour does
-    not. Returns the (H, W) bool pixels it set."""
+    not. ``feet``: :func:`colour_feet` of every pixel, when the caller already has them.
+    Returns the (H, W) bool pixels it set."""
     h, w = out.shape
     pix = np.flatnonzero(traced)
     done = np.zeros(h * w, bool)
     if not len(pix):
         return done.reshape(h, w)
-    feet = colour_feet(image, du, pix, max_diff)
+    feet = colour_feet(image, du, pix, max_diff) if feet is None else feet.ravel()[pix]
     fv, fu = np.divmod(feet, w)
     bv, bu = np.divmod(below_feet(feet, du), w)
     ok = (fv + 1 < h) & ground[bv, bu] & (q[fv, fu] > 0) & (fv > idx.ravel()[pix] // w)

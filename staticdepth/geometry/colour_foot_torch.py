@@ -19,7 +19,8 @@ import torch
 from torch import nn
 
 from staticdepth.geometry.alignment_upright import FOOT_DIFF, FOOT_GROUND_SHARE, FOOT_PULL
-from staticdepth.geometry.alignment_vertical import below_feet, colour_codes, colour_feet, colour_foot
+from staticdepth.geometry.alignment_vertical import (below_feet, colour_codes, colour_feet,
+                                                    colour_foot)
 
 
 def colour_bins(image: np.ndarray) -> tuple[np.ndarray, int]:
@@ -40,15 +41,15 @@ class ColourFoot(nn.Module):
         img = np.asarray(image)
         if img.shape[:2] != (h, w):
             raise ValueError(f"the colour foot's image is {img.shape}, the camera {w}x{h}")
+        # every pixel's colour run's foot, walked once
+        feet = colour_feet(img, du, np.arange(h * w), foot_diff)
+        fv = feet // w
         # colour_foot itself on every pixel, with the frame's part of its test passed (all ground,
         # no contact, a zero depth): the depth each pixel takes where its foot stands, > 0 where
         # that is defined (a foot above the bottom row, below the horizon), else left at 0
         d = np.zeros((h, w))
         colour_foot(d, img, q, du, rays, n, np.ones((h, w), bool), np.ones((h, w), bool),
-                    np.full((h, w), -1), None, foot_diff, 1.0)
-        # the frame's part: the foot's row and the pixel below it (colour_foot's)
-        feet = colour_feet(img, du, np.arange(h * w), foot_diff)
-        fv = feet // w
+                    np.full((h, w), -1), None, foot_diff, 1.0, feet=feet)
         bins, k = colour_bins(img)
         # colour_foot's "the foot below the contact's row": contact < the foot row's first pixel
         self.register_buffer("foot_row0", torch.tensor(fv * w, dtype=torch.int64))
