@@ -95,41 +95,77 @@ def walked_region(r, conf):
                                        r.width / 80.0 if erode is None else erode)
 
 
-def analyse(seq: str, sets: dict, oracle: str | None) -> dict:
-    from staticdepth.adaptation.align import upright_options
-    from staticdepth.dataset.h5 import SequenceReader
-    from staticdepth.evaluate import region_masks
-    from staticdepth.geometry.alignment import agents_at_contact, align_upright
-    from staticdepth.metrics import apply_protocol, valid_mask
+class KeptRun:
+    """A run ``bench_gains.py --keep`` left, open (a context manager): adapt's settings
+    (``conf``, ``--set`` over them), the plane's normal ``n_g``, the camera ``K``, the true
+    ``mount`` (normal, height), the agents' ``rows`` per frame, the ``walked`` region, the
+    static ``image`` and the people's ``heights``. :meth:`frames` aligns the evaluation split's
+    base maps again exactly as adapt's align stage does (the benches over kept runs share it)."""
 
-    conf, n_g = run_settings(seq, sets)
-    acc: dict = {}
-    contact_ratio = []
-    total = np.zeros(3)
-    with SequenceReader(seq) as r:
-        K = r.camera.K
-        mount = (r.meta.mounting.normal, r.meta.mounting.height_m)
-        rows, walked = walked_region(r, conf)
-        img, heights = run_image(r, conf), run_heights(seq, conf)
+    def __init__(self, seq: str, sets: dict):
+        self.seq = seq
+        self.conf, self.n_g = run_settings(seq, sets)
+
+    def __enter__(self) -> "KeptRun":
+        from staticdepth.dataset.h5 import SequenceReader
+
+        self.reader = SequenceReader(self.seq).__enter__()
+        r = self.reader
+        self.K = r.camera.K
+        self.height, self.width = r.height, r.width
+        self.mount = (r.meta.mounting.normal, r.meta.mounting.height_m)
+        self.rows, self.walked = walked_region(r, self.conf)
+        self.image, self.heights = run_image(r, self.conf), run_heights(self.seq, self.conf)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.reader.__exit__(*exc)
+
+    def frames(self, extra_ground=None):
+        """Per evaluation frame, a dict: ``i``, ``base``, ``gt``, ``inst``, ``agents`` (inst > 0),
+        ``regions`` (evaluate.region_masks), ``valid``, ``info`` (align_upright's) and
+        ``aligned`` (adapt's map, in the plane's units: the plane at distance 1).
+        ``extra_ground``: a function of ``regions`` giving align_upright's ``extra_ground``."""
+        from staticdepth.adaptation.align import upright_options
+        from staticdepth.evaluate import region_masks
+        from staticdepth.geometry.alignment import agents_at_contact, align_upright
+        from staticdepth.metrics import valid_mask
+
+        r, conf, walked = self.reader, self.conf, self.walked
         for i in r.split("eval"):
             Z, gt, inst = r.prediction("base", i), r.depth(i), r.instances(i)
             m = inst > 0
             am = m if np.count_nonzero(walked & ~m) >= 50 else None     # as aligned_frame
-            reg = region_masks(gt, inst, rows[i], K, mount, 80.0)
-            extra = None
-            if oracle:
-                extra = reg["ground"] & (~walked if oracle == "beyond" else True)
+            reg = region_masks(gt, inst, self.rows[i], self.K, self.mount, 80.0)
             info: dict = {}
-            A = align_upright(Z, K, n_g, 1.0, walked if am is None else walked & ~am,
+            A = align_upright(Z, self.K, self.n_g, 1.0, walked if am is None else walked & ~am,
                               agent_mask=am, snap_rel=conf.align.snap_rel, info=info,
-                              extra_ground=extra, image=img,
-                              **upright_options(conf.align)).depth
+                              extra_ground=None if extra_ground is None else extra_ground(reg),
+                              image=self.image, **upright_options(conf.align)).depth
             if conf.align.agents_at_contact:
-                A = agents_at_contact(A, K, n_g, 1.0, inst, rows[i], conf.pseudo_labels,
-                                      heights=heights)[0]
-            vm = valid_mask(gt, 1e-3, 80.0)
+                A = agents_at_contact(A, self.K, self.n_g, 1.0, inst, self.rows[i],
+                                      conf.pseudo_labels, heights=self.heights)[0]
+            yield {"i": i, "base": Z, "gt": gt, "inst": inst, "agents": m, "regions": reg,
+                   "valid": valid_mask(gt, 1e-3, 80.0), "info": info, "aligned": A}
+
+
+def analyse(seq: str, sets: dict, oracle: str | None) -> dict:
+    from staticdepth.metrics import apply_protocol
+
+    acc: dict = {}
+    contact_ratio = []
+    total = np.zeros(3)
+    with KeptRun(seq, sets) as run:
+        walked = run.walked
+        extra = None
+        if oracle:
+            def extra(reg):
+                return reg["ground"] & (~walked if oracle == "beyond" else True)
+        for f in run.frames(extra):
+            gt, m, reg, info, A, vm = (f[k] for k in ("gt", "agents", "regions", "info",
+                                                       "aligned", "valid"))
             errs = []
-            for pred in (A, Z, info["ground_mode"]):
+            for pred in (A, f["base"], info["ground_mode"]):
                 scaled, _ = apply_protocol(pred, gt, "median", vm)
                 errs.append(np.abs(scaled - gt) / gt)
             cat = categories(info, walked, m)

@@ -29,8 +29,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from bench_align_regions import (kept_run_parser, kept_runs, run_heights,  # noqa: E402
-                                 run_image, run_settings, walked_region)
+from bench_align_regions import KeptRun, kept_run_parser, kept_runs  # noqa: E402
 
 
 def walk_profiles(src: np.ndarray, gt: np.ndarray, du: np.ndarray, pix: np.ndarray,
@@ -93,37 +92,18 @@ def run_oracle(A: np.ndarray, gt: np.ndarray, vm: np.ndarray, contact: np.ndarra
 
 
 def analyse(seq: str, sets: dict, front: float, window: int) -> dict:
-    from staticdepth.adaptation.align import upright_options
-    from staticdepth.dataset.h5 import SequenceReader
-    from staticdepth.evaluate import region_masks
-    from staticdepth.geometry.alignment import agents_at_contact, align_upright
     from staticdepth.geometry.alignment_vertical import down_step
-    from staticdepth.metrics import valid_mask
 
-    conf, n_g = run_settings(seq, sets)
     out: dict = {k: [] for k in ("ratio", "ratio_near", "at", "at_near", "gt_step", "net_step",
                                  "net_win", "frame", "oracle-all", "oracle-front",
                                  "oracle-near", "near_scale", "near_cat", "front_err",
                                  "below", "near_net")}
-    with SequenceReader(seq) as r:
-        K = r.camera.K
-        mount = (r.meta.mounting.normal, r.meta.mounting.height_m)
-        rows, walked = walked_region(r, conf)
-        img, heights = run_image(r, conf), run_heights(seq, conf)
-        du = down_step(K, n_g / np.linalg.norm(n_g), r.width, r.height)
-        for i in r.split("eval"):
-            Z, gt, inst = r.prediction("base", i), r.depth(i), r.instances(i)
-            m = inst > 0
-            am = m if np.count_nonzero(walked & ~m) >= 50 else None
-            reg = region_masks(gt, inst, rows[i], K, mount, 80.0)
-            info: dict = {}
-            A = align_upright(Z, K, n_g, 1.0, walked if am is None else walked & ~am,
-                              agent_mask=am, snap_rel=conf.align.snap_rel, info=info,
-                              image=img, **upright_options(conf.align)).depth
-            if conf.align.agents_at_contact:
-                A = agents_at_contact(A, K, n_g, 1.0, inst, rows[i], conf.pseudo_labels,
-                                      heights=heights)[0]
-            vm = valid_mask(gt, 1e-3, 80.0)
+    with KeptRun(seq, sets) as run:
+        r = run.reader
+        du = down_step(run.K, run.n_g / np.linalg.norm(run.n_g), r.width, r.height)
+        for f in run.frames():
+            gt, m, reg, info, A, vm = (f[k] for k in ("gt", "agents", "regions", "info",
+                                                       "aligned", "valid"))
             truth = np.where(reg["ground"], 0, np.where(reg.get("agents", m), 2, 1))
             c = info["contact"]
             tr = vm & info["moved"] & reg["structures"] & (c >= 0)

@@ -42,8 +42,7 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from bench_align_regions import (kept_run_parser, kept_runs, run_heights,  # noqa: E402
-                                 run_image, run_settings, walked_region)
+from bench_align_regions import KeptRun, kept_run_parser, kept_runs  # noqa: E402
 from bench_contacts import frame_absrel  # noqa: E402
 
 FILLS = ("truth", "far", "near", "mid", "row")
@@ -108,43 +107,23 @@ def image_edges(img: np.ndarray, below: np.ndarray, threshold: float) -> np.ndar
 
 def analyse(seq: str, sets: dict, step: float, detector: str = "true",
             threshold: float = 0.3) -> dict:
-    from staticdepth.adaptation.align import upright_options
-    from staticdepth.dataset.h5 import SequenceReader
-    from staticdepth.evaluate import region_masks
-    from staticdepth.geometry.alignment import agents_at_contact, align_upright
     from staticdepth.geometry.alignment_vertical import down_step, vertical_depth
     from staticdepth.geometry.projection import ray_grid
-    from staticdepth.metrics import valid_mask
 
-    conf, n_g = run_settings(seq, sets)
-    n = n_g / np.linalg.norm(n_g)
     res = {k: [] for k in ("now",) + FILLS}
     share, err, inside, strip = [], [], [], []
-    with SequenceReader(seq) as r:
-        K = np.asarray(r.camera.K, np.float64)
-        h, w = r.height, r.width
-        mount = (r.meta.mounting.normal, r.meta.mounting.height_m)
-        rows, walked = walked_region(r, conf)
-        img, heights = run_image(r, conf), run_heights(seq, conf)
+    with KeptRun(seq, sets) as run:
+        K = np.asarray(run.K, np.float64)
+        h, w = run.height, run.width
+        n = run.n_g / np.linalg.norm(run.n_g)
         below = below_index(down_step(K, n, w, h))
         bb = np.where(below >= 0, below, 0)
         rays = ray_grid(K, w, h).reshape(-1, 3)
         q = rays @ n                       # the plane's inverse depth, the plane at distance 1
-        edges = None if detector == "true" else image_edges(img, below, threshold)
-        for i in r.split("eval"):
-            Z, gt, inst = r.prediction("base", i), r.depth(i), r.instances(i)
-            m = inst > 0
-            am = m if np.count_nonzero(walked & ~m) >= 50 else None     # as aligned_frame
-            reg = region_masks(gt, inst, rows[i], K, mount, 80.0)
-            info: dict = {}
-            A = align_upright(Z, K, n_g, 1.0, walked if am is None else walked & ~am,
-                              agent_mask=am, snap_rel=conf.align.snap_rel, info=info,
-                              image=img, **upright_options(conf.align)).depth
-            if conf.align.agents_at_contact:
-                A = agents_at_contact(A, K, n_g, 1.0, inst, rows[i], conf.pseudo_labels,
-                                      heights=heights)[0]
-            A = np.asarray(A, np.float64)
-            vm = valid_mask(gt, 1e-3, 80.0)
+        edges = None if detector == "true" else image_edges(run.image, below, threshold)
+        for f in run.frames():
+            gt, m, reg, info, vm = (f[k] for k in ("gt", "agents", "regions", "info", "valid"))
+            A = np.asarray(f["aligned"], np.float64)
             g = np.nan_to_num(gt, nan=0.0).ravel()
             if detector == "true":
                 with np.errstate(invalid="ignore"):
@@ -170,14 +149,14 @@ def analyse(seq: str, sets: dict, step: float, detector: str = "true",
                      "near": near, "mid": np.where(np.isfinite(far), np.sqrt(near * far), near),
                      "row": row_fill(A, gt, hid, donor)}
             res["now"].append(frame_absrel(A, gt, vm))
-            for k, f in fills.items():
+            for k, fill in fills.items():
                 out = A.copy().ravel()
-                ok = np.isfinite(f) & (f > 0)
-                out[hid[ok]] = f[ok]
+                ok = np.isfinite(fill) & (fill > 0)
+                out[hid[ok]] = fill[ok]
                 res[k].append(frame_absrel(out.reshape(h, w), gt, vm))
             share.append(len(hid) / max(int(vm.sum()), 1))
             err.append(np.abs(A.ravel()[hid] * scale / g[hid] - 1.0))
-            tp = g[hid] / mount[1]          # the truth in the plane's units (camera heights)
+            tp = g[hid] / run.mount[1]      # the truth in the plane's units (camera heights)
             inside.append((tp >= near) & (tp <= far))
     e, ins, st = np.concatenate(err), np.concatenate(inside), np.concatenate(strip)
     return {"absrel": {k: float(np.mean(v)) for k, v in res.items()},
