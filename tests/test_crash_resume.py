@@ -81,12 +81,52 @@ def writer_args(kind: str, inputs, out) -> tuple[list[str], int]:
 
 
 # -- helpers --------------------------------------------------------------------------------------
-def frames_written(partial: str) -> int:
-    try:
-        with h5py.File(partial, "r", locking=False) as f:
-            return int(f.attrs["n_written"])
-    except Exception:  # being written this very moment
-        return -1
+# The partial is read while another process writes it. HDF5 has no reader for a file being
+# written (no SWMR here): a read that meets half-written metadata may crash the reading process
+# (pytest itself died of a segfault here on a loaded machine), so the reads run in a child
+# process: one line in, the partial's frame count out (-1 while it cannot be read); a reader
+# that died is started again.
+POLL = ("import sys, h5py\n"
+        "for _ in sys.stdin:\n"
+        "    try:\n"
+        "        with h5py.File(sys.argv[1], 'r', locking=False) as f:\n"
+        "            n = int(f.attrs['n_written'])\n"
+        "    except Exception:\n"
+        "        n = -1\n"
+        "    print(n, flush=True)\n")
+
+
+class FrameCounter:
+    """The frame count of a partial being written, read in a child process (see POLL)."""
+
+    def __init__(self, partial: str):
+        self.partial, self.proc = partial, None
+
+    def __call__(self) -> int:
+        if self.proc is None or self.proc.poll() is not None:
+            self.close()
+            self.proc = subprocess.Popen([sys.executable, "-c", POLL, self.partial],
+                                         stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                         stderr=subprocess.DEVNULL, text=True)
+        try:
+            self.proc.stdin.write("\n")
+            self.proc.stdin.flush()
+            line = self.proc.stdout.readline()
+        except BrokenPipeError:             # the reader died on the previous read
+            return -1
+        return int(line) if line.strip() else -1        # "": it died on this one
+
+    def close(self) -> None:
+        if self.proc is not None:
+            if self.proc.poll() is None:
+                self.proc.kill()
+            self.proc.wait()
+            for pipe in (self.proc.stdin, self.proc.stdout):
+                try:
+                    pipe.close()
+                except BrokenPipeError:
+                    pass
+            self.proc = None
 
 
 def run_and_kill(args: list[str], partial: str, sig: int, at: int, timeout: float = 300):
@@ -94,9 +134,10 @@ def run_and_kill(args: list[str], partial: str, sig: int, at: int, timeout: floa
     (0, stderr) when the writer completed before the signal reached it."""
     proc = subprocess.Popen([sys.executable, "-c", CLI, *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
+    frames_written = FrameCounter(partial)
     t0 = time.monotonic()
     try:
-        while frames_written(partial) < at:
+        while frames_written() < at:
             if proc.poll() is not None:
                 if proc.returncode == 0:   # done before we looked (a loaded machine): caller retries
                     return 0, proc.stderr.read()
@@ -107,6 +148,7 @@ def run_and_kill(args: list[str], partial: str, sig: int, at: int, timeout: floa
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=120)
     finally:
+        frames_written.close()
         if proc.poll() is None:
             proc.kill()
             proc.wait()
