@@ -139,7 +139,7 @@ def run_and_kill(args: list[str], partial: str, sig: int, at: int, timeout: floa
     try:
         while frames_written() < at:
             if proc.poll() is not None:
-                if proc.returncode == 0:   # done before we looked (a loaded machine): caller retries
+                if proc.returncode == 0:   # done before we looked (a loaded machine): retried
                     return 0, proc.stderr.read()
                 pytest.fail(f"the writer ended before frame {at}: {proc.stderr.read()}")
             if time.monotonic() - t0 > timeout:
