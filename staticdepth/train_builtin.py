@@ -108,8 +108,12 @@ def train_builtin(conf: TrainBuiltinConfig, *, out: str | os.PathLike, device=No
                        on_epoch=lambda r: log(f"epoch {r['epoch']}: loss {r['loss']:.4f} "
                                               f"({r['seconds']:.1f} s)"))
     model.to("cpu")
+    # the weights depend on torch's thread count too (its reductions' order), not on the seed
+    # alone: written down so that a run can be reproduced (docs/gains.md, thirteenth round)
     save_builtin(out, model, info={"train": dataclasses.asdict(conf),
-                                   "final_loss": history[-1]["loss"] if history else None})
+                                   "final_loss": history[-1]["loss"] if history else None,
+                                   "torch": str(torch.__version__),
+                                   "torch_threads": torch.get_num_threads()})
     if checkpoint and os.path.exists(checkpoint):
         os.remove(checkpoint)
     return model, history
@@ -128,7 +132,9 @@ def register(sub) -> None:
     p.add_argument("--lr", type=float, default=TrainBuiltinConfig.lr, help="Adam learning rate")
     p.add_argument("--batch-size", type=int, default=TrainBuiltinConfig.batch_size,
                    help="frames per optimisation step")
-    p.add_argument("--seed", type=int, default=0, help="seed of the scenes and the training")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the scenes and the training (the weights also depend on "
+                        "torch's thread count, written into the file)")
     p.add_argument("--arch", choices=("tiny", "unet"), default="tiny",
                    help="network: tiny (the default encoder-decoder) or unet (a second one)")
     from staticdepth.cli import add_device_argument, add_overwrite_argument
@@ -149,5 +155,9 @@ def run(args: argparse.Namespace) -> int:
                               arch=args.arch)
     device = resolve_device(args.device)
     _, hist = train_builtin(conf, out=args.out, device=device, checkpoint=args.out + ".ckpt")
-    print(f"wrote {args.out} (final loss {hist[-1]['loss']:.4f})" if hist else f"wrote {args.out}")
+    import torch        # loaded by the training already
+
+    threads = f"{torch.get_num_threads()} torch threads"
+    print(f"wrote {args.out} (final loss {hist[-1]['loss']:.4f}, {threads})" if hist
+          else f"wrote {args.out} ({threads})")
     return 0

@@ -39,6 +39,10 @@ def test_train_builtin_command_writes_loadable_weights(tmp_path, capsys):
     assert rc == 0 and "wrote" in capsys.readouterr().out
     model = load_model(f"builtin:{out}")
     assert model.info["train"]["frames"] == 4 and model.input_size(64, 128) == (32, 64)
+    # what the weights depend on besides the seed: torch and its thread count
+    import torch
+    assert model.info["torch_threads"] == torch.get_num_threads() >= 1
+    assert model.info["torch"] == str(torch.__version__)
     assert model.predict(np.zeros((40, 70, 3), np.uint8)).shape == (40, 70)
     assert not (tmp_path / "b.pt.ckpt").exists()
 
