@@ -109,13 +109,16 @@ class KeptRun:
     def __enter__(self) -> "KeptRun":
         from staticdepth.dataset.h5 import SequenceReader
 
-        self.reader = SequenceReader(self.seq).__enter__()
-        r = self.reader
-        self.K = r.camera.K
-        self.height, self.width = r.height, r.width
-        self.mount = (r.meta.mounting.normal, r.meta.mounting.height_m)
-        self.rows, self.walked = walked_region(r, self.conf)
-        self.image, self.heights = run_image(r, self.conf), run_heights(self.seq, self.conf)
+        self.reader = r = SequenceReader(self.seq).__enter__()
+        try:
+            self.K = r.camera.K
+            self.height, self.width = r.height, r.width
+            self.mount = (r.meta.mounting.normal, r.meta.mounting.height_m)
+            self.rows, self.walked = walked_region(r, self.conf)
+            self.image, self.heights = run_image(r, self.conf), run_heights(self.seq, self.conf)
+        except BaseException:
+            r.__exit__(None, None, None)
+            raise
         return self
 
     def __exit__(self, *exc) -> None:
