@@ -128,9 +128,10 @@ def class_misfit_deg(K, prob: _Problem, conf, n, theta, inl) -> tuple[float, tup
 
 # the normal's std of people seen as boxes (no top column: the extents and the pitch trade against
 # each other more than either estimate sees) x this; chosen on +-2 px box detections of the four
-# body generators, seeds 0-9 (within 1 / 2 std 44 / 96% -> 72 / 98%, a 2-D Gaussian's 63 / 98%),
-# held out 20-29 (module doc). Vehicles, box outlines either way, keep 1 (their masks: 60% within
-# 1 std, median error / std 0.90 against the Gaussian's 0.83)
+# body generators, seeds 0-9 (within 1 std 17 -> 29 of their 40 cameras; with the vehicles' 10,
+# within 1 / 2 std 44 / 96% -> 68 / 98%, a 2-D Gaussian's 63 / 98%), held out 20-29 (module doc).
+# Vehicles, box outlines either way, keep 1 (their masks: 60% within 1 std, median error / std
+# 0.90 against the Gaussian's 0.83)
 BOX_INFLATION = 1.25
 
 
