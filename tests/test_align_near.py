@@ -21,12 +21,12 @@ W, H, F = 160, 100, 100.0
 CAM = 3.0
 
 
-def _scene(post_grey=0.9):
+def _scene(post_grey=0.9, mortar=None):
     """True depth, the network's (the scene without the post, half the scale), the ground mask,
     the masks of the far wall and the post, and the image: a wall 15 m away (|lateral| < 8 m,
     6 m tall), a post 6 m away, 3 m to the right, 0.1 m either side, 2.5 m tall; luminance
     ground 0.6, wall 0.25 with stripes of 0.1 every 4 rows (under the rule's 0.2), post
-    ``post_grey``."""
+    ``post_grey``; ``mortar``: the ground's every 7th row (from row 3) that luminance."""
     K, n, z_ground, billboard = billboard_camera(CAM, 25.0, W, H, F)
     z_far, far = billboard(15.0, 8.0, 6.0)
     z_post, wide = billboard(6.0, 8.0, 2.5)
@@ -40,6 +40,8 @@ def _scene(post_grey=0.9):
     ground = ~far & ~post & (z_ground < 60)
     rows = np.arange(H)[:, None]
     img = np.where(far, 0.25 + 0.1 * ((rows // 4) % 2), 0.6)
+    if mortar is not None:
+        img = np.where(~far & (rows % 7 == 3), mortar, img)
     img = np.where(post, post_grey, img)
     return K, n, depth.astype(np.float32), net.astype(np.float32), ground, far & ~post, post, img
 
@@ -90,6 +92,33 @@ def test_a_post_of_the_grounds_colour_has_no_foot():
     on = _aligned(net, K, n, ground, image=img)
     assert np.array_equal(on[post], off[post])
     assert np.median(on[post & (off / Z > 2)] / Z[post & (off / Z > 2)]) > 2.3
+
+
+def test_a_post_near_a_ground_colour_stands_on_its_foot(monkeypatch):
+    """A dark post (0.36) on a pavement (0.6) with dark mortar lines (0.30, a seventh of its
+    rows): the post shares the mortar's colour bin at 8 levels per channel, so that test took it
+    for the ground's colour and left it 2.5 x too far (the independent scenes' grey poles and
+    walls on grey pavements, docs/gains.md fourteenth round); at ``FOOT_LEVELS`` (16) its bin is
+    its own and it stands on its foot."""
+    import staticdepth.geometry.alignment_upright as au
+    from staticdepth.geometry.alignment_vertical import ground_coloured
+
+    K, n, Z, net, ground, far, post, img = _scene(post_grey=0.36, mortar=0.30)
+    info: dict = {}
+    off = _aligned(net, K, n, ground, info=info)
+    upper = post & info["traced"]
+    assert upper.sum() > 20 and np.median(off[upper] / Z[upper]) > 2.3
+    # the mortar is common on the walked ground at both bin sizes, the post only at 8 levels
+    for levels, coloured in ((8, True), (16, False)):
+        gc = ground_coloured(img, ground, au.FOOT_GROUND_SHARE, levels)
+        assert gc[(np.arange(H)[:, None] % 7 == 3) & ground].all()
+        assert gc[post].all() == coloured and gc[post].any() == coloured
+    on = _aligned(net, K, n, ground, image=img)
+    assert au.FOOT_LEVELS == 16
+    assert np.median(np.abs(on[upper] / Z[upper] - 1)) < 0.03
+    monkeypatch.setattr(au, "FOOT_LEVELS", 8)
+    coarse = _aligned(net, K, n, ground, image=img)
+    assert np.array_equal(coarse[post], off[post])
 
 
 def test_adapt_applies_the_setting_through_aligned_frame():

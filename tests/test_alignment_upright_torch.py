@@ -284,20 +284,21 @@ def test_torch_colour_foot_matches_numpy_on_an_indep_scene(frame, tmp_path):
 
 
 def test_colour_bins_are_ground_coloureds():
-    """The graph's histogram over the constant bins gives ground_coloured's answer for any ground
-    mask and share."""
+    """The graph's histogram over the constant bins gives ground_coloured's answer (at the rule's
+    FOOT_LEVELS) for any ground mask and share."""
+    from staticdepth.geometry.alignment_upright import FOOT_LEVELS
     from staticdepth.geometry.alignment_vertical import ground_coloured
     from staticdepth.geometry.colour_foot_torch import colour_bins
 
     rng = np.random.default_rng(1)
     img = rng.uniform(0, 1, (30, 40, 3)) ** 3                 # many bins, unevenly filled
     bins, k = colour_bins(img)
-    assert 20 < k <= 512 and bins.min() == 0 and bins.max() == k - 1
-    for share in (0.001, 0.01, 0.05):
+    assert 20 < k <= FOOT_LEVELS ** 3 and bins.min() == 0 and bins.max() == k - 1
+    for share in (0.001, 0.01, 0.03):
         g = rng.random((30, 40)) < 0.3
         hist = np.bincount(bins[g.ravel()], minlength=k)
         mine = (hist[bins] >= share * g.sum()).reshape(30, 40)
-        assert np.array_equal(mine, ground_coloured(img, g, share))
+        assert np.array_equal(mine, ground_coloured(img, g, share, FOOT_LEVELS))
         assert 0 < mine.sum() < mine.size
 
 

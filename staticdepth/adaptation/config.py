@@ -84,7 +84,8 @@ class AlignConfig:
     #                                  off: neutral on i1-i4 / h1-h3 (issue 19, tenth round)
     colour_foot: bool = True         # upright: a traced pixel whose colour run down the vertical
     #                                  (the adaptation frames' median image) goes on below its
-    #                                  contact, and is not a colour common on the walked ground,
+    #                                  contact, and is not a colour common on the walked ground
+    #                                  (16 levels per channel: alignment_upright.FOOT_LEVELS),
     #                                  stands on the vertical through the run's foot (align
     #                                  outputs, `align --sequence` and export-model; not the
     #                                  pseudo labels; issue 19, eleventh round, docs/gains.md)
@@ -209,7 +210,7 @@ def model_identity(spec: str) -> dict[str, Any]:
 # silently keep, e.g., the former pseudo labels). Raising one reruns that stage and the stages
 # after it, as a changed setting does.
 STAGE_VERSIONS = {"base": 1, "agents": 1, "ground_plane": 8, "pseudo_labels": 5, "finetune": 2,
-                  "align": 6, "scale": 1}
+                  "align": 7, "scale": 1}
 
 
 def _versioned(stage: str, settings: dict) -> str:

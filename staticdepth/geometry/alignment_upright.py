@@ -61,6 +61,7 @@ KEEP_REL = 0.02         # a run standing within this of the plane's depth at its
 FOOT_DIFF = 0.2         # colour_foot: a channel step (0-1) this large ends a structure's colour run
 FOOT_PULL = 3.0         # colour_foot: a foot at most this x nearer than the re-anchored depth
 FOOT_GROUND_SHARE = 0.005   # colour_foot: not from a colour this common on the walked ground
+FOOT_LEVELS = 16            # ... in bins of this many levels per channel (colour_codes)
 
 
 def contact_ratios(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndarray,
@@ -361,7 +362,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
         # not the ground's own colours: a smooth road the network keeps flat is traced like a
         # wall, and its colour runs on down to a marking or a kerb
         cand = moved & (idx >= 0) & ~ground_coloured(image, ground & (
-            walked if walked is not None else True), FOOT_GROUND_SHARE)
+            walked if walked is not None else True), FOOT_GROUND_SHARE, FOOT_LEVELS)
         feet = colour_foot(out, image, q, du, rays, n, ground, cand, idx,
                            not_ground, foot_diff, foot_pull)
         moved = moved | feet

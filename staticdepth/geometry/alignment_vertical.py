@@ -123,7 +123,7 @@ def colour_feet(image: np.ndarray, du: np.ndarray, pix: np.ndarray,
     return v * w + u
 
 
-def colour_codes(image: np.ndarray, levels: int = 8) -> np.ndarray:
+def colour_codes(image: np.ndarray, levels: int) -> np.ndarray:
     """(H, W) int64 colour bin of each pixel of ``image`` (H, W, C), 0-1: each channel in
     ``levels`` bins."""
     img = np.asarray(image, dtype=np.float64)
@@ -136,7 +136,7 @@ def colour_codes(image: np.ndarray, levels: int = 8) -> np.ndarray:
 
 
 def ground_coloured(image: np.ndarray, ground: np.ndarray, share: float,
-                    levels: int = 8) -> np.ndarray:
+                    levels: int) -> np.ndarray:
     """(H, W) bool: pixels whose colour bin (:func:`colour_codes`) holds at least ``share`` of
     the ``ground`` pixels' colours."""
     code = colour_codes(image, levels)

@@ -18,7 +18,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from staticdepth.geometry.alignment_upright import FOOT_DIFF, FOOT_GROUND_SHARE, FOOT_PULL
+from staticdepth.geometry.alignment_upright import (FOOT_DIFF, FOOT_GROUND_SHARE, FOOT_LEVELS,
+                                                    FOOT_PULL)
 from staticdepth.geometry.alignment_vertical import (below_feet, colour_codes, colour_feet,
                                                     colour_foot)
 
@@ -26,7 +27,7 @@ from staticdepth.geometry.alignment_vertical import (below_feet, colour_codes, c
 def colour_bins(image: np.ndarray) -> tuple[np.ndarray, int]:
     """(H W,) int64 bin per pixel (0..k-1) and k: ``ground_coloured``'s colour bins
     (``colour_codes``), numbered over the colours present."""
-    _, label = np.unique(colour_codes(image).ravel(), return_inverse=True)
+    _, label = np.unique(colour_codes(image, FOOT_LEVELS).ravel(), return_inverse=True)
     return label.astype(np.int64).ravel(), int(label.max()) + 1
 
 
