@@ -21,18 +21,19 @@ W, H, F = 160, 100, 100.0
 CAM = 3.0
 
 
-def _scene(post_grey=0.9, mortar=None):
+def _scene(post_grey=0.9, mortar=None, post_z=6.0, post_h=2.5, post_x=3.0):
     """True depth, the network's (the scene without the post, half the scale), the ground mask,
     the masks of the far wall and the post, and the image: a wall 15 m away (|lateral| < 8 m,
     6 m tall), a post 6 m away, 3 m to the right, 0.1 m either side, 2.5 m tall; luminance
     ground 0.6, wall 0.25 with stripes of 0.1 every 4 rows (under the rule's 0.2), post
-    ``post_grey``; ``mortar``: the ground's every 7th row (from row 3) that luminance."""
+    ``post_grey``; ``mortar``: the ground's every 7th row (from row 3) that luminance; ``post_z``:
+    the post's distance (m), ``post_h`` its height, ``post_x`` its lateral offset."""
     K, n, z_ground, billboard = billboard_camera(CAM, 25.0, W, H, F)
     z_far, far = billboard(15.0, 8.0, 6.0)
-    z_post, wide = billboard(6.0, 8.0, 2.5)
+    z_post, wide = billboard(post_z, 8.0, post_h)
     u = np.arange(W)[None, :]
     lateral = (u - K[0, 2]) / F * z_post
-    post = wide & (np.abs(lateral - 3.0) < 0.1)
+    post = wide & (np.abs(lateral - post_x) < 0.1)
     behind = np.where(far, z_far, z_ground)
     depth = np.where(post, z_post, behind)
     depth[~np.isfinite(depth)] = 200.0
@@ -119,6 +120,26 @@ def test_a_post_near_a_ground_colour_stands_on_its_foot(monkeypatch):
     monkeypatch.setattr(au, "FOOT_LEVELS", 8)
     coarse = _aligned(net, K, n, ground, image=img)
     assert np.array_equal(coarse[post], off[post])
+
+
+def test_a_post_far_in_front_of_the_wall_stands_on_its_foot(monkeypatch):
+    """A post 4 m away (1.5 m to the right) in front of the 15 m wall: its traced part takes the
+    wall's contact, 3.75 x too far, and its foot is that much nearer. The pull limit
+    (``FOOT_PULL``, 10) lets it stand there; at the former limit, 3, the rule refused it (the
+    independent scenes' poles in front of far facades, docs/gains.md fourteenth round)."""
+    import staticdepth.geometry.alignment_upright as au
+
+    K, n, Z, net, ground, far, post, img = _scene(post_z=4.0, post_x=1.5)
+    info: dict = {}
+    off = _aligned(net, K, n, ground, info=info)
+    upper = post & info["traced"]
+    assert upper.sum() > 20 and np.median(off[upper] / Z[upper]) > 3.5
+    on = _aligned(net, K, n, ground, image=img)
+    assert au.FOOT_PULL == 10.0
+    assert np.median(np.abs(on[upper] / Z[upper] - 1)) < 0.03
+    monkeypatch.setitem(au.upright_depth.__kwdefaults__, "foot_pull", 3.0)
+    limited = _aligned(net, K, n, ground, image=img)
+    assert np.median(limited[upper] / Z[upper]) > 3.5
 
 
 def test_adapt_applies_the_setting_through_aligned_frame():

@@ -59,7 +59,7 @@ SHAPES = ("network", "vertical")
 RECEDE = (0.1, 8.0)     # ground: the network's depth grows up the vertical 0.1-8x as fast as the plane's
 KEEP_REL = 0.02         # a run standing within this of the plane's depth at its contact keeps it
 FOOT_DIFF = 0.2         # colour_foot: a channel step (0-1) this large ends a structure's colour run
-FOOT_PULL = 3.0         # colour_foot: a foot at most this x nearer than the re-anchored depth
+FOOT_PULL = 10.0        # colour_foot: a foot at most this x nearer than the re-anchored depth
 FOOT_GROUND_SHARE = 0.005   # colour_foot: not from a colour this common on the walked ground
 FOOT_LEVELS = 16            # ... in bins of this many levels per channel (colour_codes)
 
