@@ -142,6 +142,32 @@ def test_a_post_far_in_front_of_the_wall_stands_on_its_foot(monkeypatch):
     assert np.median(limited[upper] / Z[upper]) > 3.5
 
 
+def test_the_static_images_colour_feet_are_walked_once_and_kept():
+    """``alignment_vertical.static_colour_feet``: every pixel's colour foot, once per (image,
+    vertical, threshold), reused by every frame's ``colour_foot`` (a static camera's median image).
+    Truth from the scene's masks: a post pixel's foot is on the post, and the foot of one inside
+    the post (its row neighbours on the post too) at the post's bottom row, where it meets the
+    ground (an edge pixel's walk may leave the slanted, 3-pixel-wide post)."""
+    from staticdepth.geometry import alignment_vertical as av
+    from staticdepth.geometry.alignment_upright import FOOT_DIFF
+
+    K, n, Z, net, ground, far, post, img = _scene()
+    du = av.down_step(K, n, W, H)
+    feet = av.static_colour_feet(img, du, FOOT_DIFF)
+    pix = np.flatnonzero(post)
+    f = feet[pix]
+    inner = (post & np.roll(post, 1, 1) & np.roll(post, -1, 1)).ravel()[pix]
+    assert post.ravel()[f].all() and inner.sum() > 30
+    assert np.all(f[inner] // W == np.nonzero(post)[0].max())
+    # the same contents (new arrays) are not walked again; another image is
+    assert av.static_colour_feet(img.copy(), du.copy(), FOOT_DIFF) is feet
+    other = np.where(post, 0.6, img)                 # the post in the ground's colour
+    assert not np.array_equal(av.static_colour_feet(other, du, FOOT_DIFF)[pix], f)
+    assert av.static_colour_feet(img, du, FOOT_DIFF) is feet
+    # a subset walked on its own ends where the kept walk of every pixel does
+    assert np.array_equal(av.colour_feet(img, du, pix, FOOT_DIFF), f)
+
+
 def test_adapt_applies_the_setting_through_aligned_frame():
     """``align.colour_foot`` (on by default) is what takes the image into adapt's alignment."""
     from staticdepth.adaptation.align import aligned_frame

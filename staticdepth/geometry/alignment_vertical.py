@@ -9,6 +9,8 @@ Pure numpy functions of (K, plane normal, depth maps, an image); no I/O.
 """
 from __future__ import annotations
 
+import hashlib
+
 import numpy as np
 
 
@@ -123,6 +125,27 @@ def colour_feet(image: np.ndarray, du: np.ndarray, pix: np.ndarray,
     return v * w + u
 
 
+_FEET_CACHE: dict = {}       # static_colour_feet's last results (a camera's few images)
+
+
+def static_colour_feet(image: np.ndarray, du: np.ndarray, max_diff: float) -> np.ndarray:
+    """:func:`colour_feet` of every pixel (flat (H W,)), computed once per (image, ``du``,
+    ``max_diff``) and kept: a static camera aligns every frame with the same median image and
+    plane, and each pixel's walk does not depend on the others'. Keyed by the arrays' contents."""
+    img = np.ascontiguousarray(image, dtype=np.float64)
+    d = np.ascontiguousarray(du, dtype=np.float64)
+    key = (img.shape, d.shape, float(max_diff), hashlib.blake2b(img.tobytes(), digest_size=16)
+           .hexdigest(), hashlib.blake2b(d.tobytes(), digest_size=16).hexdigest())
+    feet = _FEET_CACHE.get(key)
+    if feet is None:
+        feet = colour_feet(img, d, np.arange(d.size), max_diff)
+        feet.setflags(write=False)
+        if len(_FEET_CACHE) >= 4:
+            _FEET_CACHE.pop(next(iter(_FEET_CACHE)))
+        _FEET_CACHE[key] = feet
+    return feet
+
+
 def colour_codes(image: np.ndarray, levels: int) -> np.ndarray:
     """(H, W) int64 colour bin of each pixel of ``image`` (H, W, C), 0-1: each channel in
     ``levels`` bins."""
@@ -178,14 +201,14 @@ def colour_foot(out: np.ndarray, image: np.ndarray, q: np.ndarray, du: np.ndarra
     vertical line through that foot, unless that is more than ``max_pull`` x nearer than
     ``out``. A pole or crate the network does not resolve carries what stands behind it, and its
     lower part recedes like the ground, so its run took a contact behind its foot; its colour does
-    not. ``feet``: :func:`colour_feet` of every pixel, when the caller already has them.
+    not. ``feet``: :func:`colour_feet` of every pixel (default :func:`static_colour_feet`'s).
     Returns the (H, W) bool pixels it set."""
     h, w = out.shape
     pix = np.flatnonzero(traced)
     done = np.zeros(h * w, bool)
     if not len(pix):
         return done.reshape(h, w)
-    feet = colour_feet(image, du, pix, max_diff) if feet is None else feet.ravel()[pix]
+    feet = (static_colour_feet(image, du, max_diff) if feet is None else feet.ravel())[pix]
     fv, fu = np.divmod(feet, w)
     bv, bu = np.divmod(below_feet(feet, du), w)
     ok = (fv + 1 < h) & ground[bv, bu] & (q[fv, fu] > 0) & (fv > idx.ravel()[pix] // w)

@@ -5,7 +5,7 @@ The static image is a constant of a deployment (a fixed camera: the adaptation f
 everything the rule reads from it is computed once, at construction, by the numpy functions
 themselves: the depth each pixel takes on the vertical line through its colour run's foot
 (``colour_foot`` on every pixel, the frame's part of its test passed), the foot's row and the pixel
-below it (``colour_feet``, ``below_feet``), and each pixel's colour bin (``colour_codes``, which
+below it (``static_colour_feet``, ``below_feet``), and each pixel's colour bin (``colour_codes``, which
 ``ground_coloured`` reads).
 What depends on the frame stays in the graph, elementwise gathers: the traced pixels and their
 contact rows, the frame's ground (after the recession and walked rules) below each foot, and
@@ -20,8 +20,8 @@ from torch import nn
 
 from staticdepth.geometry.alignment_upright import (FOOT_DIFF, FOOT_GROUND_SHARE, FOOT_LEVELS,
                                                     FOOT_PULL)
-from staticdepth.geometry.alignment_vertical import (below_feet, colour_codes, colour_feet,
-                                                    colour_foot)
+from staticdepth.geometry.alignment_vertical import (below_feet, colour_codes, colour_foot,
+                                                    static_colour_feet)
 
 
 def colour_bins(image: np.ndarray) -> tuple[np.ndarray, int]:
@@ -43,7 +43,7 @@ class ColourFoot(nn.Module):
         if img.shape[:2] != (h, w):
             raise ValueError(f"the colour foot's image is {img.shape}, the camera {w}x{h}")
         # every pixel's colour run's foot, walked once
-        feet = colour_feet(img, du, np.arange(h * w), foot_diff)
+        feet = static_colour_feet(img, du, foot_diff)
         fv = feet // w
         # colour_foot itself on every pixel, with the frame's part of its test passed (all ground,
         # no contact, a zero depth): the depth each pixel takes where its foot stands, > 0 where
