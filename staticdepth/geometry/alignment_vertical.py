@@ -125,7 +125,7 @@ def colour_feet(image: np.ndarray, du: np.ndarray, pix: np.ndarray,
     return v * w + u
 
 
-_FEET_CACHE: dict = {}       # static_colour_feet's last results (a camera's few images)
+_FEET_CACHE: dict = {}       # static_colour_feet's last results: a run's one image (and one more)
 
 
 def static_colour_feet(image: np.ndarray, du: np.ndarray, max_diff: float) -> np.ndarray:
@@ -140,7 +140,7 @@ def static_colour_feet(image: np.ndarray, du: np.ndarray, max_diff: float) -> np
     if feet is None:
         feet = colour_feet(img, d, np.arange(d.size), max_diff)
         feet.setflags(write=False)
-        if len(_FEET_CACHE) >= 4:
+        if len(_FEET_CACHE) >= 2:     # an int64 per pixel each: bounded memory
             _FEET_CACHE.pop(next(iter(_FEET_CACHE)))
         _FEET_CACHE[key] = feet
     return feet
