@@ -5,8 +5,8 @@ The static image is a constant of a deployment (a fixed camera: the adaptation f
 everything the rule reads from it is computed once, at construction, by the numpy functions
 themselves: the depth each pixel takes on the vertical line through its colour run's foot
 (``colour_foot`` on every pixel, the frame's part of its test passed), the foot's row and the pixel
-below it (``static_colour_feet``, ``below_feet``), and each pixel's colour bin (``colour_codes``, which
-``ground_coloured`` reads).
+below it (``static_colour_feet``, ``below_feet``), and each pixel's colour bin (``colour_codes``,
+which ``ground_coloured`` reads).
 What depends on the frame stays in the graph, elementwise gathers: the traced pixels and their
 contact rows, the frame's ground (after the recession and walked rules) below each foot, and
 ``ground_coloured``'s histogram of the walked ground's bins (a ScatterElements add over the
