@@ -64,36 +64,63 @@ FOOT_GROUND_SHARE = 0.005   # colour_foot: not from a colour this common on the 
 FOOT_LEVELS = 16            # ... in bins of this many levels per channel (colour_codes)
 
 
+def rows_below(du: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For rows ``0 .. H-2`` ((H-1, W) each): the column of the pixel one row down each pixel's
+    vertical (rounded, clipped into the image) and whether that step exists (``du`` finite) and
+    lands inside the image."""
+    w = du.shape[1]
+    step = du[:-1]
+    ub = np.rint(np.arange(w) + np.nan_to_num(step))
+    inside = np.isfinite(step) & (ub >= 0) & (ub < w)
+    return np.clip(ub, 0, w - 1).astype(np.int64), inside
+
+
+def chain_ends(link: np.ndarray) -> np.ndarray:
+    """Each entry of a flat pointer array (``link[i]``: the next pixel of ``i``'s chain, ``i``
+    itself at a chain's end) moved to the end of its chain, by pointer doubling: ``log2`` of the
+    longest chain gathers over the whole array instead of one step per row."""
+    while True:
+        nxt = link[link]
+        if np.array_equal(nxt, link):
+            return link
+        link = nxt
+
+
 def contact_ratios(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndarray,
                    jump_rel: float, cut: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray]:
-    """March every row from the bottom up: each non-ground pixel inherits the contact of the
-    pixel below it on its vertical line when their depths are continuous (and ``cut``, (H, W)
-    bool an edge between a pixel and the one below, is not set), or becomes a contact when that
-    pixel is ground. Returns (H, W) the contact's plane inverse depth ``qc`` and the
-    contact's flat pixel index (NaN / -1 where a pixel has no contact)."""
+    """The march up the rows: each non-ground pixel inherits the contact of the pixel below it on
+    its vertical line when their depths are continuous (and ``cut``, (H, W) bool an edge between
+    a pixel and the one below, is not set), or becomes a contact when that pixel is ground.
+    Returns (H, W) the contact's plane inverse depth ``qc`` and the contact's flat pixel index
+    (NaN / -1 where a pixel has no contact). Each pixel links to the pixel below or ends its
+    chain; :func:`chain_ends` follows the links for every pixel at once (the result is the
+    row-by-row march's, from the bottom up)."""
     h, w = A.shape
-    qc = np.full((h, w), np.nan, np.float64)
-    idx = np.full((h, w), -1, np.int64)
-    cols = np.arange(w)
-    for v in range(h - 2, -1, -1):
-        step = du[v]
-        ok = np.isfinite(step) & ~ground[v] & np.isfinite(A[v])
-        ub = np.where(ok, np.rint(cols + np.nan_to_num(step)), -1).astype(np.int64)
-        ok &= (ub >= 0) & (ub < w)
-        ub = np.clip(ub, 0, w - 1)
-        below, a_b = ground[v + 1, ub], A[v + 1, ub]
-        qv = 0.5 * (q[v] + q[v + 1, ub])
-        contact = ok & below & (qv > 0)
-        qc[v, contact] = qv[contact]
-        idx[v, contact] = v * w + cols[contact]
-        with np.errstate(invalid="ignore"):
-            cont = ok & ~below & (np.abs(A[v] - a_b) <= jump_rel * np.minimum(A[v], a_b))
-        if cut is not None:
-            cont &= ~cut[v]
-        qc[v, cont] = qc[v + 1, ub[cont]]
-        idx[v, cont] = idx[v + 1, ub[cont]]
-    return qc, idx
+    qc = np.full(h * w, np.nan, np.float64)
+    idx = np.full(h * w, -1, np.int64)
+    if h < 2:
+        return qc.reshape(h, w), idx.reshape(h, w)
+    ub, inside = rows_below(du)
+    rows = np.arange(1, h)[:, None]
+    ok = inside & ~ground[:-1] & np.isfinite(A[:-1])
+    below, a_b, a = ground[rows, ub], A[rows, ub], A[:-1]
+    qv = 0.5 * (q[:-1] + q[rows, ub])
+    contact = (ok & below & (qv > 0)).ravel()
+    with np.errstate(invalid="ignore"):
+        cont = ok & ~below & (np.abs(a - a_b) <= jump_rel * np.minimum(a, a_b))
+    if cut is not None:
+        cont &= ~cut[:-1]
+    top = (h - 1) * w
+    link = np.arange(h * w)
+    link[:top][cont.ravel()] = (rows * w + ub).ravel()[cont.ravel()]
+    end = chain_ends(link)
+    is_contact = np.zeros(h * w, bool)
+    is_contact[:top] = contact
+    hit = np.flatnonzero(is_contact[end])
+    qc[hit] = qv.ravel()[end[hit]]
+    idx[hit] = end[hit]
+    return qc.reshape(h, w), idx.reshape(h, w)
 
 
 def occluded_runs(A: np.ndarray, occluder: np.ndarray, ground: np.ndarray, du: np.ndarray,
@@ -104,28 +131,29 @@ def occluded_runs(A: np.ndarray, occluder: np.ndarray, ground: np.ndarray, du: n
     ``steps``, also those whose run ends at a depth step down to a nearer pixel that is not
     ground: what stands in front hides the foot. With ``cut`` ((H, W) bool, an image edge
     between a pixel and the one below), also those whose run ends at such an edge above a pixel
-    that is not ground (the edge of a nearer occluder the network blurred through)."""
+    that is not ground (the edge of a nearer occluder the network blurred through). The runs'
+    links are followed as in :func:`contact_ratios`."""
     h, w = A.shape
-    out = np.zeros((h, w), bool)
-    cols = np.arange(w)
-    for v in range(h - 2, -1, -1):
-        step = du[v]
-        ok = np.isfinite(step) & ~ground[v] & ~occluder[v] & np.isfinite(A[v])
-        ub = np.where(ok, np.rint(cols + np.nan_to_num(step)), -1).astype(np.int64)
-        ok &= (ub >= 0) & (ub < w)
-        ub = np.clip(ub, 0, w - 1)
-        a_b = A[v + 1, ub]
-        hidden = occluder[v + 1, ub]
-        with np.errstate(invalid="ignore"):
-            cont = ~ground[v + 1, ub] & ~hidden \
-                & (np.abs(A[v] - a_b) <= jump_rel * np.minimum(A[v], a_b))
-            if steps:
-                hidden = hidden | (~ground[v + 1, ub] & (A[v] > (1.0 + jump_rel) * a_b))
-            if cut is not None:
-                hidden = hidden | (~ground[v + 1, ub] & cut[v])
-                cont &= ~cut[v]
-        out[v] = ok & (hidden | (cont & out[v + 1, ub]))
-    return out
+    if h < 2:
+        return np.zeros((h, w), bool)
+    ub, inside = rows_below(du)
+    rows = np.arange(1, h)[:, None]
+    ok = inside & ~ground[:-1] & ~occluder[:-1] & np.isfinite(A[:-1])
+    a, a_b, g_b, hidden = A[:-1], A[rows, ub], ground[rows, ub], occluder[rows, ub]
+    with np.errstate(invalid="ignore"):
+        cont = ~g_b & ~hidden & (np.abs(a - a_b) <= jump_rel * np.minimum(a, a_b))
+        if steps:
+            hidden = hidden | (~g_b & (a > (1.0 + jump_rel) * a_b))
+        if cut is not None:
+            hidden = hidden | (~g_b & cut[:-1])
+            cont &= ~cut[:-1]
+    top = (h - 1) * w
+    ends_hidden = np.zeros(h * w, bool)
+    ends_hidden[:top] = (ok & hidden).ravel()
+    lk = (ok & ~hidden & cont).ravel()
+    link = np.arange(h * w)
+    link[:top][lk] = (rows * w + ub).ravel()[lk]
+    return ends_hidden[chain_ends(link)].reshape(h, w)
 
 
 def _walk_down(A, ground, q, du, cv, cu, nearer: float, steps: int, jump_rel: float):
@@ -188,7 +216,9 @@ def refine_contacts(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.nda
     run keeps, default ``A``)."""
     h, w = A.shape
     S = A if src is None else src
-    C = np.unique(idx[idx >= 0])
+    used = np.zeros(h * w, bool)
+    used[idx[idx >= 0]] = True
+    C = np.flatnonzero(used)            # the contacts, sorted (np.unique's, without a sort)
     if len(C) == 0:
         return
     cv, cu = np.divmod(C, w)
@@ -219,15 +249,22 @@ def refine_contacts(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.nda
 
 def fill_along_rows(ratio: np.ndarray, A: np.ndarray, todo: np.ndarray, jump_rel: float) -> None:
     """In place: pixels of ``todo`` without a ratio take their left, then right, neighbour's when
-    their depths are continuous (one sweep each way)."""
+    their depths are continuous (one sweep each way). In each sweep a pixel to fill links to its
+    neighbour and every chain takes the value at its end, the k-th link-less pixel of its row
+    (cumulative sums: one scatter and one gather per sweep, as the sequential sweep gives)."""
     h, w = A.shape
-    for order in (range(1, w), range(w - 2, -1, -1)):
-        for u in order:
-            prev = u - 1 if order.step == 1 else u + 1
-            with np.errstate(invalid="ignore"):
-                m = (todo[:, u] & ~np.isfinite(ratio[:, u]) & np.isfinite(ratio[:, prev])
-                     & (np.abs(A[:, u] - A[:, prev]) <= jump_rel * np.minimum(A[:, u], A[:, prev])))
-            ratio[m, u] = ratio[m, prev]
+    with np.errstate(invalid="ignore"):
+        c = np.abs(A[:, 1:] - A[:, :-1]) <= jump_rel * np.minimum(A[:, 1:], A[:, :-1])
+    none = np.zeros((h, 1), bool)
+    for left in (True, False):
+        cond = np.concatenate([none, c] if left else [c, none], 1)
+        end = ~(cond & todo & ~np.isfinite(ratio))
+        cs = np.cumsum(end, 1)
+        k = cs - 1 if left else cs - end          # the chain's end: at or before / after
+        ends = np.full((h, w + 1), np.nan)
+        r, u = np.nonzero(end)
+        ends[r, cs[r, u] - 1] = ratio[r, u]
+        ratio[...] = np.take_along_axis(ends, k, 1)
 
 
 def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, ground: np.ndarray,

