@@ -230,3 +230,29 @@ def test_a_smooth_road_the_network_keeps_flat_is_not_pulled_onto_a_vertical(monk
     monkeypatch.setattr(au, "FOOT_GROUND_SHARE", 2.0)   # no pixel is ground-coloured
     pulled = _aligned(net.astype(np.float32), K, n, ground, image=img)
     assert np.median(pulled[band] / off[band]) < 0.95
+
+
+def test_the_static_image_is_the_median_of_64_evenly_spread_frames():
+    from staticdepth.adaptation.align import static_image
+
+    rng = np.random.default_rng(3)
+    frames = rng.integers(0, 256, (150, 6, 5, 3), dtype=np.uint8)
+    before = frames.copy()
+
+    class Reader:                      # static_image reads the left images only
+        def __init__(self):
+            self.read = []
+
+        def left(self, i):
+            self.read.append(i)
+            return frames[i]              # the reader's own arrays: the median must not touch
+
+    r = Reader()
+    got = static_image(r, np.arange(10, 150))
+    pick = np.linspace(10, 149, 64).astype(int)
+    assert r.read == pick.tolist()
+    np.testing.assert_array_equal(got, np.median(frames[pick].astype(np.float64), 0) / 255.0)
+    assert got.dtype == np.float64
+    np.testing.assert_array_equal(frames, before)       # partitioned a copy, not the frames
+    few = static_image(Reader(), np.array([4, 9, 20]))
+    np.testing.assert_array_equal(few, np.median(frames[[4, 9, 20]].astype(np.float64), 0) / 255)

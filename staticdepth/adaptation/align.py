@@ -78,7 +78,13 @@ def static_image(r, frames) -> np.ndarray:
     """(H, W, C) float 0-1: the median of the left images of ``frames`` (at most 64, evenly
     spread) of an open SequenceReader: the static camera's scene without its agents."""
     frames = np.asarray(frames)[np.linspace(0, len(frames) - 1, min(len(frames), 64)).astype(int)]
-    return np.median(np.stack([r.left(i) for i in frames]), 0) / 255.0
+    # one stack at the peak: filled frame by frame, then partitioned in place (overwrite_input)
+    first = r.left(int(frames[0]))
+    stack = np.empty((len(frames),) + first.shape, first.dtype)
+    stack[0] = first
+    for k, i in enumerate(frames[1:], 1):
+        stack[k] = r.left(int(i))
+    return np.median(stack, 0, overwrite_input=True) / 255.0
 
 
 def align_image(align, r) -> np.ndarray | None:
