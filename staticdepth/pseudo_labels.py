@@ -335,24 +335,32 @@ def _depth_scale(inv: np.ndarray, label: np.ndarray, sel: np.ndarray, max_points
     return float(np.median(r)) if len(r) else 1.0
 
 
-def stable_depth(depths: np.ndarray, static: np.ndarray, max_spread: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def stable_depth(depths: np.ndarray, static: np.ndarray, max_spread: float,
+                 rows: int = 16) -> tuple[np.ndarray, np.ndarray]:
     """The per-pixel median of ``depths`` (F, H, W) over the frames where ``static`` (F, H, W) bool
     holds (no agent there), and the mask of pixels seen static in at least half the frames whose
     median absolute deviation is at most ``max_spread`` x the median: a fixed camera sees the same
     structure in every frame, so an alignment that re-anchors it the same way each time is
-    consistent, and one that jumps between contacts is not (NaN median where never static)."""
-    D = np.where(np.asarray(static, bool) & np.isfinite(depths) & (depths > 0), depths, np.nan)
-    seen = np.count_nonzero(np.isfinite(D), axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        import warnings
+    consistent, and one that jumps between contacts is not (NaN median where never static).
+    Computed ``rows`` image rows at a time: each pixel's statistics are its own, and numpy's
+    NaN-median of the whole stack at once held several copies of it (+208 MiB at 32 frames of
+    800x400)."""
+    import warnings
 
-        with warnings.catch_warnings():
+    depths, static = np.asarray(depths), np.asarray(static, bool)
+    n, h, w = depths.shape
+    med, ok = np.empty((h, w), np.float32), np.empty((h, w), bool)
+    for r in range(0, h, rows):
+        d = depths[:, r:r + rows]
+        D = np.where(static[:, r:r + rows] & np.isfinite(d) & (d > 0), d, np.nan)
+        seen = np.count_nonzero(np.isfinite(D), axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)     # all-NaN pixels: NaN
-            med = np.nanmedian(D, axis=0)
-            mad = np.nanmedian(np.abs(D - med), axis=0)
-        ok = (seen * 2 >= len(D)) & (mad <= max_spread * med)
-    return med.astype(np.float32), ok
+            m = np.nanmedian(D, axis=0)
+            mad = np.nanmedian(np.abs(D - m), axis=0)
+            ok[r:r + rows] = (seen * 2 >= n) & (mad <= max_spread * m)
+        med[r:r + rows] = m
+    return med, ok
 
 
 def network_space(inv: np.ndarray, q: np.ndarray, ground: np.ndarray, what: str,

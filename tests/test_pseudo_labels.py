@@ -142,6 +142,27 @@ def test_stable_depth_keeps_what_the_alignment_repeats():
     assert loose[0, 1] and not loose[0, 2]
 
 
+def test_stable_depth_is_the_same_on_every_row_whatever_the_row_chunks():
+    """The four pixels above, each row of a 37-row stack scaled by its own factor: every row's
+    median is its factor times (10, 12.5, NaN-or-8, 7) and its stability the same, whether
+    computed 16 rows at a time (chunks ending inside the stack), 1 row or all at once."""
+    from staticdepth.pseudo_labels import stable_depth
+
+    base = np.array([[10.0, 10.1, 9.9, 10.0], [5.0, 20.0, 5.0, 20.0], [8.0] * 4,
+                     [7.0, 7.0, 30.0, 7.0]], np.float32).T          # (F, 4)
+    k = np.linspace(0.5, 3.0, 37).astype(np.float32)
+    d = base[:, None, :] * k[None, :, None]                         # (F, 37, 4)
+    static = np.ones(d.shape, bool)
+    static[:3, :, 2] = False
+    static[2, :, 3] = False
+    for rows in (16, 1, 64):
+        med, ok = stable_depth(d, static, 0.03, rows=rows)
+        assert ok.tolist() == [[True, False, False, True]] * 37
+        np.testing.assert_allclose(med[:, 0], 10.0 * k, rtol=1e-6)
+        np.testing.assert_allclose(med[:, 1], 12.5 * k, rtol=1e-6)
+        np.testing.assert_allclose(med[:, 3], 7.0 * k, rtol=1e-6)
+
+
 def test_trusted_label_keeps_the_base_or_drops_untrusted_pixels():
     """Trusted pixels: the network is 2 / A + 0.5 there except one outlier -> the robust map
     recovers (2, 0.5) and labels every trusted pixel 2 / A (the outlier too: shift-free);
