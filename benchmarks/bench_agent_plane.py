@@ -175,6 +175,8 @@ def main() -> None:
     ap_.add_argument("--scenes", default="", help="e.g. i1,i2,i3,i4: the rendered scenes instead")
     ap_.add_argument("--frames", type=int, default=27)
     ap_.add_argument("--min-height-px", type=float, default=10.0)
+    ap_.add_argument("--tracks", type=int, default=24, help="tracks per generated camera (a "
+                     "longer sequence: more tracks; the issue's figures are at 24)")
     args = ap_.parse_args()
     if args.scenes:
         scene_table(args.scenes.split(","), args.frames, args.min_height_px, args.bootstrap)
@@ -200,7 +202,7 @@ def main() -> None:
         for seed in range(args.first_camera, args.first_camera + args.cameras):
             try:
                 s = scene(kind, seed, detection=det, outliers=args.outliers,
-                          noise_px=args.noise_px)
+                          noise_px=args.noise_px, n_tracks=args.tracks)
             except ValueError as e:     # the generator could not place a whole agent: no scene
                 print(f"  {kind} camera {seed}: no scene ({e}); not counted", flush=True)
                 continue

@@ -1,21 +1,16 @@
 """The upright alignment's scans as row-by-row loops: the reference the vectorised ones
 (``geometry/alignment_upright.py``: ``contact_ratios``, ``occluded_runs``, ``fill_along_rows``,
-pointer doubling and cumulative sums) must equal exactly (tests/test_upright_scans.py) and are
-timed against (benchmarks/bench_upright_scans.py). They are the library's own former code, kept
-here only as that reference."""
+pointer doubling and cumulative sums) must equal exactly (tests/test_upright_scans.py). They are
+the library's own former code, kept here only as that reference (the speed of versions:
+benchmarks/bench_align_versions.py against the tree before them)."""
 from __future__ import annotations
 
 import numpy as np
 
 
-def contact_ratios_loop(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np.ndarray,
-                   jump_rel: float, cut: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """March every row from the bottom up: each non-ground pixel inherits the contact of the
-    pixel below it on its vertical line when their depths are continuous (and ``cut``, (H, W)
-    bool an edge between a pixel and the one below, is not set), or becomes a contact when that
-    pixel is ground. Returns (H, W) the contact's plane inverse depth ``qc`` and the
-    contact's flat pixel index (NaN / -1 where a pixel has no contact)."""
+def contact_ratios_loop(A, ground, q, du, jump_rel, cut=None):
+    """``contact_ratios`` as it was: every row marched from the bottom up, each pixel taking
+    the contact of the pixel below it (continuous depth) or becoming one (ground below)."""
     h, w = A.shape
     qc = np.full((h, w), np.nan, np.float64)
     idx = np.full((h, w), -1, np.int64)
@@ -40,15 +35,9 @@ def contact_ratios_loop(A: np.ndarray, ground: np.ndarray, q: np.ndarray, du: np
     return qc, idx
 
 
-def occluded_runs_loop(A: np.ndarray, occluder: np.ndarray, ground: np.ndarray, du: np.ndarray,
-                  jump_rel: float, steps: bool = False,
-                  cut: np.ndarray | None = None) -> np.ndarray:
-    """(H, W) bool: pixels whose run (continuous depth down the vertical, not ground) ends on an
-    ``occluder`` pixel: whatever stands behind an agent has its foot hidden by it. With
-    ``steps``, also those whose run ends at a depth step down to a nearer pixel that is not
-    ground: what stands in front hides the foot. With ``cut`` ((H, W) bool, an image edge
-    between a pixel and the one below), also those whose run ends at such an edge above a pixel
-    that is not ground (the edge of a nearer occluder the network blurred through)."""
+def occluded_runs_loop(A, occluder, ground, du, jump_rel, steps=False, cut=None):
+    """``occluded_runs`` as it was: each row from the bottom up, a run hidden where it ends on
+    an occluder (with ``steps``: a step down to a nearer pixel; with ``cut``: an image edge)."""
     h, w = A.shape
     out = np.zeros((h, w), bool)
     cols = np.arange(w)
@@ -72,10 +61,8 @@ def occluded_runs_loop(A: np.ndarray, occluder: np.ndarray, ground: np.ndarray, 
     return out
 
 
-def fill_along_rows_loop(ratio: np.ndarray, A: np.ndarray, todo: np.ndarray,
-                         jump_rel: float) -> None:
-    """In place: pixels of ``todo`` without a ratio take their left, then right, neighbour's when
-    their depths are continuous (one sweep each way)."""
+def fill_along_rows_loop(ratio, A, todo, jump_rel):
+    """``fill_along_rows`` as it was: one column at a time, left then right, in place."""
     h, w = A.shape
     for order in (range(1, w), range(w - 2, -1, -1)):
         for u in order:
