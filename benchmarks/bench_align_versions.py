@@ -8,11 +8,16 @@ than the plane, so runs walk), its true plane and the ground mask of adapt (from
 feet). Each tree runs in its own child process (``sys.path`` first entry: the tree's root) with
 its own ``AlignConfig`` defaults, alternately, ``--rounds`` times; printed per tree the median
 over rounds of the mean ms per frame, and their ratio. An older tree is made with e.g.
-``mkdir -p out/old && git archive ef29000 staticdepth | tar -x -C out/old``.
+``mkdir -p out/old && git archive ef29000 staticdepth | tar -x -C out/old``. ``--camera``: the
+numpy frames share one ``AlignCamera`` (the per-camera constants, computed on the first frame),
+as adapt's align stage gives them; a tree without one aligns each frame alone. The wall times
+include the page faults of numpy's fresh temporaries, which vary with the allocation pattern
+(glibc's dynamic mmap threshold): ``MALLOC_MMAP_THRESHOLD_=268435456
+MALLOC_TRIM_THRESHOLD_=2147483648`` in the environment takes them out.
 
 Usage:
   python benchmarks/bench_align_versions.py --old out/old [--frames 8] [--size 800x400]
-      [--rounds 3] [--threads 1]
+      [--rounds 3] [--threads 1] [--camera]
 """
 from __future__ import annotations
 
@@ -42,9 +47,18 @@ conf = AlignConfig()
 opts = upright_options(conf)
 K, n, G, Zs, A = d["K"], d["n"], d["ground"], d["Z"], d["agents"]
 H, W = G.shape
+cam = {}
+if sys.argv[4] == "1":
+    try:
+        from staticdepth.geometry.alignment_upright import AlignCamera
+    except ImportError:
+        pass
+    else:
+        cam["camera"] = AlignCamera(K, W, H, n, 1.0)
 t0 = time.perf_counter()
 for Z, a in zip(Zs, A):
-    align_depth(Z, K, n, 1.0, G, agent_mask=a, mode="upright", snap_rel=conf.snap_rel, **opts)
+    align_depth(Z, K, n, 1.0, G, agent_mask=a, mode="upright", snap_rel=conf.snap_rel, **opts,
+                **cam)
 t_np = (time.perf_counter() - t0) / len(Zs)
 mod = alignment_module("upright", K, W, H, n, 1.0, G, snap_rel=conf.snap_rel, **opts).eval()
 with torch.no_grad():
@@ -93,6 +107,8 @@ def main() -> None:
     ap.add_argument("--size", default="800x400")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--camera", action="store_true",
+                    help="numpy: one AlignCamera for all frames (a tree without one: none)")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.split("x"))
     trees = {"this": os.path.abspath(ROOT), "old": os.path.abspath(args.old)}
@@ -102,14 +118,16 @@ def main() -> None:
         make_frames(data, args.frames, w, h)
         for _ in range(args.rounds):
             for name, root in trees.items():
-                out = subprocess.run([sys.executable, "-c", CHILD, root, data, str(args.threads)],
+                out = subprocess.run([sys.executable, "-c", CHILD, root, data, str(args.threads),
+                                      str(int(args.camera))],
                                      capture_output=True, text=True, check=True)
                 rec = json.loads(out.stdout.strip().splitlines()[-1])
                 if not rec["file"].startswith(root):
                     sys.exit(f"{name}: imported {rec['file']}, not from {root}")
                 res[name].append(rec)
     print(f"upright alignment, {args.size}, {args.frames} frames, {args.rounds} rounds, "
-          f"{args.threads} thread(s): median of the rounds' ms per frame")
+          f"{args.threads} thread(s){', one camera' if args.camera else ''}: median of the "
+          f"rounds' ms per frame")
     for key in ("numpy_ms", "torch_ms"):
         med = {k: float(np.median([r[key] for r in v])) for k, v in res.items()}
         print(f"  {key[:-3]:6s} this {med['this']:8.1f}  old {med['old']:8.1f}  "

@@ -5,8 +5,10 @@
 ``align.erode_px``, default W/80) minus the frame's agents, unless that leaves fewer than 50
 pixels; with ``align.agents_at_contact`` each agent then takes the plane depth at its contact
 (people whose foot is hidden: from their top and fitted height, ``align.hidden_contact``).
-:func:`align_prediction` is the streamed, resumable per-frame writer that ``staticdepth align
---sequence`` uses too.
+What depends only on the camera, the plane and the static image (rays, the plane's depth, the
+image of the vertical, the colour feet) is computed once per run: one ``AlignCamera`` that every
+frame's alignment is given. :func:`align_prediction` is the streamed, resumable per-frame writer
+that ``staticdepth align --sequence`` uses too.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from staticdepth.adaptation.common import Agents, Workspace
 from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.geometry.agent_plane import AgentPlane
 from staticdepth.geometry.alignment import agents_at_contact, align_depth, ground_mask_from_feet
+from staticdepth.geometry.alignment_upright import AlignCamera
 from staticdepth.progress import progress
 
 OUTPUTS = {"align": "base", "ft-align": "ft"}
@@ -99,12 +102,14 @@ def align_image(align, r) -> np.ndarray | None:
 def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,
                   instances: np.ndarray, rows: np.ndarray, Z: np.ndarray,
                   plane_bound: bool = False, image: np.ndarray | None = None,
-                  heights=None) -> np.ndarray:
+                  heights=None, camera: AlignCamera | None = None) -> np.ndarray:
     """One frame's depth ``Z`` aligned as adapt does it (units of the camera height).
     ``plane_bound``: ``align.plane_bound`` applies (the align stage's outputs pass it; the pseudo
     labels do not: labels with it made the fine-tuned U-Net's ft-align worse, docs/gains.md);
     ``image``: the static scene (:func:`static_image`) for ``align.colour_foot``, likewise;
-    ``heights``: :func:`person_heights` (people with a hidden foot placed from their top)."""
+    ``heights``: :func:`person_heights` (people with a hidden foot placed from their top);
+    ``camera``: the run's ``AlignCamera(K, W, H, normal, 1.0[, image])`` (:func:`run_camera`;
+    else one is built per frame), whose own ``camera.image`` is then the ``image``."""
     m = instances > 0
     # the frame's agents leave the ground mask, unless they would leave too little of it
     agent_mask = m if np.count_nonzero(ground & ~m) >= 50 else None
@@ -112,25 +117,33 @@ def aligned_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: 
     if image is not None and conf.align.colour_foot:    # align outputs only, as plane_bound
         opts["image"] = image
     A = align_depth(Z, K, normal, 1.0, ground, agent_mask=agent_mask, mode=conf.align.mode,
-                    snap_rel=conf.align.snap_rel, **opts).depth
+                    snap_rel=conf.align.snap_rel, camera=camera, **opts).depth
     if conf.align.agents_at_contact:
         A = agents_at_contact(A, K, normal, 1.0, instances, rows, conf.pseudo_labels,
-                              heights=heights)[0]
+                              heights=heights, camera=camera)[0]
     return A
+
+
+def run_camera(conf: AdaptConfig, ws: Workspace, plane: AgentPlane) -> AlignCamera:
+    """The run's ``AlignCamera``: the sequence's camera, the plane with unit camera height and,
+    when the alignment reads it (:func:`align_image`), the static image."""
+    image = None
+    if conf.align.uses_image:
+        with ws.reader() as r:
+            image = align_image(conf.align, r)
+    return AlignCamera(ws.K, ws.width, ws.height, plane.normal, 1.0, image)
 
 
 def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, feet: np.ndarray,
         config_hash: str) -> None:
     ground = ground_region(conf, ws, feet)
     heights = person_heights(conf, plane)
-    image = None
-    if conf.align.uses_image:
-        with ws.reader() as r:
-            image = align_image(conf.align, r)
+    camera = run_camera(conf, ws, plane)
 
     def aligned(i: int, Z: np.ndarray) -> np.ndarray:
         return aligned_frame(conf, ws.K, plane.normal, ground, agents.instances(i),
-                             agents.rows(i), Z, plane_bound=True, image=image, heights=heights)
+                             agents.rows(i), Z, plane_bound=True, image=camera.image,
+                             heights=heights, camera=camera)
 
     align_prediction(ws, {out: (src, aligned) for out, src in OUTPUTS.items()}, config_hash,
                      {"stage": "adapt", "metric": False, "units": "camera heights"})

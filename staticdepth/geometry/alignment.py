@@ -19,9 +19,8 @@ import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
 from staticdepth.errors import InputError
-from staticdepth.geometry.alignment_upright import KEEP_REL
+from staticdepth.geometry.alignment_upright import KEEP_REL, AlignCamera, align_camera
 from staticdepth.geometry.plane import fit_plane
-from staticdepth.geometry.projection import ray_grid
 
 
 def depth_from_inverse(inverse_depth: np.ndarray, eps: float = 1e-6) -> np.ndarray:
@@ -147,7 +146,7 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
                 plane_bound: bool = False, extra_ground: np.ndarray | None = None,
                 keep_rel: float | None = KEEP_REL, occlude: bool = False,
                 step_occlude: bool = False, image: np.ndarray | None = None,
-                info: dict | None = None) -> Alignment:
+                info: dict | None = None, camera: AlignCamera | None = None) -> Alignment:
     """Align a relative depth map (H, W) to the agents' ground plane ``n_g . P = d_g``.
 
     ground_mask: (H, W) bool where the ground is expected; ``agent_mask`` pixels are removed from
@@ -160,7 +159,9 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
     pixel can be aligned; the output is never a map of NaN where the input had depths.
     ``extra_ground``, ``keep_rel``, ``occlude``, ``step_occlude``, ``image``, ``info``: the
     upright mode's
-    (``align_upright``).
+    (``align_upright``). ``camera``: the :class:`AlignCamera` of (``K``, the map's size, ``n_g``
+    and ``d_g`` as given here; ``image`` when it holds one) that a sequence's frames share, else
+    built here; its :meth:`~AlignCamera.normalised` camera goes on to the modes.
     """
     Z = np.asarray(depth, dtype=np.float32)
     if Z.ndim != 2:
@@ -170,9 +171,10 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
     n_g = np.asarray(n_g, dtype=np.float64)
     if n_g.shape != (3,) or not np.all(np.isfinite(n_g)) or np.linalg.norm(n_g) < 1e-12:
         raise InputError(f"the agents' plane normal must be a finite non-zero 3-vector, got {n_g}")
-    n_g = n_g / np.linalg.norm(n_g)
     if not (np.isfinite(d_g) and d_g > 0):
         raise InputError(f"the agents' plane offset (camera height) must be positive, got {d_g}")
+    cam = align_camera(camera, K, n_g, d_g, w, h)
+    n_g = n_g / np.linalg.norm(n_g)
     G = np.asarray(ground_mask, bool)
     if G.shape != Z.shape:
         raise InputError(f"ground mask shape {G.shape} differs from the prediction's {Z.shape}")
@@ -188,14 +190,15 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
     if mode not in ALIGN_MODES:
         raise InputError(f"alignment mode must be one of {ALIGN_MODES}, got {mode!r}")
     if mode == "ground":
-        return align_ground(Z, K, n_g, d_g, G, snap_rel=snap_rel)
+        return align_ground(Z, K, n_g, d_g, G, snap_rel=snap_rel, camera=cam.normalised())
     if mode == "upright":
         return align_upright(Z, K, n_g, d_g, G, snap_rel=snap_rel, jump_rel=jump_rel, shape=shape,
                              agent_mask=agent_mask, recede=recede, fill=fill, max_pull=max_pull,
                              contact_range=contact_range, recede_push=recede_push,
                              walked_ratio=walked_ratio, plane_bound=plane_bound,
                              extra_ground=extra_ground, keep_rel=keep_rel, occlude=occlude,
-                             step_occlude=step_occlude, image=image, info=info)
+                             step_occlude=step_occlude, image=image, info=info,
+                             camera=cam.normalised())
     n_p, d_p = fit_predicted_plane(Z, K, G)
     a, b, c = n_p
     s2 = a * a + b * b
@@ -204,7 +207,7 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
     x = (np.arange(w)[None, :] - cx - sk * y) / fx
     valid = np.isfinite(Z) & (Z > 0)
     if s2 < nadir_tol:
-        rays_ng = (ray_grid(K, w, h) @ n_g).astype(np.float32)
+        rays_ng = (cam.rays @ n_g).astype(np.float32)
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(rays_ng > 0, d_g / (rays_ng * Z), np.nan)
         r = _median_ratio(ratio, G & valid)
@@ -256,7 +259,8 @@ def fit_inverse_affine(inv: np.ndarray, target: np.ndarray, iters: int = 3,
 
 
 def align_ground(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: np.ndarray, *,
-                 snap_rel: float = 0.1, max_points: int = 20000) -> Alignment:
+                 snap_rel: float = 0.1, max_points: int = 20000,
+                 camera: AlignCamera | None = None) -> Alignment:
     """Align only what the plane explains; carry the rest with the ground's scale and shift.
 
     The network's inverse depth ``1/Z`` is, on the ground mask, fitted robustly as ``s q + t``
@@ -268,9 +272,12 @@ def align_ground(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask:
     correction pushes beyond the far limit (50x the median ground depth) are clamped there.
     When the network's ground has no positive slope against the plane (it does not recede), only
     a scale is fitted (median ratio, t = 0). ``plane_normal``/``plane_d`` of the result hold
-    (s, t, 1 if scale only else 0) and the far limit, for the summary.
+    (s, t, 1 if scale only else 0) and the far limit, for the summary. ``camera``: the
+    :class:`AlignCamera` of (``K``, the map's size, ``n_g``, ``d_g``), else built here.
     """
-    return _ground_fit(depth, K, n_g, d_g, ground_mask, snap_rel, max_points)[0]
+    h, w = np.shape(depth)
+    return _ground_fit(depth, ground_mask, snap_rel, max_points,
+                       align_camera(camera, K, n_g, d_g, w, h))[0]
 
 
 def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: np.ndarray, *,
@@ -282,7 +289,8 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
                   plane_bound: bool = False, extra_ground: np.ndarray | None = None,
                   keep_rel: float | None = KEEP_REL, occlude: bool = False,
                   step_occlude: bool = False, edge_below: np.ndarray | None = None,
-                  image: np.ndarray | None = None, info: dict | None = None) -> Alignment:
+                  image: np.ndarray | None = None, info: dict | None = None,
+                  camera: AlignCamera | None = None) -> Alignment:
     """The ``ground`` mode, then every structure above the ground re-anchored at its contact with
     it (geometry/alignment_upright.py). The frame's agents (``agent_mask``) are never ground.
     ``n_fallback`` counts the pixels that were not re-anchored (neither ground nor traced to it).
@@ -295,11 +303,14 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
     by an image edge (benchmarks/bench_edge_stops.py), filled along rows; traced pixels whose
     colour runs on below their contact placed at their colour foot; per-pixel categories
     for diagnostics, here also ``snapped``, the ``ground_mode`` map and
-    ``raw``, the map the runs are traced on).
+    ``raw``, the map the runs are traced on). ``camera``: the :class:`AlignCamera` of (``K``,
+    the map's size, ``n_g``, ``d_g``; ``image`` when it holds one), else built here.
     """
     from staticdepth.geometry.alignment_upright import upright_depth
 
-    g, snap, q, raw = _ground_fit(depth, K, n_g, d_g, ground_mask, snap_rel, max_points)
+    h, w = np.shape(depth)
+    cam = align_camera(camera, K, n_g, d_g, w, h)
+    g, snap, q, raw = _ground_fit(depth, ground_mask, snap_rel, max_points, cam)
     if agent_mask is not None:
         snap = snap & ~np.asarray(agent_mask, bool)
     Z = np.asarray(depth, dtype=np.float32)
@@ -319,7 +330,7 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
                                extra_ground=extra_ground, keep_rel=keep_rel, occlude=occlude,
                                step_occlude=step_occlude, edge_below=edge_below, image=image,
                                not_ground=None if agent_mask is None
-                               else np.asarray(agent_mask, bool))
+                               else np.asarray(agent_mask, bool), camera=cam)
     valid = np.isfinite(g.depth)
     out = np.where(moved, new, g.depth)
     if plane_bound:
@@ -332,14 +343,12 @@ def align_upright(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask
                      int(np.count_nonzero(valid & ~snap & ~moved)), False)
 
 
-def _ground_fit(depth, K, n_g, d_g, ground_mask, snap_rel, max_points):
-    """align_ground's work: (Alignment, (H, W) bool snapped pixels, (H, W) plane inverse depth,
-    (H, W) depth before snapping)."""
+def _ground_fit(depth, ground_mask, snap_rel, max_points, camera):
+    """align_ground's work on the plane of ``camera`` (an AlignCamera of the map's size):
+    (Alignment, (H, W) bool snapped pixels, (H, W) plane inverse depth, (H, W) depth before
+    snapping)."""
     Z = np.asarray(depth, dtype=np.float32)
-    h, w = Z.shape
-    n_g = np.asarray(n_g, dtype=np.float64)
-    q = (ray_grid(np.asarray(K, dtype=np.float64), w, h) @ (n_g / (np.linalg.norm(n_g) * d_g))
-         ).astype(np.float32)
+    q = camera.q
     valid = np.isfinite(Z) & (Z > 0)
     with np.errstate(divide="ignore"):
         inv = np.where(valid, 1.0 / np.where(valid, Z, 1), np.nan).astype(np.float32)
@@ -369,7 +378,8 @@ def _ground_fit(depth, K, n_g, d_g, ground_mask, snap_rel, max_points):
 
 
 def agents_at_contact(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, instances: np.ndarray,
-                      rows: np.ndarray, conf=None, heights=None) -> tuple[np.ndarray, np.ndarray]:
+                      rows: np.ndarray, conf=None, heights=None,
+                      camera: AlignCamera | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Give each agent the agents' plane depth ``d_g / (n_g . r)`` at its ground contact pixel.
 
     Eq. 2 moves every point within its depth slice onto the predicted plane, which distorts
@@ -381,8 +391,9 @@ def agents_at_contact(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, instanc
     mask ends on another agent or at the image's bottom row, with their top seen, take the
     contact their top and height give (``agent_contact.contacts_from_top``) instead of the
     plane's depth at their lowest pixel, which lies behind them. Agents whose contact lies above
-    the agents' horizon keep their depth. Returns the new map and the (H, W) bool mask of
-    changed pixels.
+    the agents' horizon keep their depth. ``camera``: the :class:`AlignCamera` of (``K``, the
+    map's size, ``n_g``, ``d_g``), else built here. Returns the new map and the (H, W) bool mask
+    of changed pixels.
     """
     from staticdepth.geometry.agent_contact import contacts_from_top
     from staticdepth.pseudo_labels import PRESETS, pseudo_label
@@ -390,8 +401,7 @@ def agents_at_contact(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, instanc
     Z = np.asarray(depth, dtype=np.float32)
     h, w = Z.shape
     n_g = np.asarray(n_g, dtype=np.float64)
-    inv_plane = (ray_grid(np.asarray(K, dtype=np.float64), w, h) @ (n_g / (np.linalg.norm(n_g) * d_g))
-                 ).astype(np.float32)
+    inv_plane = align_camera(camera, K, n_g, d_g, w, h).q
     conf = conf or PRESETS["paper"]
     contacts = None if heights is None else contacts_from_top(K, n_g, d_g, instances, rows,
                                                               heights, inv_plane, conf)

@@ -45,14 +45,21 @@ that run kept the ground mode's scale, the ground's, not its own; an exported gr
 A pure function of (depth, K, plane, ground mask[, agent mask]); ``geometry/alignment.py``
 dispatches ``mode="upright"`` here. The image of the vertical (steps down it, the recession test)
 is in ``geometry/alignment_vertical.py``. Sequential over rows (the march) and columns (the fill).
+What depends only on the camera, the plane and the static image (rays, the plane's inverse depth,
+the image of the vertical, the colour feet) is an :class:`AlignCamera`: built once per run by
+adapt's align stage and passed to every frame, else by each call.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from staticdepth.errors import InputError
-from staticdepth.geometry.alignment_vertical import (colour_foot, down_step, ground_coloured,
-                                                    receding, vertical_depth)
+from staticdepth.geometry.alignment_vertical import (colour_codes, colour_foot, down_step,
+                                                    ground_coloured, receding,
+                                                    static_colour_feet, vertical_depth,
+                                                    vertical_walk)
 from staticdepth.geometry.projection import ray_grid
 
 SHAPES = ("network", "vertical")
@@ -73,6 +80,152 @@ def rows_below(du: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ub = np.rint(np.arange(w) + np.nan_to_num(step))
     inside = np.isfinite(step) & (ub >= 0) & (ub < w)
     return np.clip(ub, 0, w - 1).astype(np.int64), inside
+
+
+def _read_only(x):
+    """``x`` (an array, or tuples of them) made read-only: constants every frame shares."""
+    if isinstance(x, np.ndarray):
+        x.setflags(write=False)
+    elif isinstance(x, tuple):
+        for y in x:
+            _read_only(y)
+    return x
+
+
+def _owned(x, dtype=np.float64) -> np.ndarray:
+    """``x`` as a read-only array of ``dtype`` that nothing else can write: itself when it is
+    one already (an AlignCamera's own), else a copy."""
+    if (isinstance(x, np.ndarray) and x.dtype == dtype and x.base is None
+            and not x.flags.writeable):
+        return x
+    return _read_only(np.array(x, dtype=dtype))
+
+
+@dataclass(frozen=True, eq=False)
+class AlignCamera:
+    """The alignment's per-camera constants: what depends only on the camera (``K``, the image's
+    ``width`` x ``height``), the plane ``normal . P = d`` (``normal`` exactly as the alignment's
+    functions are given it: they check it, :meth:`check`) and the static scene's ``image``
+    ((H, W, C) 0-1, or None), not on the frame. Built once per run and passed to every frame
+    (adapt's align stage), else by each call. Each constant is computed on first use, once,
+    read-only: :attr:`rays`, :attr:`q`, :attr:`unit`, :attr:`du`, :meth:`walk`,
+    :meth:`colour_feet`, :meth:`colour_codes` and :meth:`normalised` (the camera of the unit
+    normal that ``align_depth`` passes on). ``K``, ``normal`` and ``image`` are kept as read-only
+    float64 copies."""
+
+    K: np.ndarray
+    width: int
+    height: int
+    normal: np.ndarray
+    d: float
+    image: np.ndarray | None = None
+    _memo: dict = field(default_factory=dict, init=False, repr=False)
+
+    def __post_init__(self):
+        K, n = _owned(self.K), _owned(self.normal)
+        if K.shape != (3, 3) or n.shape != (3,):
+            raise InputError(f"an alignment camera needs a 3x3 K and a 3-vector normal, got "
+                             f"{K.shape} and {n.shape}")
+        image = None if self.image is None else _owned(self.image)
+        if image is not None and image.shape[:2] != (self.height, self.width):
+            raise InputError(f"the static image is {image.shape[:2]}, the camera "
+                             f"{self.width}x{self.height}")
+        for name, value in (("K", K), ("normal", n), ("image", image), ("d", float(self.d)),
+                            ("width", int(self.width)), ("height", int(self.height))):
+            object.__setattr__(self, name, value)
+
+    def check(self, K, n_g, d_g: float, width: int, height: int) -> "AlignCamera":
+        """Itself, when it was built for exactly these (``K``, plane ``n_g . P = d_g``, a
+        ``width`` x ``height`` frame); InputError otherwise: another camera's or plane's constants
+        would misplace every pixel."""
+        if not ((int(width), int(height)) == (self.width, self.height)
+                and np.array_equal(np.asarray(K, dtype=np.float64), self.K)
+                and np.array_equal(np.asarray(n_g, dtype=np.float64), self.normal)
+                and float(d_g) == self.d):
+            raise InputError(
+                f"the alignment camera was built for another camera or plane: {self.width}x"
+                f"{self.height}, normal {self.normal.tolist()}, d {self.d}, K "
+                f"{self.K.tolist()}; the frame's {width}x{height}, normal "
+                f"{np.asarray(n_g).tolist()}, d {d_g}, K {np.asarray(K).tolist()}")
+        return self
+
+    def _get(self, key, make):
+        if key not in self._memo:
+            self._memo[key] = _read_only(make())
+        return self._memo[key]
+
+    @property
+    def rays(self) -> np.ndarray:
+        """(H, W, 3) every pixel's ray (projection.ray_grid, r_z = 1)."""
+        return self._get("rays", lambda: ray_grid(self.K, self.width, self.height))
+
+    @property
+    def q(self) -> np.ndarray:
+        """(H, W) float32 the plane's inverse depth ``n . r / d`` (n: ``normal`` made unit)."""
+        return self._get("q", lambda: (self.rays @ (
+            self.normal / (np.linalg.norm(self.normal) * self.d))).astype(np.float32))
+
+    @property
+    def unit(self) -> np.ndarray:
+        """The unit normal ``normal / |normal|``."""
+        return self._get("unit", lambda: self.normal / np.linalg.norm(self.normal))
+
+    @property
+    def du(self) -> np.ndarray:
+        """(H, W) the column step per row down the image of the vertical (``down_step``)."""
+        return self._get("du", lambda: down_step(self.K, self.unit, self.width, self.height))
+
+    def walk(self, span: int) -> tuple:
+        """``alignment_vertical.vertical_walk`` of :attr:`du` over ``span`` rows."""
+        return self._get(("walk", span), lambda: vertical_walk(self.du, span))
+
+    def colour_feet(self, image: np.ndarray, max_diff: float) -> np.ndarray:
+        """``alignment_vertical.static_colour_feet`` of ``image`` on :attr:`du`: kept here when
+        ``image`` is the camera's own (:attr:`image`, not hashed again for each frame)."""
+        if self._own(image):
+            return self._get(("feet", max_diff),
+                             lambda: static_colour_feet(self.image, self.du, max_diff))
+        return static_colour_feet(image, self.du, max_diff)
+
+    def colour_codes(self, image: np.ndarray, levels: int) -> np.ndarray:
+        """``alignment_vertical.colour_codes`` of ``image``: kept here when ``image`` is the
+        camera's own."""
+        if self._own(image):
+            return self._get(("codes", levels), lambda: colour_codes(self.image, levels))
+        return colour_codes(image, levels)
+
+    def _own(self, image) -> bool:
+        """Whether ``image`` is the camera's :attr:`image`; InputError for another image when
+        the camera holds one."""
+        if self.image is None:
+            return False
+        if image is not self.image:
+            raise InputError("the alignment camera holds a static image and was given another: "
+                             "pass its own (AlignCamera.image)")
+        return True
+
+    def normalised(self) -> "AlignCamera":
+        """The camera of the plane with normal :attr:`unit` (as ``align_depth`` passes the normal
+        on), sharing :attr:`rays` and the image; itself when that is ``normal`` to the bit (not
+        kept: a camera referring to itself would outlive a call that dropped it)."""
+        if np.array_equal(self.unit, self.normal):
+            return self
+
+        def make():
+            cam = AlignCamera(self.K, self.width, self.height, self.unit, self.d, self.image)
+            cam._memo["rays"] = self.rays
+            return cam
+
+        return self._get("normalised", make)
+
+
+def align_camera(camera: AlignCamera | None, K, n_g, d_g: float, width: int,
+                 height: int) -> AlignCamera:
+    """``camera`` checked against these arguments (:meth:`AlignCamera.check`), or, when None, a
+    new camera for them."""
+    if camera is None:
+        return AlignCamera(K, width, height, n_g, d_g)
+    return camera.check(K, n_g, d_g, width, height)
 
 
 def chain_ends(link: np.ndarray) -> np.ndarray:
@@ -278,8 +431,8 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
                   keep_rel: float | None = KEEP_REL, occlude: bool = False,
                   step_occlude: bool = False, edge_below: np.ndarray | None = None,
                   image: np.ndarray | None = None, foot_diff: float = FOOT_DIFF,
-                  foot_pull: float = FOOT_PULL,
-                  info: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  foot_pull: float = FOOT_PULL, info: dict | None = None,
+                  camera: AlignCamera | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Re-anchor the non-ground pixels of an aligned depth map ``A`` (H, W; units of d_g) at their
     contact with the ground (module docstring). ``ground``: (H, W) bool pixels on the plane;
     ``q``: the plane's inverse depth ``n_g . r / d_g`` per pixel; ``not_ground``: pixels never
@@ -303,9 +456,10 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     colours, 0-1 (e.g. the median of the adaptation frames): traced pixels whose colour run goes
     on below their contact stand at its foot (:func:`colour_foot`, ``foot_diff``, ``foot_pull``;
     benchmarks/bench_near_structures.py); ``info`` also receives ``planar_walked`` (the
-    walked-region rule's pixels), ``contact_q`` and ``colour_foot``. Returns the new map and
-    the (H, W) bool mask of the pixels it set (re-anchored, planar, or snapped pixels found to
-    be structures, which keep ``A``)."""
+    walked-region rule's pixels), ``contact_q`` and ``colour_foot``; ``camera``: the
+    :class:`AlignCamera` of (``K``, ``A``'s size, ``n_g``, ``d_g``; the static image when it is
+    ``image``), else built here. Returns the new map and the (H, W) bool mask of the pixels it
+    set (re-anchored, planar, or snapped pixels found to be structures, which keep ``A``)."""
     if shape not in SHAPES:
         raise InputError(f"upright alignment shape must be one of {SHAPES}, got {shape!r}")
     if not (np.isfinite(jump_rel) and jump_rel > 0):
@@ -313,10 +467,9 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
     if not (np.isfinite(max_ratio) and max_ratio >= 1):
         raise InputError(f"upright alignment max_ratio must be >= 1, got {max_ratio}")
     h, w = A.shape
+    cam = align_camera(camera, K, n_g, d_g, w, h)
     A = np.asarray(A, dtype=np.float64)
-    n = np.asarray(n_g, dtype=np.float64)
-    n = n / np.linalg.norm(n)
-    du = down_step(K, n, w, h)
+    n, du = cam.unit, cam.du
     src = A if native is None else np.asarray(native, dtype=np.float64)
     max_walk = max(2, h // 16)
 
@@ -336,7 +489,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
         # ground where either recedes, a structure on the plane's depth where neither does, so
         # that a run this alignment re-anchored is not taken for ground when aligned again
         flat, recedes = receding((A,) if native is None else (A, src), q, du, span,
-                                  jump_rel, recede)
+                                 jump_rel, recede, cam.walk(span))
         with np.errstate(invalid="ignore"):
             planar = recedes & ~ground
             # the plane at most recede_push x farther than the pixel's ground-mode depth
@@ -365,7 +518,7 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
             ground = ground | wg
             qc, idx, have = trace(ground)
     ratio = np.full((h, w), np.nan)
-    rays = ray_grid(np.asarray(K, dtype=np.float64), w, h).reshape(-1, 3)
+    rays = cam.rays.reshape(-1, 3)
     if shape == "network":
         ratio[have] = (1.0 / qc[have]) / src.ravel()[idx[have]]
     else:
@@ -399,9 +552,10 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
         # not the ground's own colours: a smooth road the network keeps flat is traced like a
         # wall, and its colour runs on down to a marking or a kerb
         cand = moved & (idx >= 0) & ~ground_coloured(image, ground & (
-            walked if walked is not None else True), FOOT_GROUND_SHARE, FOOT_LEVELS)
-        feet = colour_foot(out, image, q, du, rays, n, ground, cand, idx,
-                           not_ground, foot_diff, foot_pull)
+            walked if walked is not None else True), FOOT_GROUND_SHARE, FOOT_LEVELS,
+            cam.colour_codes(image, FOOT_LEVELS))
+        feet = colour_foot(out, image, q, du, rays, n, ground, cand, idx, not_ground,
+                           foot_diff, foot_pull, cam.colour_feet(image, foot_diff))
         moved = moved | feet
         if info is not None:
             info["colour_foot"] = feet

@@ -46,14 +46,28 @@ def walk_up(du: np.ndarray, n: int, span: int):
         yield vs + j, np.clip(ui, 0, w - 1), inside
 
 
+def vertical_walk(du: np.ndarray, span: int) -> tuple[tuple, np.ndarray]:
+    """What :func:`receding` walks over, constants of the camera and plane: :func:`walk_up`'s
+    steps from every pixel of rows ``[0, H - span)`` (a tuple of ``(rows, columns, inside)``,
+    each step's ``inside`` its own array; none when ``span >= H``) and the (H, W) column of the
+    pixel ``span`` rows up each pixel's vertical (its own ``du`` times ``span``, rounded, clipped
+    into the image)."""
+    h, w = du.shape
+    steps = () if span >= h else tuple((rows, ui, inside.copy())
+                                       for rows, ui, inside in walk_up(du, h - span, span))
+    up = np.clip(np.rint(np.arange(w)[None, :] - span * np.nan_to_num(du)), 0, w - 1)
+    return steps, up.astype(np.int64)
+
+
 def recession(maps, q: np.ndarray, du: np.ndarray, span: int,
-              jump_rel: float) -> list[np.ndarray]:
+              jump_rel: float, steps: tuple | None = None) -> list[np.ndarray]:
     """Per map of ``maps`` (each (H, W)), how fast the depth grows up the image's vertical
     relative to the plane's: the ratio of the ``ln A`` to the ``ln (1 / q)`` difference over
     ``span`` rows; NaN where that is not measurable or a single row's step exceeds the plane's by
     more than a depth step (``jump_rel``). About 1 on the ground (also where the network has it at
     the wrong depth), 0 or below on a structure standing on it (it gets nearer or stays going up).
-    The maps share one walk up the verticals."""
+    The maps share one walk up the verticals (``steps``: :func:`vertical_walk`'s, default walked
+    here)."""
     h, w = q.shape
     outs = [np.full((h, w), np.nan) for _ in maps]
     if span >= h:
@@ -63,7 +77,7 @@ def recession(maps, q: np.ndarray, du: np.ndarray, span: int,
     inside = oks[0]
     a_prev, q_prev = [A[:n] for A in maps], q[:n]
     with np.errstate(invalid="ignore", divide="ignore"):
-        for rows, ui, inside in walk_up(du, n, span):
+        for rows, ui, inside in vertical_walk(du, span)[0] if steps is None else steps:
             q_j = q[rows, ui]
             plane = (q_j > 0, np.log1p(jump_rel) + np.log(q_j / q_prev))
             for i, A in enumerate(maps):
@@ -80,17 +94,18 @@ def recession(maps, q: np.ndarray, du: np.ndarray, span: int,
 
 
 def receding(maps, q: np.ndarray, du: np.ndarray, span: int, jump_rel: float,
-              recede: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+             recede: tuple[float, float], walk: tuple | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
     """(H, W) bool: ``flat`` (on no map of ``maps`` does the pixel or the pixel ``span`` rows
     above it recede: a structure, if the plane's depth snapped it) and ``recedes`` (on some map
     the depth grows up the vertical ``recede`` times as fast as the plane's, measured from above
-    at a step)."""
+    at a step). ``walk``: :func:`vertical_walk` of (``du``, ``span``), default computed here."""
     h, w = q.shape
     vu = np.arange(h)[:, None] - span
-    uu = np.clip(np.rint(np.arange(w)[None, :] - span * np.nan_to_num(du)), 0, w - 1)
+    steps, uu = vertical_walk(du, span) if walk is None else walk
     flat, recedes = np.ones((h, w), bool), np.zeros((h, w), bool)
-    for k in recession(maps, q, du, span, jump_rel):
-        k_up = np.where(vu >= 0, k[np.maximum(vu, 0), uu.astype(np.int64)], np.nan)
+    for k in recession(maps, q, du, span, jump_rel, steps):
+        k_up = np.where(vu >= 0, k[np.maximum(vu, 0), uu], np.nan)
         k_any = np.where(np.isfinite(k), k, k_up)
         with np.errstate(invalid="ignore"):
             flat &= (k < recede[0]) & ~(k_up >= recede[0])
@@ -161,10 +176,10 @@ def colour_codes(image: np.ndarray, levels: int) -> np.ndarray:
 
 
 def ground_coloured(image: np.ndarray, ground: np.ndarray, share: float,
-                    levels: int) -> np.ndarray:
+                    levels: int, code: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool: pixels whose colour bin (:func:`colour_codes`) holds at least ``share`` of
-    the ``ground`` pixels' colours."""
-    code = colour_codes(image, levels)
+    the ``ground`` pixels' colours (``code``: ``colour_codes(image, levels)``, when known)."""
+    code = colour_codes(image, levels) if code is None else code
     g = np.asarray(ground, bool)
     if not g.any():
         return np.zeros(code.shape, bool)
