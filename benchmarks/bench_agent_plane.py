@@ -54,7 +54,8 @@ from staticdepth.errors import InputError  # noqa: E402
 from staticdepth.geometry.agent_plane import (AgentPlaneConfig, camera_height_from_prior,  # noqa: E402
                                               fit_agent_plane)
 from staticdepth.geometry.agent_plane_gate import camera_height_from_agents, plane_gate  # noqa: E402
-from staticdepth.geometry.agent_plane_laplace import cramer_rao_of_fit, tracks_for  # noqa: E402
+from staticdepth.geometry.agent_plane_laplace import (chance_over, cramer_rao_of_fit,  # noqa: E402
+                                                      tracks_for)
 from staticdepth.geometry.plane import angle_between_deg  # noqa: E402
 from staticdepth.geometry.scale import anchor_depth, anchor_pixel  # noqa: E402
 
@@ -104,16 +105,20 @@ def camera_height(plane, model: str, vehicles: bool) -> float:
         return float("nan")
 
 
-def uncertainty_cell(s, p, conf, n_tracks: int) -> str:
-    """The joint fit's Laplace std (priors in / data only) and the Cramer-Rao bound at the truth
-    (data only / priors in; agent_plane_laplace), the chance that an unbiased fit with the bound's
-    RMS is over 1 degree, and the tracks (same frames each) that would make it 5%."""
+def uncertainty_cell(s, p, bound, n_tracks: int) -> str:
+    """The joint fit's Laplace std (priors in / data only), the Cramer-Rao bound at the truth
+    (``bound``: data only / priors in; agent_plane_laplace), the chance that an unbiased fit with
+    the bound's RMS is over 1 degree, and the tracks (same frames each) that would make it 5%;
+    with the priors, the bound's std of the anchor depth (true camera height) and of the camera
+    height."""
     q = p.normal_std_parts
-    crb, crb_p = cramer_rao_of_fit(s.K, s.obs, p, conf, s.normal, s.agent_heights, s.height_m)
+    crb, crb_p = bound.normal_deg, bound.normal_priors_deg
     return (f", Laplace {q.get('laplace_std_deg', np.nan):.2f} / "
             f"{q.get('laplace_data_std_deg', np.nan):.2f}, CRB {crb:.2f} / {crb_p:.2f} "
-            f"(P(>1 deg) {np.exp(-(1 / crb) ** 2):.0%}; 1 deg at 95%: "
-            f"{tracks_for(crb, n_tracks) if np.isfinite(crb) else 'no'} tracks)")
+            f"(P(>1 deg) {chance_over(crb, 1.0, 2):.0%}; 1 deg at 95%: "
+            f"{tracks_for(crb, n_tracks) if np.isfinite(crb) else 'no'} tracks), CRB anchor "
+            f"{bound.anchor_std(s.K, *anchor_pixel(W, H)) * 100:.2f}%, camera height "
+            f"{bound.camera_height_std() * 100:.1f}%")
 
 
 def scene_table(names: list[str], frames: int, min_height_px: float, bootstrap: int) -> None:
@@ -199,6 +204,9 @@ def main() -> None:
         stats = {m: ([], [], [], []) for m in models}
         refused = {m: 0 for m in models}
         ratios, gate = [], [0, 0, 0, 0]   # accepted over 1 deg, refused under 0.5, of how many
+        # --verbose: cameras over 1 deg / 5% camera height / 1% anchor, expected of an unbiased
+        # fit at the bound (priors in) and observed, of how many
+        expected, observed = [0.0, 0.0, 0.0, 0], [0, 0, 0]
         for seed in range(args.first_camera, args.first_camera + args.cameras):
             try:
                 s = scene(kind, seed, detection=det, outliers=args.outliers,
@@ -213,9 +221,10 @@ def main() -> None:
                 print(f"  {kind} camera {seed}: only {n_tracks} tracks in view (the gate refuses "
                       "fewer than 3)", flush=True)
             for m in models:
+                conf = CONFIGS[m]
                 t0 = time.perf_counter()
                 try:
-                    p = fit_agent_plane(s.K, s.obs, CONFIGS[m])
+                    p = fit_agent_plane(s.K, s.obs, conf)
                 except InputError as e:          # a refusal (e.g. near-nadir) counts, as NaN
                     print(f"  {kind} camera {seed} {m}: refused: {e}", flush=True)
                     refused[m] += 1
@@ -225,13 +234,25 @@ def main() -> None:
                 h = camera_height(p, m, kind == "vehicles")
                 stats[m][1].append(abs(h / s.height_m - 1) * 100)
                 stats[m][3].append(anchor_error(s, p.normal))
+                bound = None
+                if args.verbose and m == "joint":
+                    bound = cramer_rao_of_fit(s.K, s.obs, p, conf, s.normal,
+                                              s.agent_heights, s.height_m)
+                    a_std = bound.anchor_std(s.K, *anchor_pixel(W, H))
+                    for k, (std, lim, dims, err) in enumerate((
+                            (bound.normal_priors_deg, 1.0, 2, stats[m][0][-1]),
+                            (bound.camera_height_std() * 100, 5.0, 1, stats[m][1][-1]),
+                            (a_std * 100, 1.0, 1, stats[m][3][-1]))):
+                        expected[k] += chance_over(std, lim, dims)
+                        observed[k] += err > lim
+                    expected[3] += 1
                 if args.verbose:
                     print(f"  {kind} camera {seed} {m}: {stats[m][0][-1]:.2f} deg, anchor "
                           f"{stats[m][3][-1]:.2f}%, camera height "
                           f"{h / s.height_m * 100 - 100:+.1f}%, "
                           f"{n_tracks} tracks, uncertainty {p.normal_std_deg:.2f}"
-                          + (uncertainty_cell(s, p, CONFIGS[m], n_tracks) if m == "joint"
-                             else ""), flush=True)
+                          + (uncertainty_cell(s, p, bound, n_tracks) if bound else ""),
+                          flush=True)
                 if m == "joint" and args.bootstrap:
                     ratios.append(stats[m][0][-1] / p.normal_std_deg)
                     ok = plane_gate(p).ok
@@ -264,6 +285,11 @@ def main() -> None:
                          f"{gate[3]} under 0.5")
         label = f"{kind}/{det}" if len(detections) > 1 else kind
         print(f"{label:10}" + "".join(f" | {c:^42}" for c in cells), flush=True)
+        if expected[3]:
+            print(f"{'':10} | joint, cameras over 1 deg / camera height 5% / anchor 1%: "
+                  f"{observed[0]} / {observed[1]} / {observed[2]} of {expected[3]}; an unbiased "
+                  f"fit at the Cramer-Rao bound (priors in) {expected[0]:.1f} / "
+                  f"{expected[1]:.1f} / {expected[2]:.1f}", flush=True)
 
 
 if __name__ == "__main__":

@@ -14,10 +14,11 @@ import pytest
 from plane_generators import scene
 from staticdepth.geometry.agent_plane import AgentPlaneConfig, _prepare, fit_agent_plane
 from staticdepth.geometry.agent_plane_gate import plane_gate
-from staticdepth.geometry.agent_plane_laplace import (cramer_rao_of_fit, laplace_uncertainty,
-                                                      tracks_for)
+from staticdepth.geometry.agent_plane_laplace import (CramerRao, chance_over, cramer_rao_of_fit,
+                                                      laplace_uncertainty, tracks_for)
 from staticdepth.geometry.agent_plane_problem import _normal, _Problem
-from staticdepth.geometry.camera import pitch_roll_from_normal
+from staticdepth.geometry.agent_shape import GROUPS
+from staticdepth.geometry.camera import normal_from_pitch_roll, pitch_roll_from_normal
 from staticdepth.geometry.plane import angle_between_deg
 
 NO_PRIORS = AgentPlaneConfig(bootstrap=0, column_weight=1.0, height_prior_weight=0.0,
@@ -71,8 +72,8 @@ def test_gate_refuses_a_far_camera_the_bootstrap_alone_accepted():
     assert gate.tracks_needed > gate.tracks and "Laplace" in gate.message
     # what 1 px allows here: the bound at the truth; an unbiased fit is over 1 degree with
     # probability exp(-(1 / bound)^2) (a 2-D Gaussian), and more tracks bring it down
-    crb, crb_priors = cramer_rao_of_fit(s.K, s.obs, p, conf, s.normal, s.agent_heights,
-                                        s.height_m)
+    bound = cramer_rao_of_fit(s.K, s.obs, p, conf, s.normal, s.agent_heights, s.height_m)
+    crb, crb_priors = bound.normal_deg, bound.normal_priors_deg
     assert crb_priors <= crb + 1e-9 and 0.5 < crb < q["laplace_data_std_deg"] * 1.5
     assert tracks_for(crb, 24) > 24
 
@@ -91,3 +92,56 @@ def test_the_plane_file_carries_both_uncertainties():
         / 2), rel=1e-12)
     back = AgentPlane.from_dict(p.to_dict())
     assert back.normal_std_parts == q and back.normal_std_deg == p.normal_std_deg
+
+
+def test_bound_on_the_camera_height_is_the_height_priors_where_the_pixels_pin_the_heights():
+    # thin axes, camera 0: 21 degrees from 3.1 m, near people 24 tracks; the pixels fix each
+    # track's H_j / d far better than its class prior does, so what the bound leaves for d is the
+    # priors' information alone: sum_j (zr'(z_j) / sd)^2 with z_j each true height's offset from
+    # the class mean in log sds and zr the pseudo-Huber row (agent_plane_problem.residuals)
+    s = scene("thin", 0)
+    conf = AgentPlaneConfig(bootstrap=0, column_weight=1.0)
+    p = fit_agent_plane(s.K, s.obs, conf)
+    bound = cramer_rao_of_fit(s.K, s.obs, p, conf, s.normal, s.agent_heights, s.height_m)
+    mean, sd = GROUPS[0].typical_height
+    z = (np.log(np.array(list(s.agent_heights.values()))) - np.log(mean)) / sd
+    zr = np.sign(z) * np.sqrt(2 * (np.sqrt(1 + z * z) - 1))
+    slope = z / (np.sqrt(1 + z * z) * zr)            # d zr / d z (z is never exactly 0 here)
+    priors_only = 1 / np.sqrt(np.sum((slope / sd) ** 2))
+    # the pixels and the normal only add variance to d: above the priors' bound, and close to it
+    assert priors_only <= bound.camera_height_std() <= 1.05 * priors_only
+    assert 0.010 < priors_only < 0.016     # 24 people, 5.3% each, children weighed down
+
+
+def test_bound_on_the_anchor_is_the_normal_covariance_through_the_anchor_ray():
+    # a (pitch, roll) covariance given; the anchor depth d / (n . r) of normals drawn from it
+    # (staticdepth.geometry.scale.anchor_depth, the bench's and adapt's) spreads by anchor_std
+    from staticdepth.geometry.scale import anchor_depth
+
+    K = np.array([[700.0, 0, 479.5], [0, 700.0, 269.5], [0, 0, 1]])
+    pitch, roll = 18.0, 3.0
+    n = normal_from_pitch_roll(pitch, roll)
+    cov = np.zeros((3, 3))
+    cov[:2, :2] = np.array([[0.6 ** 2, 0.5 * 0.6 * 0.4], [0.5 * 0.6 * 0.4, 0.4 ** 2]]) * (
+        np.pi / 180) ** 2
+    bound = CramerRao(0.0, 0.0, cov, n)
+    rng = np.random.default_rng(0)
+    dp = rng.multivariate_normal([0, 0], cov[:2, :2], 20000)
+    d0 = anchor_depth(K, n, 5.0, 480.0, 539.0)
+    rel = np.array([anchor_depth(K, normal_from_pitch_roll(pitch + np.degrees(a),
+                                                           roll + np.degrees(b)), 5.0, 480.0,
+                                 539.0) / d0 - 1 for a, b in dp])
+    assert bound.anchor_std(K, 480.0, 539.0) == pytest.approx(rel.std(), rel=0.03)
+    # the bottom row looks down 18 + 21 degrees: mostly the pitch moves it, ~tan(51) x 0.6 deg
+    assert 0.010 < rel.std() < 0.015
+
+
+def test_chance_over_is_the_gaussian_tail():
+    from scipy.stats import chi2, norm
+
+    for std, lim in ((1.0, 1.0), (0.4, 1.0), (2.3, 5.0)):
+        assert chance_over(std, lim) == pytest.approx(2 * norm.sf(lim / std), rel=1e-9)
+        # an isotropic 2-D error of RMS length std: each axis std / sqrt(2)
+        assert chance_over(std, lim, 2) == pytest.approx(chi2.sf(2 * (lim / std) ** 2, 2),
+                                                         rel=1e-9)
+    assert chance_over(0.0, 1.0) == 0.0

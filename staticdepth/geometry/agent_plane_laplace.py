@@ -34,6 +34,7 @@ observations. With 1 px noise and 24 tracks it says which cameras cannot reach 1
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -85,26 +86,37 @@ def _jacobian(fun, x: np.ndarray, sparsity, k_s: int, J: int) -> tuple[np.ndarra
     return r0, D
 
 
+def _normal_jacobian(n) -> np.ndarray:
+    """(3, 2) derivative of the unit normal by (pitch, roll), radians."""
+    p, r = (math.radians(a) for a in pitch_roll_from_normal(n))
+    return np.array([[math.sin(r) * math.sin(p), -math.cos(r) * math.cos(p)],
+                     [-math.cos(r) * math.sin(p), -math.sin(r) * math.cos(p)],
+                     [math.cos(p), 0.0]])
+
+
 def _angle_std_deg(n, cov_pr: np.ndarray) -> float:
     """RMS angle (deg) of the normal for a (pitch, roll) covariance (rad^2)."""
-    p, r = (math.radians(a) for a in pitch_roll_from_normal(n))
-    G = np.array([[math.sin(r) * math.sin(p), -math.cos(r) * math.cos(p)],
-                  [-math.cos(r) * math.sin(p), -math.sin(r) * math.cos(p)],
-                  [math.cos(p), 0.0]])
+    G = _normal_jacobian(n)
     var = float(np.trace(G @ cov_pr @ G.T))
     return math.degrees(math.sqrt(var)) if var >= 0 else float("inf")
 
 
-def _normal_block(info: np.ndarray) -> np.ndarray:
-    """The (pitch, roll) block of the inverse, unknowns without information (the camera-height
-    term when its prior is off) left out."""
+def _inverse_block(info: np.ndarray, idx) -> np.ndarray:
+    """The ``idx`` block of the inverse, unknowns without information (the camera-height term
+    when its prior is off) left out; ``idx`` must have information."""
     d = np.diag(info)
     use = d > 1e-12 * d.max()
-    use[:2] = True
+    use[list(idx)] = True
+    pos = np.cumsum(use) - 1
     try:
-        return np.linalg.inv(info[np.ix_(use, use)])[:2, :2]
+        return np.linalg.inv(info[np.ix_(use, use)])[np.ix_(pos[idx], pos[idx])]
     except np.linalg.LinAlgError:
-        return np.full((2, 2), np.inf)
+        return np.full((len(idx), len(idx)), np.inf)
+
+
+def _normal_block(info: np.ndarray) -> np.ndarray:
+    """The (pitch, roll) block of the inverse (see :func:`_inverse_block`)."""
+    return _inverse_block(info, [0, 1])
 
 
 def _information(prob: _Problem, conf, x: np.ndarray, with_one: bool, at_bound=None):
@@ -181,13 +193,47 @@ def laplace_uncertainty(K, prob: _Problem, conf, n, theta, s, inl, thr: float) -
     return {"laplace_std_deg": with_p, "laplace_data_std_deg": no_p, "laplace_scale": scale}
 
 
+@dataclass(frozen=True)
+class CramerRao:
+    """What no unbiased fit of one camera's observations beats (unit noise in the model's
+    pixels), at the true plane and heights: the normal's RMS angle from the data alone and with
+    the shape and height priors, and with the priors the covariance of (pitch, roll, log(1 / d))
+    (rad, rad, and the camera height's relative error: d = exp(-lam)), from which the anchor
+    depth's and the camera height's relative std follow to first order."""
+
+    normal_deg: float
+    normal_priors_deg: float
+    cov: np.ndarray
+    normal: np.ndarray
+
+    def camera_height_std(self) -> float:
+        """Relative std of the camera height from the people's height priors (1 = 100%)."""
+        return math.sqrt(self.cov[2, 2])
+
+    def anchor_std(self, K, u: float, v: float) -> float:
+        """Relative std of the ground's depth at pixel (u, v) given the true camera height,
+        ``d / (n . r)``: its log moves by ``-(r . dn) / (n . r)``."""
+        r = np.linalg.solve(np.asarray(K, float), [u, v, 1.0])
+        g = r @ _normal_jacobian(self.normal) / float(r @ self.normal)
+        return math.sqrt(float(g @ self.cov[:2, :2] @ g))
+
+
+def chance_over(std: float, limit: float, dims: int = 1) -> float:
+    """P(error > ``limit``) for a zero-mean Gaussian error of RMS ``std``: one value (``dims``
+    1, |e|), or an isotropic 2-D one's length (``dims`` 2, e.g. the normal's angle)."""
+    if not std > 0:
+        return 0.0
+    if dims == 2:
+        return math.exp(-(limit / std) ** 2)
+    return math.erfc(limit / (std * math.sqrt(2.0)))
+
+
 def cramer_rao_std(K, obs, conf, n_true, s_true, height_m: float, theta, kappa=0.0,
-                   e1: float = 0.0, max_residual: float = 5.0) -> tuple[float, float]:
-    """(normal RMS angle deg without priors, with them) that unbiased estimators cannot beat:
-    the joint model's information at the true normal ``n_true``, true ``s_true`` (J,) = H_j / d
-    and extents ``theta`` (the body's true extents, or the fit's where the body is not the
-    model's), unit noise in the model's pixels; rows more than ``max_residual`` off at the truth
-    (outliers, impossible) left out. ``obs``: AgentObservations."""
+                   e1: float = 0.0, max_residual: float = 5.0) -> CramerRao:
+    """The bound for ``obs`` (AgentObservations): the joint model's information at the true
+    normal ``n_true``, true ``s_true`` (J,) = H_j / d and extents ``theta`` (the body's true
+    extents, or the fit's where the body is not the model's), unit noise in the model's pixels;
+    rows more than ``max_residual`` off at the truth (outliers, impossible) left out."""
     prob = _Problem(K, obs, kappa)
     prob.e1 = e1
     with_one = bool(conf.one_foot and prob.one_free)
@@ -196,11 +242,13 @@ def cramer_rao_std(K, obs, conf, n_true, s_true, height_m: float, theta, kappa=0
     (r, D), prior_D, lam_col = _information(prob, conf, x, with_one)
     ok = np.abs(r) < max_residual
     with_p, no_p, _ = _std_pair(n_true, (r[ok], D[ok]), prior_D, lam_col, conf, robust=False)
-    return no_p, with_p
+    A = D[ok].T @ D[ok] + prior_D.T @ prior_D
+    return CramerRao(no_p, with_p, _inverse_block(A, [0, 1, lam_col]),
+                     np.asarray(n_true, float))
 
 
 def cramer_rao_of_fit(K, observations: np.ndarray, plane, conf, n_true, agent_heights: dict,
-                      height_m: float) -> tuple[float, float]:
+                      height_m: float) -> CramerRao:
     """:func:`cramer_rao_std` for an observation table that ``plane`` (a joint AgentPlane) was
     fitted to with ``conf``: its noise scales, one-foot and body extents; the truth: ``n_true``,
     the tracks' heights (track id -> m) and the camera height (m)."""
