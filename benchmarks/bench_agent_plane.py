@@ -1,7 +1,7 @@
 """Ground-plane accuracy per body model: the paper's Eq. 1, the fixed-shape exact model, the joint one.
 
 Usage: python benchmarks/bench_agent_plane.py [--cameras 8] [--first-camera 0] [--outliers 0.0] [--detection mask]
-       [--generators thin,tapered,cylinder,ellipsoid,vehicles] [--models paper,exact,joint]
+       [--generators thin,tapered,cylinder,ellipsoid,vehicles] [--models paper,exact,joint,joint-h]
        [--bootstrap 0] [--verbose] [--truth foot|top|foot,top]
        python benchmarks/bench_agent_plane.py --scenes i1,i2,i3,i4 [--frames 27] [--bootstrap 20]
 
@@ -13,7 +13,9 @@ model: median and max error of the normal (degrees) and of the camera height fro
 (percent: Eq. 1 and exact from a 1.72 m agent height, people's median; joint from the classes'
 height distributions, maximum likelihood), of the anchor depth given the true camera height
 (percent; the ground's depth at the bottom row's centre pixel, the metric scale's anchor) and
-seconds per fit; a fit that refuses (InputError,
+seconds per fit (``joint-h``: the joint model told the true camera height, a prior
+``known_height_sd`` apart, as ``adapt`` does with a sequence's or a given height; its camera
+height column is still the agents' own estimate); a fit that refuses (InputError,
 e.g. a near-nadir camera) is printed and counted, not in the statistics. ``--bootstrap N``: the
 joint model's bootstrap too, and the ratio of the true normal error to its reported uncertainty
 (median / max; <= 1 where the uncertainty covers the error) and how many cameras over 1 degree
@@ -62,6 +64,8 @@ from staticdepth.geometry.scale import anchor_depth, anchor_pixel  # noqa: E402
 CONFIGS = {"paper": AgentPlaneConfig(model="paper", bootstrap=0, classes=None),
            "exact": AgentPlaneConfig(model="exact", bootstrap=0, classes=None),
            "joint": AgentPlaneConfig(bootstrap=0, column_weight=1.0)}
+# joint-h: the joint model given the true camera height (a prior on it, known_height_sd apart)
+KNOWN_HEIGHT = "joint-h"
 
 
 def anchor_error(s, normal) -> float:
@@ -96,7 +100,7 @@ def with_truth(s, parts: set[str], seed: int, noise_px: float = 1.0):
 
 def camera_height(plane, model: str, vehicles: bool) -> float:
     try:
-        if model == "joint":
+        if model in ("joint", KNOWN_HEIGHT):
             return camera_height_from_agents(plane, None if vehicles else (0, -1), bootstrap=0)[0]
         if model == "paper":
             return 1.72 * plane.d_over_agent_height
@@ -187,6 +191,9 @@ def main() -> None:
         scene_table(args.scenes.split(","), args.frames, args.min_height_px, args.bootstrap)
         return
     models = args.models.split(",")
+    if not set(models) <= set(CONFIGS) | {KNOWN_HEIGHT}:
+        ap_.error(f"--models: of {', '.join([*CONFIGS, KNOWN_HEIGHT])}, got {args.models}")
+    ref = "joint" if "joint" in models else KNOWN_HEIGHT   # the gate's lines
     detections = args.detection.split(",")
     if not set(detections) <= {"mask", "box"}:
         ap_.error(f"--detection: mask, box or mask,box, got {args.detection}")
@@ -206,7 +213,8 @@ def main() -> None:
         ratios, gate = [], [0, 0, 0, 0]   # accepted over 1 deg, refused under 0.5, of how many
         # --verbose: cameras over 1 deg / 5% camera height / 1% anchor, expected of an unbiased
         # fit at the bound (priors in) and observed, of how many
-        expected, observed = [0.0, 0.0, 0.0, 0], [0, 0, 0]
+        expected = {m: [0.0, 0.0, 0.0, 0] for m in models}
+        observed = {m: [0, 0, 0] for m in models}
         for seed in range(args.first_camera, args.first_camera + args.cameras):
             try:
                 s = scene(kind, seed, detection=det, outliers=args.outliers,
@@ -221,7 +229,8 @@ def main() -> None:
                 print(f"  {kind} camera {seed}: only {n_tracks} tracks in view (the gate refuses "
                       "fewer than 3)", flush=True)
             for m in models:
-                conf = CONFIGS[m]
+                conf = (replace(CONFIGS["joint"], known_height_m=s.height_m)
+                        if m == KNOWN_HEIGHT else CONFIGS[m])
                 t0 = time.perf_counter()
                 try:
                     p = fit_agent_plane(s.K, s.obs, conf)
@@ -235,7 +244,7 @@ def main() -> None:
                 stats[m][1].append(abs(h / s.height_m - 1) * 100)
                 stats[m][3].append(anchor_error(s, p.normal))
                 bound = None
-                if args.verbose and m == "joint":
+                if args.verbose and m in ("joint", KNOWN_HEIGHT):
                     bound = cramer_rao_of_fit(s.K, s.obs, p, conf, s.normal,
                                               s.agent_heights, s.height_m)
                     a_std = bound.anchor_std(s.K, *anchor_pixel(W, H))
@@ -243,9 +252,9 @@ def main() -> None:
                             (bound.normal_priors_deg, 1.0, 2, stats[m][0][-1]),
                             (bound.camera_height_std() * 100, 5.0, 1, stats[m][1][-1]),
                             (a_std * 100, 1.0, 1, stats[m][3][-1]))):
-                        expected[k] += chance_over(std, lim, dims)
-                        observed[k] += err > lim
-                    expected[3] += 1
+                        expected[m][k] += chance_over(std, lim, dims)
+                        observed[m][k] += err > lim
+                    expected[m][3] += 1
                 if args.verbose:
                     print(f"  {kind} camera {seed} {m}: {stats[m][0][-1]:.2f} deg, anchor "
                           f"{stats[m][3][-1]:.2f}%, camera height "
@@ -253,7 +262,7 @@ def main() -> None:
                           f"{n_tracks} tracks, uncertainty {p.normal_std_deg:.2f}"
                           + (uncertainty_cell(s, p, bound, n_tracks) if bound else ""),
                           flush=True)
-                if m == "joint" and args.bootstrap:
+                if m == ref and args.bootstrap:
                     ratios.append(stats[m][0][-1] / p.normal_std_deg)
                     ok = plane_gate(p).ok
                     gate[0] += ok and stats[m][0][-1] > 1.0
@@ -285,11 +294,12 @@ def main() -> None:
                          f"{gate[3]} under 0.5")
         label = f"{kind}/{det}" if len(detections) > 1 else kind
         print(f"{label:10}" + "".join(f" | {c:^42}" for c in cells), flush=True)
-        if expected[3]:
-            print(f"{'':10} | joint, cameras over 1 deg / camera height 5% / anchor 1%: "
-                  f"{observed[0]} / {observed[1]} / {observed[2]} of {expected[3]}; an unbiased "
-                  f"fit at the Cramer-Rao bound (priors in) {expected[0]:.1f} / "
-                  f"{expected[1]:.1f} / {expected[2]:.1f}", flush=True)
+        for m in models:
+            e, o = expected[m], observed[m]
+            if e[3]:
+                print(f"{'':10} | {m}, cameras over 1 deg / camera height 5% / anchor 1%: "
+                      f"{o[0]} / {o[1]} / {o[2]} of {e[3]}; an unbiased fit at the Cramer-Rao "
+                      f"bound (priors in) {e[0]:.1f} / {e[1]:.1f} / {e[2]:.1f}", flush=True)
 
 
 if __name__ == "__main__":

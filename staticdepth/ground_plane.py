@@ -88,10 +88,13 @@ def estimate_ground_plane(observations: np.ndarray, K: np.ndarray,
     """Fit the plane and attach a camera height: the given one, else from one agent height (the
     median over person tracks), else from the classes' height distributions (people when the
     plane has person tracks, else every class; with its uncertainty); none when that fails.
+    A given camera height also enters the joint fit, as a prior ``conf.known_height_sd`` apart.
     ``conf`` None = the default :class:`AgentPlaneConfig`."""
     from staticdepth.geometry.agent_plane import AgentPlaneConfig, fit_agent_plane
 
     conf = AgentPlaneConfig() if conf is None else conf
+    if camera_height_m is not None and conf.known_height_m is None:   # a prior in the fit
+        conf = replace(conf, known_height_m=camera_height_m)
     plane = fit_agent_plane(K, observations, conf)
     if camera_height_m is not None:
         return plane.with_camera_height(camera_height_m, "given")

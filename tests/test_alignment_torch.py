@@ -100,6 +100,47 @@ def test_torch_ground_mode_scale_only_fallback():
     assert np.median(rel) < 1e-5 and rel.max() < 1e-3
 
 
+@pytest.mark.parametrize("share,scale_only", [(0.04, 0.0), (0.06, 1.0)])
+def test_ground_mode_refuses_a_shift_that_puts_the_map_beyond_infinity(share, scale_only):
+    """The fit ``1/Z ~ s q + t`` puts inverse depth t at infinity; pixels below the horizon at
+    ``1/Z <= t`` (a band of far structures the network put behind its compressed ground) are
+    beyond it. Up to BEYOND_SHARE (5%) of them the shift stays; past it, scale only (the median of
+    ``(1/Z) / q`` on the ground, closed form), in numpy and in the graph alike."""
+    from staticdepth.geometry.alignment import fit_inverse_affine
+    from staticdepth.geometry.alignment_torch import GroundAlignment
+    from staticdepth.geometry.projection import ray_grid
+
+    Z, K, n_g, G = _scene(1)
+    h, w = Z.shape
+    q = (ray_grid(K, w, h) @ n_g).astype(np.float32)
+    inv = (1.0 / Z).astype(np.float32)
+    on = G & (q > 0)
+    s, t = fit_inverse_affine(inv[on], q[on])
+    below = q > 0
+    # the highest rows below the horizon outside the ground mask, up to the share wanted
+    cand = np.flatnonzero((below & ~G & (inv > t)).ravel())     # not beyond infinity already
+    n_beyond = int(np.count_nonzero(below & (inv <= t)))
+    k = int(share * np.count_nonzero(below)) - n_beyond
+    band = np.zeros(h * w, bool)
+    band[cand[:k]] = True
+    inv2 = inv.copy()
+    inv2[band.reshape(h, w)] = np.float32(0.5 * t)
+    Z2 = (1.0 / inv2).astype(np.float32)
+    ref, (s_ref, t_ref, only) = _ground_ref(Z2, K, n_g, G, 0.1)
+    assert only == scale_only
+    if scale_only:
+        s_med = float(np.median(inv2[on] / q[on]))
+        assert s_ref == pytest.approx(s_med, rel=1e-6) and t_ref == 0.0
+        far = band.reshape(h, w) & (np.abs(inv2 / s_med - q) > 0.1 * q)
+        assert far.any()
+        np.testing.assert_allclose(ref[far], s_med * Z2[far], rtol=1e-5)
+    else:
+        assert s_ref == pytest.approx(s, rel=1e-6) and t_ref == pytest.approx(t, rel=1e-6)
+    out = GroundAlignment(K, w, h, n_g, 1.0, G)(torch.from_numpy(Z2)).numpy()
+    rel = np.abs(out - ref) / ref
+    assert np.median(rel) < 1e-5 and np.mean(rel > 1e-3) < 1e-3, (np.median(rel), rel.max())
+
+
 def test_ground_mode_exports_to_onnx(tmp_path):
     import onnxruntime as ort
 

@@ -107,3 +107,22 @@ def test_a_stage_version_reruns_that_stage_and_those_after_it(monkeypatch):
     again = ac.stage_hashes(conf)
     assert {k for k in after if after[k] != again[k]} == changed | {"ground_plane"}
     assert again["base"] == before["base"] and again["agents"] == before["agents"]
+
+
+def test_a_known_camera_height_reruns_the_ground_plane():
+    """A given camera height (or the sequence's, taken or not) enters the joint plane fit as a
+    prior (adaptation.ground_plane.plane_config): the plane's hash and those after it change."""
+    import staticdepth.adaptation.config as ac
+
+    base = ac.stage_hashes(ac.build_config({"model": "builtin"}))
+    for sets in ({"scale.camera_height_m": 5.0}, {"scale.sequence_height": False}):
+        h = ac.stage_hashes(ac.build_config({"model": "builtin", **sets}))
+        assert h["ground_plane"] != base["ground_plane"] and h["align"] != base["align"]
+        assert h["agents"] == base["agents"] and h["base"] == base["base"]
+    from staticdepth.adaptation.ground_plane import plane_config
+
+    conf = ac.build_config({"model": "builtin", "detector.name": "motion"})
+    assert plane_config(conf).known_height_m is None
+    assert plane_config(conf, 5.0).known_height_m == 5.0 and plane_config(conf).classes == (0,)
+    told = ac.build_config({"model": "builtin", "plane.known_height_m": 4.0})
+    assert plane_config(told, 5.0).known_height_m == 4.0    # the plane's own setting wins

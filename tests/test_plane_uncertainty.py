@@ -145,3 +145,47 @@ def test_chance_over_is_the_gaussian_tail():
         assert chance_over(std, lim, 2) == pytest.approx(chi2.sf(2 * (lim / std) ** 2, 2),
                                                          rel=1e-9)
     assert chance_over(0.0, 1.0) == 0.0
+
+
+def test_a_known_camera_height_adds_its_information_to_log_1_over_d():
+    # the known height is one prior row on lam = log 1 / d (agent_plane_problem.residuals): in
+    # the bound's information it adds (w / sd)^2 to lam's entry only, so the marginal covariance
+    # of (pitch, roll, lam) takes the rank-one update of a Gaussian prior on lam (closed form)
+    from dataclasses import replace
+
+    s = scene("thin", 1)        # far people, 0.8 deg RMS: the height pulls on the normal
+    conf = AgentPlaneConfig(bootstrap=0, column_weight=1.0)
+    p = fit_agent_plane(s.K, s.obs, conf)
+    free = cramer_rao_of_fit(s.K, s.obs, p, conf, s.normal, s.agent_heights, s.height_m)
+    sd, w = 0.04, conf.height_prior_weight
+    known = cramer_rao_of_fit(s.K, s.obs, p, replace(conf, known_height_m=s.height_m,
+                                                     known_height_sd=sd),
+                              s.normal, s.agent_heights, s.height_m)
+    C = free.cov
+    expect = C - np.outer(C[:, 2], C[2, :]) / (C[2, 2] + (sd / w) ** 2)
+    np.testing.assert_allclose(known.cov, expect, rtol=1e-3, atol=1e-12)
+    assert known.camera_height_std() == pytest.approx(
+        1 / np.sqrt(1 / free.camera_height_std() ** 2 + (w / sd) ** 2), rel=1e-3)
+    # not a vacuous update: the normal's variance falls (4.9% of its trace on this camera)
+    assert np.trace(known.cov[:2, :2]) < 0.97 * np.trace(C[:2, :2])
+
+
+def test_a_given_camera_height_enters_the_fit():
+    # estimate_ground_plane (the ground-plane command) passes a given camera height to the joint
+    # fit as its prior: the same plane as the fit told the height, another than the free fit
+    from dataclasses import replace
+
+    from staticdepth.ground_plane import estimate_ground_plane
+
+    s = scene("tapered", 9)
+    conf = AgentPlaneConfig(bootstrap=0, column_weight=1.0)
+    given = estimate_ground_plane(s.obs, s.K, conf, camera_height_m=s.height_m)
+    told = fit_agent_plane(s.K, s.obs, replace(conf, known_height_m=s.height_m))
+    free = fit_agent_plane(s.K, s.obs, conf)
+    np.testing.assert_allclose(given.normal, told.normal, atol=1e-12)
+    assert given.camera_height_m == s.height_m and given.camera_height_source == "given"
+    assert angle_between_deg(told.normal, free.normal) > 0.01
+    with pytest.raises(Exception, match="known_height_m must be a positive"):
+        AgentPlaneConfig(known_height_m=0.0)
+    with pytest.raises(Exception, match="known_height_sd must be > 0"):
+        AgentPlaneConfig(known_height_sd=0.0)

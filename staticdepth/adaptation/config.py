@@ -209,8 +209,8 @@ def model_identity(spec: str) -> dict[str, Any]:
 # being reused (the stage hashes name outputs by settings; without this an upgrade would
 # silently keep, e.g., the former pseudo labels). Raising one reruns that stage and the stages
 # after it, as a changed setting does.
-STAGE_VERSIONS = {"base": 1, "agents": 1, "ground_plane": 8, "pseudo_labels": 5, "finetune": 2,
-                  "align": 8, "scale": 1}
+STAGE_VERSIONS = {"base": 1, "agents": 1, "ground_plane": 9, "pseudo_labels": 6, "finetune": 2,
+                  "align": 9, "scale": 1}
 
 
 def _versioned(stage: str, settings: dict) -> str:
@@ -224,8 +224,10 @@ def stage_hashes(conf: AdaptConfig, model_id: Mapping[str, Any] | None = None) -
     h: dict[str, str] = {}
     h["base"] = _versioned("base", {"model": mid, "eps": conf.predict.eps})
     h["agents"] = _versioned("agents", {"detector": conf.detector})
-    h["ground_plane"] = _versioned("ground_plane", {"tracking": conf.tracking,
-                                                    "plane": conf.plane, "agents": h["agents"]})
+    h["ground_plane"] = _versioned("ground_plane", {
+        "tracking": conf.tracking, "plane": conf.plane, "agents": h["agents"],
+        # a known camera height enters the fit (ground_plane.plane_config)
+        "known_height": (conf.scale.camera_height_m, conf.scale.sequence_height)})
     labels: dict[str, Any] = {"conf": conf.pseudo_labels, "base": h["base"], "agents": h["agents"]}
     if conf.pseudo_labels.source == "plane":  # labels read from the plane over the feet's region
         labels.update(plane=h["ground_plane"], erode_px=conf.align.erode_px)

@@ -18,6 +18,7 @@ import numpy as np
 
 from staticdepth.adaptation.common import Agents, Workspace
 from staticdepth.adaptation.config import AdaptConfig
+from staticdepth.adaptation.scale import known_camera_height
 from staticdepth.errors import InputError
 from staticdepth.fileio import atomic_write_json
 from staticdepth.geometry.agent_plane import AgentPlane, fit_agent_plane
@@ -44,14 +45,19 @@ def _load(ws: Workspace, config_hash: str) -> tuple[AgentPlane, np.ndarray] | No
     return plane, np.asarray(d["feet"], dtype=np.float64).reshape(-1, 2)
 
 
-def plane_config(conf: AdaptConfig):
+def plane_config(conf: AdaptConfig, camera_height_m: float | None = None):
     """The plane settings; with the motion detector, ``classes="auto"`` means people only: its
     classes are shape guesses (upright = person), and a car taken for a person or a person for a
     car gets the wrong body model (independent scenes, benchmarks/bench_motion_plane.py: i4
-    2.8 deg off with every class, 0.5 with people)."""
-    if conf.detector.name == "motion" and conf.plane.classes == "auto":
-        return replace(conf.plane, classes=(0,))
-    return conf.plane
+    2.8 deg off with every class, 0.5 with people). A known ``camera_height_m`` (given, or the
+    sequence's) enters the joint fit as a prior (``plane.known_height_sd``) unless
+    ``plane.known_height_m`` is set."""
+    plane = conf.plane
+    if conf.detector.name == "motion" and plane.classes == "auto":
+        plane = replace(plane, classes=(0,))
+    if camera_height_m is not None and plane.known_height_m is None:
+        plane = replace(plane, known_height_m=camera_height_m)
+    return plane
 
 
 def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str
@@ -72,7 +78,8 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str
     if len(obs) < 3:
         raise InputError(f"only {len(obs)} usable agent observations in the adaptation split: "
                          "the ground plane needs tracked agents (check the detector)")
-    plane = fit_agent_plane(ws.K, obs, plane_config(conf))
+    known = known_camera_height(conf, ws)
+    plane = fit_agent_plane(ws.K, obs, plane_config(conf, known and known[0]))
     if "left_out" in plane.extra:
         lo = plane.extra["left_out"]
         ws.log(f"ground plane: {lo['group']} left out (leaving them out moved the normal by "

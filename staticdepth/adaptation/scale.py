@@ -26,13 +26,21 @@ from staticdepth.geometry.scale import metric_check, scale_from_anchor, temporal
 from staticdepth.progress import progress
 
 
-def with_camera_height(conf: AdaptConfig, ws: Workspace, plane: AgentPlane) -> AgentPlane:
+def known_camera_height(conf: AdaptConfig, ws: Workspace) -> tuple[float, str] | None:
+    """(camera height in metres, "given" or "sequence"), or None: the agents give it."""
     s = conf.scale
     if s.camera_height_m is not None:
-        return plane.with_camera_height(s.camera_height_m, "given")
+        return s.camera_height_m, "given"
     if ws.camera_height_m is not None and s.sequence_height:
-        return plane.with_camera_height(ws.camera_height_m, "sequence")
-    return with_camera_height_from_agents(plane, s.agent_height_m, seed=conf.plane.seed)
+        return ws.camera_height_m, "sequence"
+    return None
+
+
+def with_camera_height(conf: AdaptConfig, ws: Workspace, plane: AgentPlane) -> AgentPlane:
+    known = known_camera_height(conf, ws)
+    if known is not None:
+        return plane.with_camera_height(*known)
+    return with_camera_height_from_agents(plane, conf.scale.agent_height_m, seed=conf.plane.seed)
 
 
 def anchor_scales(ws: Workspace, agents: Agents, plane: AgentPlane) -> dict[str, float]:

@@ -102,6 +102,12 @@ class AgentPlaneConfig:
     max_class_misfit_deg: float | None = 2.0   # joint: a minority class group whose leaving-out
     #                                  moves the normal by more than this disagrees with the rest:
     #                                  the plane is refit without it (None: never)
+    known_height_m: float | None = None   # joint: the camera height when known (a measured rig,
+    #                                  the sequence's): a prior on log 1 / d, ``known_height_sd``
+    #                                  apart, beside the tracks' height priors (None: free)
+    known_height_sd: float = 0.04    # joint: that prior's sd in log units: the height's own
+    #                                  error with the agents' mean height's (a population, shoes,
+    #                                  a mask's top below the crown: a few %), in quadrature
 
     def __post_init__(self):
         if isinstance(self.classes, str) and self.classes != "auto":
@@ -117,6 +123,19 @@ class AgentPlaneConfig:
             raise InputError(f"relative_noise must be >= 0, got {self.relative_noise}")
         if not self.fit_column_weight >= 0:
             raise InputError(f"column weight must be >= 0, got {self.column_weight}")
+        if self.known_height_m is not None and not (math.isfinite(self.known_height_m)
+                                                    and self.known_height_m > 0):
+            raise InputError(f"known_height_m must be a positive number of metres, got "
+                             f"{self.known_height_m}")
+        if not (math.isfinite(self.known_height_sd) and self.known_height_sd > 0):
+            raise InputError(f"known_height_sd must be > 0, got {self.known_height_sd}")
+
+    @property
+    def known_log(self) -> tuple[float, float] | None:
+        """(log 1 / known camera height, its sd) for the joint fit's prior, or None."""
+        if self.known_height_m is None:
+            return None
+        return -math.log(self.known_height_m), self.known_height_sd
 
     # "auto" settings are resolved when used, not stored resolved: a config built from another
     # (``--set plane.model=exact`` over the joint defaults) then gets the new model's defaults.

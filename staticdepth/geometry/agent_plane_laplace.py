@@ -125,11 +125,11 @@ def _information(prob: _Problem, conf, x: np.ndarray, with_one: bool, at_bound=N
     those ``at_bound`` (x's length, bool; an extent the fit holds at its bound, e.g. a thin
     body's zero extents: the constrained optimum's curvature)."""
     prob._with_one = with_one
-    cw = conf.fit_column_weight
+    cw, known = conf.fit_column_weight, conf.known_log
     r, D = _jacobian(lambda v: prob.residuals(v, conf.shape_prior_weight,
-                                              conf.height_prior_weight, cw),
-                     x, prob.sparsity(cw, with_one), prob.k_s, prob.J)
-    n_prior = prob.n_shape + prob.J + int(with_one)
+                                              conf.height_prior_weight, cw, known),
+                     x, prob.sparsity(cw, with_one, known is not None), prob.k_s, prob.J)
+    n_prior = prob.n_shape + prob.J + int(with_one) + int(known is not None)
     n_data = len(r) - n_prior
     keep = np.r_[0, 1, [2 + k for g in prob.free
                         for k in range(prob.slices[g].start - 2, prob.slices[g].stop - 2)],

@@ -173,7 +173,7 @@ class _Problem:
         return e / self.sigma
 
     def residuals(self, x: np.ndarray, prior_w: float, height_w: float,
-                  col_w: float) -> np.ndarray:
+                  col_w: float, known: tuple[float, float] | None = None) -> np.ndarray:
         n = _normal(x[0], x[1])
         theta, lam, s = x[2:2 + self.n_shape], x[self.k_s - 1], x[self.k_s:self.k_s + self.J]
         e1 = float(x[-1]) if self._with_one else None
@@ -197,15 +197,20 @@ class _Problem:
                     height_w * zr]
         if e1 is not None:
             out = np.r_[out, prior_w * (e1 - ONE_FOOT_PRIOR[0]) / ONE_FOOT_PRIOR[1]]
+        if known is not None:      # a known camera height: (log 1 / d, its sd)
+            out = np.r_[out, height_w * (lam - known[0]) / known[1]]
         return out
 
-    def sparsity(self, col_w: float, with_one: bool = False):
+    def sparsity(self, col_w: float, with_one: bool = False, known: bool = False):
         ob = np.r_[np.arange(self.N), np.flatnonzero(self.has_u) if col_w > 0 else [],
                    self.side_idx, self.side_idx, self.width_idx,
                    width_tracks(self)[1] if self.width_sd and len(self.width_idx) else []
                    ].astype(int)
         R, n1 = len(ob), int(with_one)
-        S = lil_matrix((R + self.n_shape + self.J + n1, self.k_s + self.J + n1), dtype=np.int8)
+        S = lil_matrix((R + self.n_shape + self.J + n1 + int(known), self.k_s + self.J + n1),
+                       dtype=np.int8)
+        if known:        # the known camera height's prior row (the last)
+            S[R + self.n_shape + self.J + n1, self.k_s - 1] = 1
         if with_one:     # the one-foot extent: the one-foot frames' residuals and its prior
             S[np.flatnonzero(self.one[ob]), self.k_s + self.J] = 1
             S[R + self.n_shape + self.J, self.k_s + self.J] = 1
@@ -254,8 +259,8 @@ class _Problem:
             lower, upper = np.r_[lower, ONE_FOOT_BOUNDS[0]], np.r_[upper, ONE_FOOT_BOUNDS[1]]
         elif not (conf.one_foot and self.one_free):
             self.e1 = 0.0
-        cw = conf.fit_column_weight
-        sparsity, best = self.sparsity(cw, with_one), None
+        cw, known = conf.fit_column_weight, conf.known_log
+        sparsity, best = self.sparsity(cw, with_one, known is not None), None
         for p0, r0 in starts:
             p0 = float(np.clip(math.radians(p0), lo_p + 1e-3, hi_p - 1e-3))
             r0 = float(np.clip(math.radians(r0), -mr + 1e-3, mr - 1e-3))
@@ -264,7 +269,8 @@ class _Problem:
             x0 = np.r_[p0, r0, th0, lam0, s0, [self.e1 or ONE_FOOT_PRIOR[0]] if with_one else []]
             x0 = np.clip(x0, lower + 1e-12, upper - 1e-12)
             hw = conf.height_prior_weight
-            res = least_squares(lambda x: self.residuals(x, conf.shape_prior_weight, hw, cw), x0,
+            res = least_squares(lambda x: self.residuals(x, conf.shape_prior_weight, hw, cw,
+                                                         known), x0,
                                 bounds=(lower, upper), loss=loss, f_scale=conf.f_scale_px,
                                 jac_sparsity=sparsity, x_scale="jac", max_nfev=max_nfev)
             if best is None or res.cost < best[4]:

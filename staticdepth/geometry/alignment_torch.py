@@ -27,7 +27,9 @@ exported graph is for cameras that see the horizon's side of the ground.
 the per-frame robust fit ``1/Z ~ s q + t`` on the ground pixels is the numpy one's three least
 squares passes in closed form (centred sums, the 3-MAD trimming between passes as a mask, masked
 medians by sorting), with its scale-only fallback (median of ``(1/Z) / q``, ``t = 0``) selected
-in the graph when a pass has < 3 points or no range of ``q`` or the slope is not positive; then
+in the graph when a pass has < 3 points or no range of ``q`` or the slope is not positive, or when
+the shift puts more than ``alignment.BEYOND_SHARE`` of the pixels below the horizon beyond
+infinity (``1/Z <= t``); then
 ``(1/Z - t) / s``, the snap to the plane within ``snap_rel`` and the far clamp at 50x the median
 ground depth (a constant: ``q`` and the ground pixels are).
 """
@@ -36,6 +38,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 from torch import nn
+
+from staticdepth.geometry.alignment import BEYOND_SHARE
 
 
 def ground_indices(ground_mask: np.ndarray, max_points: int = 20000) -> np.ndarray:
@@ -181,10 +185,15 @@ class GroundAlignment(nn.Module):
         ig = torch.index_select(inv.reshape(-1), 0, self.idx)
         s, t, ok = fit_inverse_affine(ig, self.qg)
         s_fb = masked_median(ig / self.qg, torch.ones_like(ig, dtype=torch.bool))
+        q = self.q
+        # the shift refuted by the map itself (alignment.BEYOND_SHARE): scale only
+        below = (q > 0) & torch.isfinite(inv) & (Z > 0)
+        beyond = (below & (inv - t <= 0)).sum()
+        ok = ok & (beyond.to(torch.float32) <= BEYOND_SHARE
+                   * torch.clamp(below.sum(), min=1).to(torch.float32))
         s = torch.where(ok, s, s_fb)
         t = torch.where(ok, t, torch.zeros_like(t))
         new_inv = (inv - t) / s
-        q = self.q
         snap = (q > 0) & (torch.abs(new_inv - q) <= self.snap_rel * q)
         far = torch.clamp(new_inv, min=self.floor)
         return 1.0 / torch.where(snap, q, far), snap, 1.0 / far
