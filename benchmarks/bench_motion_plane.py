@@ -72,6 +72,7 @@ def scene_report(path: str, detector_opts: dict, sets: dict, oracle: tuple = ())
     from staticdepth import tracking
     from staticdepth.adaptation.config import build_config
     from staticdepth.adaptation.ground_plane import plane_config
+    from staticdepth.adaptation.scale import known_camera_height
     from staticdepth.detectors import make_detector
     from staticdepth.geometry.agent_plane import fit_agent_plane
     from staticdepth.geometry.projection import rays_from_pixels
@@ -82,8 +83,7 @@ def scene_report(path: str, detector_opts: dict, sets: dict, oracle: tuple = ())
         frames = [r.left(i) for i in range(len(r))]
         gt = [(r.instances(i), r.agents(i)) for i in range(len(r))]
         K, truth = r.camera.K, r.meta.mounting
-        known_h = conf.scale.camera_height_m or (r.meta.camera_height_m
-                                                 if conf.scale.sequence_height else None)
+        known = known_camera_height(conf, r.meta.camera_height_m)
         split = list(r.split("adapt"))
     det = list(make_detector("motion", **detector_opts).detect_sequence(frames))
     errs: dict[str, list] = defaultdict(list)
@@ -114,7 +114,7 @@ def scene_report(path: str, detector_opts: dict, sets: dict, oracle: tuple = ())
         obs = tracking.observations_from_instances(pairs, conf.tracking)
         try:       # the plane settings adapt uses with that detector
             p = fit_agent_plane(K, obs, plane_config(replace(
-                conf, detector=replace(conf.detector, name=name)), known_h))
+                conf, detector=replace(conf.detector, name=name)), None if known is None else known[0]))
             # the plane depth's error over the feet (true, and as the bootstrap predicts it)
             rays = rays_from_pixels(K, obs["foot_u"], obs["foot_v"])
             true_rel = float(np.median(np.abs(rays @ truth.normal / (rays @ p.normal) - 1)))

@@ -92,9 +92,7 @@ def estimate_ground_plane(observations: np.ndarray, K: np.ndarray,
     ``conf`` None = the default :class:`AgentPlaneConfig`."""
     from staticdepth.geometry.agent_plane import AgentPlaneConfig, fit_agent_plane
 
-    conf = AgentPlaneConfig() if conf is None else conf
-    if camera_height_m is not None and conf.known_height_m is None:   # a prior in the fit
-        conf = replace(conf, known_height_m=camera_height_m)
+    conf = (AgentPlaneConfig() if conf is None else conf).with_known_height(camera_height_m)
     plane = fit_agent_plane(K, observations, conf)
     if camera_height_m is not None:
         return plane.with_camera_height(camera_height_m, "given")

@@ -55,9 +55,7 @@ def plane_config(conf: AdaptConfig, camera_height_m: float | None = None):
     plane = conf.plane
     if conf.detector.name == "motion" and plane.classes == "auto":
         plane = replace(plane, classes=(0,))
-    if camera_height_m is not None and plane.known_height_m is None:
-        plane = replace(plane, known_height_m=camera_height_m)
-    return plane
+    return plane.with_known_height(camera_height_m)
 
 
 def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str
@@ -78,8 +76,8 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str
     if len(obs) < 3:
         raise InputError(f"only {len(obs)} usable agent observations in the adaptation split: "
                          "the ground plane needs tracked agents (check the detector)")
-    known = known_camera_height(conf, ws)
-    plane = fit_agent_plane(ws.K, obs, plane_config(conf, known and known[0]))
+    known = known_camera_height(conf, ws.camera_height_m)
+    plane = fit_agent_plane(ws.K, obs, plane_config(conf, None if known is None else known[0]))
     if "left_out" in plane.extra:
         lo = plane.extra["left_out"]
         ws.log(f"ground plane: {lo['group']} left out (leaving them out moved the normal by "

@@ -26,18 +26,20 @@ from staticdepth.geometry.scale import metric_check, scale_from_anchor, temporal
 from staticdepth.progress import progress
 
 
-def known_camera_height(conf: AdaptConfig, ws: Workspace) -> tuple[float, str] | None:
-    """(camera height in metres, "given" or "sequence"), or None: the agents give it."""
+def known_camera_height(conf: AdaptConfig, sequence_height_m: float | None
+                        ) -> tuple[float, str] | None:
+    """(camera height in metres, "given" or "sequence"), or None: the agents give it.
+    ``sequence_height_m``: the sequence's stored height (None: it has none)."""
     s = conf.scale
     if s.camera_height_m is not None:
         return s.camera_height_m, "given"
-    if ws.camera_height_m is not None and s.sequence_height:
-        return ws.camera_height_m, "sequence"
+    if sequence_height_m is not None and s.sequence_height:
+        return sequence_height_m, "sequence"
     return None
 
 
 def with_camera_height(conf: AdaptConfig, ws: Workspace, plane: AgentPlane) -> AgentPlane:
-    known = known_camera_height(conf, ws)
+    known = known_camera_height(conf, ws.camera_height_m)
     if known is not None:
         return plane.with_camera_height(*known)
     return with_camera_height_from_agents(plane, conf.scale.agent_height_m, seed=conf.plane.seed)

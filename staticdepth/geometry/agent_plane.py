@@ -130,6 +130,13 @@ class AgentPlaneConfig:
         if not (math.isfinite(self.known_height_sd) and self.known_height_sd > 0):
             raise InputError(f"known_height_sd must be > 0, got {self.known_height_sd}")
 
+    def with_known_height(self, height_m: float | None) -> "AgentPlaneConfig":
+        """These settings with ``known_height_m = height_m`` where a height is given and none is
+        set (a set one wins)."""
+        if height_m is None or self.known_height_m is not None:
+            return self
+        return replace(self, known_height_m=height_m)
+
     @property
     def known_log(self) -> tuple[float, float] | None:
         """(log 1 / known camera height, its sd) for the joint fit's prior, or None."""

@@ -374,17 +374,14 @@ def _ground_fit(depth, ground_mask, snap_rel, max_points, camera):
         vs, us = vs[::step], us[::step]
     try:
         s, t = fit_inverse_affine(inv[vs, us], q[vs, us])
-        scale_only = False
-    except InputError:      # no usable slope (a network whose ground does not recede): scale only
-        s, t = float(np.median(inv[vs, us] / q[vs, us])), 0.0
+        below = valid & (q > 0)     # the shift refuted by the map itself (BEYOND_SHARE)
+        scale_only = bool(np.count_nonzero(below & (inv - np.float32(t) <= 0))
+                          > BEYOND_SHARE * max(np.count_nonzero(below), 1))
+    except InputError:      # no usable slope (a network whose ground does not recede)
         scale_only = True
+    if scale_only:
+        s, t = float(np.median(inv[vs, us] / q[vs, us])), 0.0
     new_inv = (inv - np.float32(t)) / np.float32(s)
-    below = valid & (q > 0)
-    if not scale_only and np.count_nonzero(below & (new_inv <= 0)) > BEYOND_SHARE * max(
-            np.count_nonzero(below), 1):     # the shift refuted by the map itself: scale only
-        s, t = float(np.median(inv[vs, us] / q[vs, us])), 0.0
-        scale_only = True
-        new_inv = inv / np.float32(s)
     floor = np.float32(np.median(q[vs, us]) / 50.0)
     snap = valid & (q > 0) & (np.abs(new_inv - q) <= np.float32(snap_rel) * q)
     n_fb = int(np.count_nonzero(valid & ~snap & (new_inv < floor)))
