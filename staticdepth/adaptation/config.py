@@ -181,7 +181,7 @@ def is_builtin(model: str) -> bool:
 
 def build_config(settings: Mapping[str, Any], source: str | None = None) -> AdaptConfig:
     """AdaptConfig from dotted settings over the defaults. The fine-tuning preset follows the
-    model: ``builtin`` (Adam 1e-3) for the built-in network, ``paper`` (1e-5) for the others,
+    model: ``builtin`` (Adam 3e-4) for the built-in network, ``paper`` (1e-5) for the others,
     unless ``finetune.lr`` is given."""
     settings = dict(settings)
     model = str(settings.get("model", AdaptConfig.model))
