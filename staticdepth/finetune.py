@@ -14,7 +14,7 @@ labels, Adam 1e-3): against 21 steps (3 epochs) the built-in network's agents 0.
 0.134 -> 0.131, ft-align 0.199 -> 0.196 and 0.208 -> 0.208; the U-Net's agents 0.325 -> 0.375 and
 0.438 -> 0.460 (still below base 0.396 / 0.500), ft-align 0.286 -> 0.289 and 0.285 -> 0.277. The ``builtin`` preset uses Adam
 3e-4: the built-in network is ~100x smaller than DPT and trained at 1e-3. Chosen on the
-independent scenes i1-i4 (``benchmarks/bench_gains.py``, 60 adaptation frames, 60 steps, both
+independent scenes i1-i4 (``benchmarks/bench_gains.py``, 27 adaptation frames, 60 steps, both
 networks, ``finetune.seed`` 0 / 1 / 2) from 1e-4, 2e-4, 3e-4, 5e-4 and 1e-3: ft-align averaged
 over scenes, seeds and the two networks 0.1377 / 0.1357 / 0.1326 / 0.1336 / 0.1371 (the U-Net
 0.130 / 0.128 / 0.125 / 0.131 / 0.135, the built-in 0.145 / 0.143 / 0.141 / 0.136 / 0.139); on
