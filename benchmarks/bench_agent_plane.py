@@ -29,6 +29,11 @@ axis foot (axis top, the foot plus its height along the up direction) with 1 px 
 ``--noise-px 0``: noise-free observations (and truth points), the estimator's bias alone
 (tapered seeds 0-19, joint: 0.13 / 1.25 degrees; from the true foot and top 0.01-0.19 on its
 five steep cameras: the mask's lowest point is on the body's flare, tests/test_plane_bias.py).
+``--draws N`` (with ``--verbose``, masks): per camera the joint fits refitted on the camera's
+noise-free observations under N fresh draws of the same noise (foot, top and extreme columns),
+their RMS / median / max error and share over 1 degree, and per generator the sum of those shares:
+the cameras over 1 degree the fit's own spread expects, beside the Cramer-Rao count (which takes
+the extents' prior as right, so it understates the spread on bodies far from the prior).
 
 ``--scenes``: the independent rendered scenes of tests/indep_scenes.py (people as ellipsoids,
 cars as body + cabin + wheel boxes, 320x160, the first ``--frames`` frames: adapt's split of 60),
@@ -96,6 +101,37 @@ def with_truth(s, parts: set[str], seed: int, noise_px: float = 1.0):
         o["feet"] = 2
     o["height_px"] = o["foot_v"] - o["top_v"]
     return replace(s, obs=o)
+
+
+def fresh_draw(obs: np.ndarray, noise_px: float, rng) -> np.ndarray:
+    """Noise-free mask observations with a new draw of the generators' noise: ``noise_px``
+    Gaussian on the foot and top points and on the extreme columns, the pixel height from the
+    noisy rows (as ``plane_generators.scene`` makes them)."""
+    o = obs.copy()
+    for name in ("foot_u", "foot_v", "top_u", "top_v", "left", "right"):
+        o[name] = o[name] + rng.normal(0.0, noise_px, len(o))
+    o["height_px"] = o["foot_v"] - o["top_v"]
+    return o
+
+
+def draws_cell(K, s0, conf, n_draws: int, noise_px: float, seed: int) -> tuple[str, float]:
+    """The fit's own spread on one camera: ``n_draws`` refits of its noise-free observations
+    ``s0`` under fresh noise. Returns the line's text and the share of draws over 1 degree."""
+    rng = np.random.default_rng([seed, 99])
+    errs = []
+    for _ in range(n_draws):
+        try:
+            p = fit_agent_plane(K, fresh_draw(s0.obs, noise_px, rng), conf)
+        except InputError:
+            errs.append(np.nan)
+            continue
+        errs.append(angle_between_deg(p.normal, s0.normal))
+    e = np.asarray(errs)
+    over = float(np.mean(e[np.isfinite(e)] > 1.0)) if np.isfinite(e).any() else float("nan")
+    refused = int(np.isnan(e).sum())
+    return (f", {n_draws} fresh draws: RMS {np.sqrt(np.nanmean(e ** 2)):.2f}, median "
+            f"{np.nanmedian(e):.2f}, max {np.nanmax(e):.2f} deg, over 1 deg {over:.0%}"
+            + (f" ({refused} refused)" if refused else "")), over
 
 
 def camera_height(plane, model: str, vehicles: bool) -> float:
@@ -186,6 +222,10 @@ def main() -> None:
     ap_.add_argument("--min-height-px", type=float, default=10.0)
     ap_.add_argument("--tracks", type=int, default=24, help="tracks per generated camera (a "
                      "longer sequence: more tracks; the issue's figures are at 24)")
+    ap_.add_argument("--draws", type=int, default=0, help="with --verbose, masks: per camera "
+                     "also the joint fits' spread over this many fresh noise draws of the "
+                     "camera's noise-free observations, and per generator the cameras over 1 "
+                     "deg that spread expects (see the module doc)")
     args = ap_.parse_args()
     if args.scenes:
         scene_table(args.scenes.split(","), args.frames, args.min_height_px, args.bootstrap)
@@ -200,6 +240,9 @@ def main() -> None:
     truth = set(args.truth.split(",")) if args.truth else set()
     if not truth <= {"foot", "top"} or (truth and detections != ["mask"]):
         ap_.error(f"--truth: foot, top or foot,top, with --detection mask; got {args.truth}")
+    if args.draws and (not args.verbose or detections != ["mask"] or truth or args.draws < 2
+                       or not args.noise_px > 0):
+        ap_.error("--draws N (N >= 2) needs --verbose, --detection mask, no --truth and noise")
     if args.bootstrap:
         CONFIGS["joint"] = replace(CONFIGS["joint"], bootstrap=args.bootstrap)
     print(f"{args.cameras} cameras per generator, detections: {args.detection}, outliers "
@@ -215,6 +258,7 @@ def main() -> None:
         # fit at the bound (priors in) and observed, of how many
         expected = {m: [0.0, 0.0, 0.0, 0] for m in models}
         observed = {m: [0, 0, 0] for m in models}
+        drawn = {m: [] for m in models}   # --draws: per camera the share of draws over 1 deg
         for seed in range(args.first_camera, args.first_camera + args.cameras):
             try:
                 s = scene(kind, seed, detection=det, outliers=args.outliers,
@@ -224,6 +268,8 @@ def main() -> None:
                 continue
             if truth:
                 s = with_truth(s, truth, seed, args.noise_px)
+            s0 = (scene(kind, seed, detection=det, outliers=args.outliers, noise_px=0.0,
+                        n_tracks=args.tracks) if args.draws else None)
             n_tracks = len(np.unique(s.obs["track"]))
             if n_tracks < 8:     # e.g. a low, steep camera where whole vehicles rarely fit
                 print(f"  {kind} camera {seed}: only {n_tracks} tracks in view (the gate refuses "
@@ -255,12 +301,16 @@ def main() -> None:
                         expected[m][k] += chance_over(std, lim, dims)
                         observed[m][k] += err > lim
                     expected[m][3] += 1
+                spread = ""
+                if s0 is not None and m in ("joint", KNOWN_HEIGHT):
+                    spread, over = draws_cell(s.K, s0, conf, args.draws, args.noise_px, seed)
+                    drawn[m].append(over)
                 if args.verbose:
                     print(f"  {kind} camera {seed} {m}: {stats[m][0][-1]:.2f} deg, anchor "
                           f"{stats[m][3][-1]:.2f}%, camera height "
                           f"{h / s.height_m * 100 - 100:+.1f}%, "
                           f"{n_tracks} tracks, uncertainty {p.normal_std_deg:.2f}"
-                          + (uncertainty_cell(s, p, bound, n_tracks) if bound else ""),
+                          + (uncertainty_cell(s, p, bound, n_tracks) if bound else "") + spread,
                           flush=True)
                 if m == ref and args.bootstrap:
                     ratios.append(stats[m][0][-1] / p.normal_std_deg)
@@ -299,7 +349,9 @@ def main() -> None:
             if e[3]:
                 print(f"{'':10} | {m}, cameras over 1 deg / camera height 5% / anchor 1%: "
                       f"{o[0]} / {o[1]} / {o[2]} of {e[3]}; an unbiased fit at the Cramer-Rao "
-                      f"bound (priors in) {e[0]:.1f} / {e[1]:.1f} / {e[2]:.1f}", flush=True)
+                      f"bound (priors in) {e[0]:.1f} / {e[1]:.1f} / {e[2]:.1f}"
+                      + (f"; over 1 deg expected of the fit's own spread (fresh draws) "
+                         f"{np.nansum(drawn[m]):.1f}" if drawn[m] else ""), flush=True)
 
 
 if __name__ == "__main__":
