@@ -114,9 +114,9 @@ def fresh_draw(obs: np.ndarray, noise_px: float, rng) -> np.ndarray:
     return o
 
 
-def draws_cell(K, s0, conf, n_draws: int, noise_px: float, seed: int) -> tuple[str, float]:
-    """The fit's own spread on one camera: ``n_draws`` refits of its noise-free observations
-    ``s0`` under fresh noise. Returns the line's text and the share of draws over 1 degree."""
+def draw_errors(K, s0, conf, n_draws: int, noise_px: float, seed: int) -> np.ndarray:
+    """The fit's own spread on one camera: the normal error (degrees; NaN: refused) of
+    ``n_draws`` refits of its noise-free observations ``s0`` under fresh noise."""
     rng = np.random.default_rng([seed, 99])
     errs = []
     for _ in range(n_draws):
@@ -126,12 +126,20 @@ def draws_cell(K, s0, conf, n_draws: int, noise_px: float, seed: int) -> tuple[s
             errs.append(np.nan)
             continue
         errs.append(angle_between_deg(p.normal, s0.normal))
-    e = np.asarray(errs)
-    over = float(np.mean(e[np.isfinite(e)] > 1.0)) if np.isfinite(e).any() else float("nan")
+    return np.asarray(errs)
+
+
+def share_over(e: np.ndarray, limit: float = 1.0) -> float:
+    """Share of the fitted draws (NaN: refused, left out) over ``limit`` degrees."""
+    ok = np.isfinite(e)
+    return float(np.mean(e[ok] > limit)) if ok.any() else float("nan")
+
+
+def draws_text(e: np.ndarray) -> str:
     refused = int(np.isnan(e).sum())
-    return (f", {n_draws} fresh draws: RMS {np.sqrt(np.nanmean(e ** 2)):.2f}, median "
-            f"{np.nanmedian(e):.2f}, max {np.nanmax(e):.2f} deg, over 1 deg {over:.0%}"
-            + (f" ({refused} refused)" if refused else "")), over
+    return (f", {len(e)} fresh draws: RMS {np.sqrt(np.nanmean(e ** 2)):.2f}, median "
+            f"{np.nanmedian(e):.2f}, max {np.nanmax(e):.2f} deg, over 1 deg {share_over(e):.0%}"
+            + (f" ({refused} refused)" if refused else ""))
 
 
 def camera_height(plane, model: str, vehicles: bool) -> float:
@@ -303,8 +311,9 @@ def main() -> None:
                     expected[m][3] += 1
                 spread = ""
                 if s0 is not None and m in ("joint", KNOWN_HEIGHT):
-                    spread, over = draws_cell(s.K, s0, conf, args.draws, args.noise_px, seed)
-                    drawn[m].append(over)
+                    e_draws = draw_errors(s.K, s0, conf, args.draws, args.noise_px, seed)
+                    spread = draws_text(e_draws)
+                    drawn[m].append(share_over(e_draws))
                 if args.verbose:
                     print(f"  {kind} camera {seed} {m}: {stats[m][0][-1]:.2f} deg, anchor "
                           f"{stats[m][3][-1]:.2f}%, camera height "

@@ -23,11 +23,7 @@ import sys
 
 import numpy as np
 
-
-def fail(message: str) -> None:
-    """Bad input: one line on stderr, exit code 2."""
-    print(message, file=sys.stderr)
-    sys.exit(2)
+from staticdepth.errors import InputError
 
 
 def load_seed(spec: str) -> dict:
@@ -38,7 +34,7 @@ def load_seed(spec: str) -> dict:
             with open(path) as f:
                 data = json.load(f)
         except (OSError, ValueError) as e:
-            fail(f"{path}: cannot read a bench_gains JSON ({e})")
+            raise InputError(f"cannot read a bench_gains JSON ({e})", path) from None
         for model, per in data.items():
             out.setdefault(model, {}).update({s: v["table"] for s, v in per.items()})
     return out
@@ -47,7 +43,7 @@ def load_seed(spec: str) -> dict:
 def parse_run(item: str) -> tuple[str, list[dict]]:
     label, sep, files = item.partition("=")
     if not sep or not label or not files:
-        fail(f"--run {item!r}: expected LABEL=FILE[,FILE...]")
+        raise InputError(f"--run {item!r}: expected LABEL=FILE[,FILE...]")
     return label, [load_seed(f) for f in files.split(",")]
 
 
@@ -62,7 +58,8 @@ def summarise(runs: dict[str, list[dict]], scenes: list[str] | None, predictions
         use = scenes or common
         missing = [s for s in use if s not in common]
         if missing:
-            fail(f"{model}: scene(s) {', '.join(missing)} missing from some run's seeds")
+            raise InputError(f"{model}: scene(s) {', '.join(missing)} missing from some run's "
+                             "seeds")
         base = {s: next(seed[model][s]["base"] for seeds in runs.values() for seed in seeds)
                 for s in use}
         for pred in predictions:
@@ -82,16 +79,21 @@ def summarise(runs: dict[str, list[dict]], scenes: list[str] | None, predictions
     return lines
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--run", action="append", required=True, metavar="LABEL=FILE[,FILE...]")
     ap.add_argument("--scenes", help="comma-separated (default: those every run has)")
     ap.add_argument("--predictions", default="ft-align,ft")
     ap.add_argument("--regions", default="all,agents")
-    args = ap.parse_args()
-    runs = dict(parse_run(item) for item in args.run)
-    print("\n".join(summarise(runs, args.scenes.split(",") if args.scenes else None,
-                              args.predictions.split(","), args.regions.split(","))))
+    args = ap.parse_args(argv)
+    try:
+        runs = dict(parse_run(item) for item in args.run)
+        lines = summarise(runs, args.scenes.split(",") if args.scenes else None,
+                          args.predictions.split(","), args.regions.split(","))
+    except InputError as e:          # bad input: one line, exit code 2 (as the CLI does)
+        print(e, file=sys.stderr)
+        sys.exit(2)
+    print("\n".join(lines))
 
 
 if __name__ == "__main__":

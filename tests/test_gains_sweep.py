@@ -39,9 +39,9 @@ def test_a_bad_file_is_one_line(tmp_path, capsys):
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
     with pytest.raises(SystemExit) as e:
-        gains_sweep.parse_run(f"x={bad}")
+        gains_sweep.main(["--run", f"x={bad}"])
     err = capsys.readouterr().err
-    assert e.value.code == 2 and str(bad) in err and err.count("\n") == 1
+    assert e.value.code == 2 and err.startswith(f"{bad}: cannot read") and err.count("\n") == 1
     with pytest.raises(SystemExit) as e:
-        gains_sweep.parse_run("no-label")
+        gains_sweep.main(["--run", "no-label"])
     assert e.value.code == 2 and "LABEL=FILE" in capsys.readouterr().err

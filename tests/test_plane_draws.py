@@ -11,7 +11,7 @@ from staticdepth.geometry.agent_plane import AgentPlaneConfig, fit_agent_plane
 from staticdepth.geometry.plane import angle_between_deg
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "benchmarks"))
-from bench_agent_plane import draws_cell, fresh_draw  # noqa: E402
+from bench_agent_plane import draw_errors, fresh_draw, share_over  # noqa: E402
 
 
 def test_fresh_draw_adds_the_generators_noise_and_keeps_the_rest():
@@ -35,6 +35,7 @@ def test_draws_without_noise_repeat_the_noise_free_fit():
     s0 = scene("tapered", 5, noise_px=0.0, n_tracks=12)
     conf = AgentPlaneConfig(bootstrap=0, column_weight=1.0)
     bias = angle_between_deg(fit_agent_plane(s0.K, s0.obs, conf).normal, s0.normal)
-    text, over = draws_cell(s0.K, s0, conf, 2, 1e-9, 5)
-    rms = float(text.split("RMS ")[1].split(",")[0])
-    assert abs(rms - bias) < 0.006 and over == (1.0 if bias > 1 else 0.0)
+    e = draw_errors(s0.K, s0, conf, 2, 1e-9, 5)
+    np.testing.assert_allclose(e, bias, atol=0.006)
+    assert share_over(e) == (1.0 if bias > 1 else 0.0)
+    assert share_over(np.array([0.5, np.nan, 1.5, 2.0])) == 2 / 3     # refusals left out
