@@ -78,7 +78,7 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
         else:
             predict.copy_base(conf, ws, h["ft"])
         lap("finetune")
-        align.run(conf, ws, ag, plane, feet, h["align"])
+        align_info = align.run(conf, ws, ag, plane, feet, h["align"])
         lap("align")
         plane = scale.with_camera_height(conf, ws, plane)
         refuse, metric_note = scale.check(conf, ws, plane, feet)
@@ -95,6 +95,9 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
                "config_hash": h["scale"], "stage_hashes": h, "frames": ws.n,
                "adapt_frames": len(ws.adapt_split), "size": [W, H],
                "pseudo_label_agent_pixels": n_agent_px, "plane": plane.to_dict(),
+               # how well each network sees the agents' ground; outputs that took the plane alone
+               "align_ground_r2": align_info["ground_r2"],
+               "align_plane_only": align_info["plane_only"],
                "camera_height_m": Hc, "camera_height_source": plane.camera_height_source,
                "scale": scales, "anchor_scale": anchor_scales, "finetune": history,
                "timings_s": timings, "stage_frames": {s: ws.frames.get(s, 0) for s in STAGES},

@@ -188,8 +188,10 @@ def test_a_late_setting_reruns_only_the_stages_after_it(tmp_path, clip, tiny, on
     shutil.copy(clip, seq)
     # align.mode ground: the default upright puts the anchor pixel on the plane, where the
     # anchor scale equals the plane's and could not tell which one was applied
+    # (the untrained network does not see the ground: align.min_ground_r2 0 aligns it anyway)
     base = {"model": f"builtin:{tiny}", "detector.name": "gt", "finetune.epochs": 1,
-            "tracking.min_height_px": 3, "plane.bootstrap": 0, "align.mode": "ground"}
+            "tracking.min_height_px": 3, "plane.bootstrap": 0, "align.mode": "ground",
+            "align.min_ground_r2": 0.0}
     s1 = adapt(seq, build_config(base), log=lambda m: None)
     assert s1["skipped_stages"] == ["agents"]                 # gt: the sequence's own
     first = _predictions(seq)

@@ -84,10 +84,25 @@ def _fit_errors(kind: str, seed: int) -> tuple[float, float]:
 def test_tapered_people_as_boxes():
     """The tapered body (widest at 0.4 of its height, not at the shoulder ring's 0.75) on the
     camera that was its worst of 8 (3: 1.56 deg when the ring started inside the foot disk, which
-    then stood in for it; measured 0.18 deg now, anchor 0.11%): within 0.6 deg, anchor within
+    then stood in for it; measured 0.54 deg now, anchor 0.11%): within 0.6 deg, anchor within
     0.5%."""
     err, anchor = _fit_errors("tapered", 3)
     assert err < 0.6 and anchor < 0.5, (err, anchor)
+
+
+def test_the_fit_does_not_jump_between_minima_under_tiny_moves():
+    """The robust cost has shallow local minima: before the fit's restarts
+    (agent_plane_joint._restarts) moving every foot 1e-9 px took this camera from 0.69 to 1.40
+    deg. The normal must be a continuous function of the
+    observations: moves of 1e-9 to 1e-4 px change it by less than 0.02 deg."""
+    s = scene("tapered", 3, detection="box")
+    normals = []
+    for eps in (0.0, 1e-9, 1e-6, 1e-4):
+        obs = s.obs.copy()
+        obs["foot_v"] = obs["foot_v"] + eps
+        normals.append(fit_agent_plane(s.K, obs, FAST).normal)
+    for n in normals[1:]:
+        assert angle_between_deg(n, normals[0]) < 0.02
 
 
 def test_wide_cylinders_as_boxes():

@@ -148,7 +148,10 @@ def test_frames_without_a_receding_ground_keep_shift_free_labels(tmp_path, scene
     conf = build_config({"model": f"torch:{model}", "detector.name": "gt", "finetune.epochs": 0,
                          "tracking.min_height_px": 3, "plane.bootstrap": 0,
                          "align.plane_bound": False, "align.colour_foot": False,
-                         "pseudo_labels.untrusted": "ignore"})
+                         "pseudo_labels.untrusted": "ignore",
+                         # the labels come from the network's alignment; align.min_ground_r2 0
+                         # writes that alignment as `align` too (else the plane alone, R^2 0)
+                         "align.min_ground_r2": 0.0})
     summary = adapt(seq, conf, log=lambda m: None)
     label = _labels(seq)
     with SequenceReader(seq) as r:

@@ -8,7 +8,10 @@ pixels; with ``align.agents_at_contact`` each agent then takes the plane depth a
 What depends only on the camera, the plane and the static image (rays, the plane's depth, the
 image of the vertical, the colour feet) is computed once per run: one ``AlignCamera`` that every
 frame's alignment is given. :func:`align_prediction` is the streamed, resumable per-frame writer
-that ``staticdepth align --sequence`` uses too.
+that ``staticdepth align --sequence`` uses too. A prediction whose inverse depth over the walked
+ground the plane does not explain (R^2 under ``align.min_ground_r2``: a network that does not see
+the ground) is not aligned: its output is the plane's depth with the agents at their contact
+(:func:`plane_frame`), and the summary says so.
 """
 from __future__ import annotations
 
@@ -20,11 +23,13 @@ import numpy as np
 from staticdepth.adaptation.common import Agents, Workspace
 from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.geometry.agent_plane import AgentPlane
-from staticdepth.geometry.alignment import agents_at_contact, align_depth, ground_mask_from_feet
+from staticdepth.geometry.alignment import (agents_at_contact, align_depth, ground_fit_r2,
+                                            ground_mask_from_feet, plane_depth)
 from staticdepth.geometry.alignment_upright import AlignCamera
 from staticdepth.progress import progress
 
 OUTPUTS = {"align": "base", "ft-align": "ft"}
+GROUND_R2_FRAMES = 8        # adaptation frames whose ground R^2 decides align.min_ground_r2
 
 AlignFrame = Callable[[int, np.ndarray], np.ndarray]
 
@@ -134,16 +139,63 @@ def run_camera(conf: AdaptConfig, ws: Workspace, plane: AgentPlane) -> AlignCame
     return AlignCamera(ws.K, ws.width, ws.height, plane.normal, 1.0, image)
 
 
+def ground_r2(ws: Workspace, agents: Agents, src: str, ground: np.ndarray,
+              camera: AlignCamera, frames: int = GROUND_R2_FRAMES) -> float:
+    """The median over ``frames`` adaptation frames (evenly spread; every frame without a split)
+    of :func:`~staticdepth.geometry.alignment.ground_fit_r2` of prediction ``src`` over the
+    walked ``ground`` less the frame's agents: how well the network sees the agents' ground."""
+    split = ws.adapt_split if len(ws.adapt_split) else np.arange(ws.n)
+    pick = np.asarray(split)[np.unique(np.linspace(0, len(split) - 1, min(frames, len(split)))
+                                       .astype(int))]
+    with ws.reader() as r:
+        r2 = [ground_fit_r2(r.prediction(src, int(i)), ground & (agents.instances(int(i)) == 0),
+                            camera) for i in pick]
+    r2 = [x for x in r2 if np.isfinite(x)]
+    return float(np.median(r2)) if r2 else float("nan")
+
+
+def plane_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,
+                instances: np.ndarray, rows: np.ndarray, heights=None,
+                camera: AlignCamera | None = None) -> np.ndarray:
+    """One frame as the plane alone describes it (units of the camera height): every pixel the
+    plane's depth along its ray (:func:`~staticdepth.geometry.alignment.plane_depth`), then each
+    agent at its contact as :func:`aligned_frame` does; for a network that does not see the
+    ground (``align.min_ground_r2``)."""
+    h, w = instances.shape
+    camera = camera if camera is not None else AlignCamera(K, w, h, normal, 1.0)
+    A = plane_depth(camera.check(K, normal, 1.0, w, h), ground)
+    if conf.align.agents_at_contact:
+        A = agents_at_contact(A, K, normal, 1.0, instances, rows, conf.pseudo_labels,
+                              heights=heights, camera=camera)[0]
+    return A
+
+
 def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, feet: np.ndarray,
-        config_hash: str) -> None:
+        config_hash: str) -> dict:
+    """Writes ``align`` and ``ft-align``; returns, for the summary, each output's
+    ``ground_r2`` (:func:`ground_r2` of its source) and the outputs that took the plane alone
+    (``plane_only``: under ``align.min_ground_r2``)."""
     ground = ground_region(conf, ws, feet)
     heights = person_heights(conf, plane)
     camera = run_camera(conf, ws, plane)
+    r2 = {out: ground_r2(ws, agents, src, ground, camera) for out, src in OUTPUTS.items()}
+    plane_only = [out for out in OUTPUTS if r2[out] < conf.align.min_ground_r2]
+    for out in plane_only:
+        ws.log(f"warning: the {OUTPUTS[out]} prediction does not see the agents' ground (its "
+               f"inverse depth over the walked ground: R^2 {r2[out]:.3f} against the plane's, "
+               f"under align.min_ground_r2 {conf.align.min_ground_r2:g}); {out} is the plane's "
+               f"depth with the agents at their contact, without the network")
 
-    def aligned(i: int, Z: np.ndarray) -> np.ndarray:
-        return aligned_frame(conf, ws.K, plane.normal, ground, agents.instances(i),
-                             agents.rows(i), Z, plane_bound=True, image=camera.image,
-                             heights=heights, camera=camera)
+    def job(out: str) -> AlignFrame:
+        if out in plane_only:
+            return lambda i, Z: plane_frame(conf, ws.K, plane.normal, ground,
+                                            agents.instances(i), agents.rows(i),
+                                            heights=heights, camera=camera)
+        return lambda i, Z: aligned_frame(conf, ws.K, plane.normal, ground, agents.instances(i),
+                                          agents.rows(i), Z, plane_bound=True,
+                                          image=camera.image, heights=heights, camera=camera)
 
-    align_prediction(ws, {out: (src, aligned) for out, src in OUTPUTS.items()}, config_hash,
+    align_prediction(ws, {out: (src, job(out)) for out, src in OUTPUTS.items()}, config_hash,
                      {"stage": "adapt", "metric": False, "units": "camera heights"})
+    return {"ground_r2": {out: (None if not np.isfinite(v) else round(v, 4))
+                          for out, v in r2.items()}, "plane_only": plane_only}

@@ -96,6 +96,11 @@ class AlignConfig:
     #                                  agent or the image's bottom: "top" = the contact from
     #                                  their top and fitted height (geometry/agent_contact.py),
     #                                  "lowest" = the plane at their lowest pixel
+    min_ground_r2: float = 0.2       # a prediction whose inverse depth over the walked ground
+    #                                  the agents' plane explains less than this (R^2, median
+    #                                  of 8 adaptation frames) does not see the ground: its
+    #                                  aligned output is the plane's depth with the agents at
+    #                                  their contact, no network (0: never; issue 19)
 
     @property
     def uses_image(self) -> bool:
@@ -127,6 +132,8 @@ class AlignConfig:
         if self.walked_ratio is not None and not (math.isfinite(self.walked_ratio)
                                                   and self.walked_ratio >= 1):
             raise InputError(f"align.walked_ratio must be >= 1 or null, got {self.walked_ratio}")
+        if not (math.isfinite(self.min_ground_r2) and 0 <= self.min_ground_r2 < 1):
+            raise InputError(f"align.min_ground_r2 must be in [0, 1), got {self.min_ground_r2}")
         if self.hidden_contact not in HIDDEN_CONTACTS:
             raise InputError(f"align.hidden_contact must be one of {HIDDEN_CONTACTS}, got "
                              f"{self.hidden_contact!r}")
@@ -209,8 +216,8 @@ def model_identity(spec: str) -> dict[str, Any]:
 # being reused (the stage hashes name outputs by settings; without this an upgrade would
 # silently keep, e.g., the former pseudo labels). Raising one reruns that stage and the stages
 # after it, as a changed setting does.
-STAGE_VERSIONS = {"base": 1, "agents": 1, "ground_plane": 9, "pseudo_labels": 6, "finetune": 2,
-                  "align": 9, "scale": 1}
+STAGE_VERSIONS = {"base": 1, "agents": 1, "ground_plane": 10, "pseudo_labels": 7, "finetune": 2,
+                  "align": 10, "scale": 1}
 
 
 def _versioned(stage: str, settings: dict) -> str:

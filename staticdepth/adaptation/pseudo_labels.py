@@ -37,7 +37,8 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
     (:func:`staticdepth.pseudo_labels.trusted_label`; the ground's when they give none), so a
     frame whose ground does not recede still gets shift-free labels (the paper's labels carry the
     network's shift, which the scale-only loss cannot take); only a frame with neither map falls
-    back to them."""
+    back to them. A base network under ``align.min_ground_r2`` (its ground is noise, and its
+    ``align`` output the plane alone) is labelled with the plane's map (:func:`plane_label`)."""
     pl = conf.pseudo_labels
     if pl.source == "plane":
         from staticdepth.adaptation.align import ground_region
@@ -51,7 +52,8 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
             return plane_pseudo_label(inv, agents.instances(i), agents.rows(i), plane_inv, ground,
                                       pl, label_ground=pl.label_ground)
     elif pl.source == "aligned":
-        from staticdepth.adaptation.align import aligned_frame, ground_region, person_heights
+        from staticdepth.adaptation.align import (aligned_frame, ground_region, person_heights,
+                                                  plane_frame)
         from staticdepth.geometry.alignment import depth_from_inverse
         from staticdepth.geometry.projection import ray_grid
 
@@ -63,9 +65,16 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
                      if pl.grazing != "off" else None)
         dense: list = []            # computed on the first frame labelled (not when skipped)
         heights = person_heights(conf, plane)
+        # a base network that does not see the ground (align.min_ground_r2) learns the plane's
+        # depth, as its `align` output is, instead of its own alignment
+        plane_only = below_ground_bar(conf, ws, agents, plane, ground)
 
         def label_frame(i, inv):
             inst = agents.instances(i)
+            if plane_only:      # every pixel the plane's, one scale: the network's median
+                A = plane_frame(conf, ws.K, plane.normal, ground, inst, agents.rows(i),
+                                heights=heights)
+                return plane_label(inv, A)
             A = aligned_frame(conf, ws.K, plane.normal, ground, inst, agents.rows(i),
                               depth_from_inverse(inv), heights=heights)
             if (pl.dense_mode or pl.untrusted in ("base", "depth", "ignore")) and not dense:
@@ -108,6 +117,33 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
                 ws.count("pseudo_labels")
     with ws.frame_file("labels.h5") as f:
         return int(f._f["rows"]["agent_pixels"].sum())
+
+
+def below_ground_bar(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane,
+                     ground: np.ndarray) -> bool:
+    """Whether the base prediction's ground R^2 (:func:`staticdepth.adaptation.align.ground_r2`)
+    is under ``align.min_ground_r2``: its align output is then the plane alone, and so are its
+    labels' maps."""
+    from staticdepth.adaptation.align import ground_r2
+    from staticdepth.geometry.alignment_upright import AlignCamera
+
+    if conf.align.min_ground_r2 <= 0:
+        return False
+    camera = AlignCamera(ws.K, ws.width, ws.height, plane.normal, 1.0)
+    return bool(ground_r2(ws, agents, "base", ground, camera) < conf.align.min_ground_r2)
+
+
+def plane_label(inv: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A frame's labels from the plane's map ``A`` (:func:`~staticdepth.adaptation.align.
+    plane_frame`) for a base network under ``align.min_ground_r2``: ``c / A`` on every pixel, ``c``
+    the network's median inverse depth times the map's median depth (its fit to a network whose
+    ground is noise would be noise; the loss takes a scale, ``si``, or a scale and a shift,
+    ``ssi``), and the mask of pixels labelled."""
+    ok = np.isfinite(A) & (A > 0) & np.isfinite(inv) & (inv > 0)
+    if not ok.any():
+        return np.full(A.shape, np.nan, np.float32), ok
+    c = np.float32(np.median(inv[ok]) * np.median(A[ok]))
+    return np.where(ok, c / np.where(ok, A, 1), np.nan).astype(np.float32), ok
 
 
 def _dense(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, ground: np.ndarray):

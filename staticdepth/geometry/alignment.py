@@ -437,3 +437,43 @@ def _median_ratio(ratio: np.ndarray, where: np.ndarray, max_points: int = 20000)
         raise InputError("no ground pixel can be aligned (the ground mask lies above the agents' "
                          "horizon or holds no valid depth)")
     return float(np.median(vals))
+
+
+def ground_fit_r2(depth: np.ndarray, ground_mask: np.ndarray, camera: AlignCamera,
+                  max_points: int = 20000) -> float:
+    """How much of the prediction's ground the agents' plane explains: the share of the
+    variance of its inverse depth ``1/Z`` over ``ground_mask`` (valid pixels below the agents'
+    horizon) that the least-squares line ``1/Z ~ s q + t`` explains, ``q`` the plane's inverse
+    depth (``camera.q``). 1 for a network that sees that ground as the plane up to a scale and a
+    shift (the scale and shift every alignment mode fits), near 0 for one whose ground is noise;
+    a line that falls (the ground nearer up the image) and a ground of one depth (a network
+    saturated there) count as 0. NaN when fewer than 3 pixels or no range of ``q`` remain."""
+    Z = np.asarray(depth, dtype=np.float64)
+    q = camera.q
+    sel = np.asarray(ground_mask, bool) & np.isfinite(Z) & (Z > 0) & (q > 0)
+    vs, us = np.nonzero(sel)
+    if len(vs) > max_points:
+        step = -(-len(vs) // max_points)
+        vs, us = vs[::step], us[::step]
+    x, y = q[vs, us].astype(np.float64), 1.0 / Z[vs, us]
+    if len(x) < 3 or np.ptp(x) <= 0:
+        return float("nan")
+    if np.ptp(y) <= 0:
+        return 0.0
+    c = np.cov(x, y)
+    if c[0, 1] <= 0:
+        return 0.0
+    return float(c[0, 1] ** 2 / (c[0, 0] * c[1, 1]))
+
+
+def plane_depth(camera: AlignCamera, ground_mask: np.ndarray) -> np.ndarray:
+    """(H, W) float32 the agents' plane's depth along every ray (units of the camera's ``d``);
+    rays that meet it beyond the far limit, 50x the median plane depth over ``ground_mask``
+    (the ground mode's clamp), and those at or above its horizon take that limit: the scene as
+    the plane alone describes it, with no network."""
+    q = camera.q
+    sel = np.asarray(ground_mask, bool) & (q > 0)
+    if not sel.any():
+        raise InputError("no ground pixel lies below the agents' horizon: no plane depth")
+    floor = np.float32(np.median(q[sel]) / 50.0)
+    return (1.0 / np.maximum(q, floor)).astype(np.float32)
