@@ -110,9 +110,7 @@ def fit_predicted_plane(depth: np.ndarray, K: np.ndarray, mask: np.ndarray,
     vs, us = np.nonzero(np.asarray(mask, bool) & np.isfinite(depth) & (depth > 0))
     if len(vs) < 3:
         raise InputError(f"the ground mask holds {len(vs)} valid predicted depths (need >= 3)")
-    if len(vs) > max_points:
-        step = -(-len(vs) // max_points)
-        vs, us = vs[::step], us[::step]
+    vs, us = _strided(vs, us, max_points)
     K = np.asarray(K, dtype=np.float64)
     z = depth[vs, us].astype(np.float64)
     x = (us - K[0, 2] - K[0, 1] * (vs - K[1, 2]) / K[1, 1]) / K[0, 0]
@@ -244,6 +242,15 @@ def align_depth(depth: np.ndarray, K: np.ndarray, n_g, d_g: float, ground_mask: 
 # tests/test_alignment_torch.py's scenes, whose plane is another than the map's; issue 19,
 # seventeenth round)
 BEYOND_SHARE = 0.05
+FAR_REL = 50.0      # the far limit: this x the median plane depth over the ground
+
+
+def _strided(vs: np.ndarray, us: np.ndarray, max_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel coordinates thinned by an even stride to at most about ``max_points``."""
+    if len(vs) > max_points:
+        step = -(-len(vs) // max_points)
+        vs, us = vs[::step], us[::step]
+    return vs, us
 
 
 def fit_inverse_affine(inv: np.ndarray, target: np.ndarray, iters: int = 3,
@@ -369,9 +376,7 @@ def _ground_fit(depth, ground_mask, snap_rel, max_points, camera):
     if len(vs) < 3:
         raise InputError("no ground pixel can be aligned (the ground mask lies above the agents' "
                          "horizon or holds no valid depth)")
-    if len(vs) > max_points:
-        step = -(-len(vs) // max_points)
-        vs, us = vs[::step], us[::step]
+    vs, us = _strided(vs, us, max_points)
     try:
         s, t = fit_inverse_affine(inv[vs, us], q[vs, us])
         below = valid & (q > 0)     # the shift refuted by the map itself (BEYOND_SHARE)
@@ -382,7 +387,7 @@ def _ground_fit(depth, ground_mask, snap_rel, max_points, camera):
     if scale_only:
         s, t = float(np.median(inv[vs, us] / q[vs, us])), 0.0
     new_inv = (inv - np.float32(t)) / np.float32(s)
-    floor = np.float32(np.median(q[vs, us]) / 50.0)
+    floor = np.float32(np.median(q[vs, us]) / FAR_REL)
     snap = valid & (q > 0) & (np.abs(new_inv - q) <= np.float32(snap_rel) * q)
     n_fb = int(np.count_nonzero(valid & ~snap & (new_inv < floor)))
     new_inv = np.maximum(new_inv, floor)
@@ -452,9 +457,7 @@ def ground_fit_r2(depth: np.ndarray, ground_mask: np.ndarray, camera: AlignCamer
     q = camera.q
     sel = np.asarray(ground_mask, bool) & np.isfinite(Z) & (Z > 0) & (q > 0)
     vs, us = np.nonzero(sel)
-    if len(vs) > max_points:
-        step = -(-len(vs) // max_points)
-        vs, us = vs[::step], us[::step]
+    vs, us = _strided(vs, us, max_points)
     x, y = q[vs, us].astype(np.float64), 1.0 / Z[vs, us]
     if len(x) < 3 or np.ptp(x) <= 0:
         return float("nan")
@@ -468,12 +471,12 @@ def ground_fit_r2(depth: np.ndarray, ground_mask: np.ndarray, camera: AlignCamer
 
 def plane_depth(camera: AlignCamera, ground_mask: np.ndarray) -> np.ndarray:
     """(H, W) float32 the agents' plane's depth along every ray (units of the camera's ``d``);
-    rays that meet it beyond the far limit, 50x the median plane depth over ``ground_mask``
-    (the ground mode's clamp), and those at or above its horizon take that limit: the scene as
-    the plane alone describes it, with no network."""
+    rays that meet it beyond the far limit, :data:`FAR_REL` (50) x the median plane depth over
+    ``ground_mask`` (the ground mode's clamp), and those at or above its horizon take that limit:
+    the scene as the plane alone describes it, with no network."""
     q = camera.q
     sel = np.asarray(ground_mask, bool) & (q > 0)
     if not sel.any():
         raise InputError("no ground pixel lies below the agents' horizon: no plane depth")
-    floor = np.float32(np.median(q[sel]) / 50.0)
+    floor = np.float32(np.median(q[sel]) / FAR_REL)
     return (1.0 / np.maximum(q, floor)).astype(np.float32)

@@ -39,7 +39,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from staticdepth.geometry.alignment import BEYOND_SHARE
+from staticdepth.geometry.alignment import BEYOND_SHARE, FAR_REL
 
 
 def ground_indices(ground_mask: np.ndarray, max_points: int = 20000) -> np.ndarray:
@@ -173,7 +173,7 @@ class GroundAlignment(nn.Module):
         self.register_buffer("q", torch.from_numpy(q))
         self.register_buffer("idx", torch.tensor(idx, dtype=torch.int64))
         self.register_buffer("qg", torch.from_numpy(qg))
-        self.floor = float(np.float32(np.median(qg) / 50.0))
+        self.floor = float(np.float32(np.median(qg) / FAR_REL))
         self.snap_rel = float(np.float32(snap_rel))
 
     def forward(self, Z: torch.Tensor) -> torch.Tensor:
