@@ -3,6 +3,8 @@
 1. Throughput: the writer (v1.8 superblock, a flush and an undo record per frame, file object
    driver) against a reference measured in the same run: the same datasets written the old way
    (sec2 driver, ``libver="latest"``, no flush until the end). Prints frames/s and the ratio.
+   Then the undo journal's own share of the writer's time (its records and commits timed inside
+   one run) and the bytes it journals per frame.
 2. Kill trials: a writer subprocess is killed with SIGKILL at a random moment; then the partial is
    resumed with ``SequenceWriter(resume=True)``. Counts how many partials reopened, how many
    frames were kept, how many were rolled back by the CRC check, and whether the finished file
@@ -86,6 +88,42 @@ def throughput(w: int, h: int, frames: int, folder: str) -> tuple[float, float]:
     return new, old
 
 
+def journal_share(w: int, h: int, frames: int, folder: str) -> tuple[float, float]:
+    """(the share of the writer's time spent journaling, kB journaled per frame)."""
+    from staticdepth.dataset import resume as rs
+    from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
+    from staticdepth.geometry import Camera
+
+    acc = {"t": 0.0, "bytes": 0}
+    keep, reset = rs.UndoableFile._keep, rs.UndoableFile._reset_journal
+
+    def timed_keep(self, off, end):
+        t, pos = time.perf_counter(), self._jpos
+        keep(self, off, end)
+        acc["t"] += time.perf_counter() - t
+        acc["bytes"] += self._jpos - pos
+
+    def timed_reset(self):
+        t = time.perf_counter()
+        reset(self)
+        acc["t"] += time.perf_counter() - t
+
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 255, (h, w, 3), dtype=np.uint8)
+    depth = rng.uniform(1, 80, (h, w)).astype(np.float32)
+    rs.UndoableFile._keep, rs.UndoableFile._reset_journal = timed_keep, timed_reset
+    try:
+        t0 = time.perf_counter()
+        with SequenceWriter(os.path.join(folder, "j.h5"), SequenceMeta("b", Camera.from_fov(
+                w, h, 90)), streams=("left", "depth")) as sw:
+            for i in range(frames):
+                sw.append(left=np.roll(left, i, axis=1), depth=depth + i)
+        total = time.perf_counter() - t0
+    finally:
+        rs.UndoableFile._keep, rs.UndoableFile._reset_journal = keep, reset
+    return acc["t"] / total, acc["bytes"] / frames / 1024
+
+
 def kill_trials(w: int, h: int, trials: int, mode: str, folder: str) -> dict:
     from staticdepth.dataset.h5 import SequenceMeta, SequenceReader, SequenceWriter
     from staticdepth.geometry import Camera
@@ -146,6 +184,8 @@ def main() -> None:
         new, old = throughput(w, h, a.frames, d)
         print(f"throughput {w}x{h} left+depth, {a.frames} frames: writer {new:.1f} frames/s, "
               f"old settings (no flush) {old:.1f} frames/s, ratio {new / old:.2f}")
+        share, kb = journal_share(w, h, a.frames, d)
+        print(f"undo journal: {100 * share:.1f}% of the writer's time, {kb:.1f} kB per frame")
         s = kill_trials(w, h, a.trials, "new", d)
         kept = s["kept"] or [0]
         print(f"SIGKILL x{a.trials}, writer: reopened {s['reopened']}, renamed aside "

@@ -7,7 +7,10 @@ attributes ``config_hash``, ``sequence_id``, ``n_frames``, ``n_written``, ``comp
 written as ``<path>.partial`` under :func:`staticdepth.fileio.exclusive_lock`; ``n_written``
 moves after each flushed chunk; a resumed write keeps the frames whose checksum verifies when the
 partial file has the same config hash and sequence identity (else it starts over); a finished
-file is fsynced and renamed onto ``<path>``.
+file is fsynced and renamed onto ``<path>``. The partial is written as the sequence writer's is
+(:mod:`staticdepth.dataset.resume`: HDF5's 1.8 superblock, an undo journal, a commit after each
+flush), so a run killed even by SIGKILL, even in the middle of a flush, resumes after its last
+flushed frame.
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ from typing import Any, Mapping
 import h5py
 import numpy as np
 
+from staticdepth.dataset import resume as rs
 from staticdepth.errors import InputError
 from staticdepth.fileio import exclusive_lock, fsync_file, os_error, remove_stale_temporaries
 
@@ -66,6 +70,7 @@ class FrameFileWriter:
         self.rows_dtype = None if rows_dtype is None else np.dtype(rows_dtype)
         self.chunk = max(1, int(chunk))     # frames between flushes (n_written moves then)
         self._f: h5py.File | None = None
+        self._io: rs.UndoableFile | None = None
         self._stack = contextlib.ExitStack()
         self.start = 0
         self.rewrite = rewrite              # write even when a complete file has the same hash
@@ -98,27 +103,34 @@ class FrameFileWriter:
 
     def _open(self) -> None:
         if os.path.exists(self.partial):
+            f = io_ = None
             try:
-                f = h5py.File(self.partial, "a")
+                rs.recover_journal(self.partial)
+                io_ = rs.UndoableFile(self.partial, create=False)
+                f = h5py.File(io_, "r+", libver=rs.LIBVER)
                 ok = (f.attrs.get("config_hash") == self.config_hash
                       and f.attrs.get("sequence_id") == self.identity
                       and f[self.key].shape[1:] == self.shape and f[self.key].dtype == self.dtype
                       and int(f.attrs["n_frames"]) == self.n)
-            except (OSError, KeyError, ValueError):
-                ok, f = False, None
+            except (OSError, KeyError, ValueError, RuntimeError):
+                ok = False
             if ok:
-                self._set_file(f)
+                self._set_file(f, io_)
                 self.start = self._verified_frames()
                 self._truncate(self.start)
+                self._flush()
                 return
-            if f is not None:
-                f.close()
-            os.remove(self.partial)
+            for h in (f, io_):
+                if h is not None:
+                    with contextlib.suppress(Exception):
+                        h.close()
+            os.remove(self.partial)     # derived data: written again
+            rs.remove_journal(self.partial)
         self._create()
 
     def _create(self) -> None:
         try:
-            f = h5py.File(self.partial, "w", libver="latest")
+            f, io_ = rs.create_partial(self.partial)
         except OSError as e:
             raise os_error(e, self.partial) from None
         kind = "float" if self.dtype.kind == "f" else "int"
@@ -132,11 +144,12 @@ class FrameFileWriter:
             f.attrs[k] = _attr(v)
         f.attrs.update({"config_hash": self.config_hash, "sequence_id": self.identity,
                         "n_frames": self.n, "n_written": 0, "complete": False, "key": self.key})
-        self._set_file(f)
+        self._set_file(f, io_)
         self.start = 0
+        self._flush()
 
-    def _set_file(self, f: h5py.File) -> None:
-        self._f = f
+    def _set_file(self, f: h5py.File, io_: rs.UndoableFile) -> None:
+        self._f, self._io = f, io_
         self._ds, self._crc = f[self.key], f["crc32"]
         self._rows = f["rows"] if self.rows_dtype is not None else None
 
@@ -195,7 +208,31 @@ class FrameFileWriter:
             t[m:] = r
         if (k + 1) % self.chunk == 0 or k + 1 == self.n:
             f.attrs["n_written"] = k + 1
-            f.flush()
+            self._flush()
+
+    def _flush(self) -> None:
+        """Flush and commit (the partial is complete as it is); a failed write (disk full) puts
+        the partial back as it was at the last commit, closes it for a resume, and raises one
+        line."""
+        try:
+            self._f.flush()
+        except (OSError, RuntimeError) as e:        # h5py raises RuntimeError for some
+            if self._io.failed is None:
+                self._io.failed = e if isinstance(e, OSError) else OSError(str(e))
+        if self._io.failed is not None:
+            e = self._io.failed
+            with contextlib.suppress(OSError):
+                self._io.rollback()
+            self._close_file()
+            raise os_error(e, self.partial) from None
+        self._io.commit()
+
+    def _close_file(self) -> None:
+        for h in (self._f, self._io):
+            if h is not None:
+                with contextlib.suppress(Exception):
+                    h.close()
+        self._f = self._io = None
 
     def finish(self) -> str:
         f = self._f
@@ -207,9 +244,10 @@ class FrameFileWriter:
             raise InputError(f"{k} frames written, the sequence has {self.n}", self.path)
         f.attrs["n_written"] = k
         f.attrs["complete"] = True
-        f.flush()
+        self._flush()
         f.close()
         self._f = None
+        self._flush_close()
         try:
             fsync_file(self.partial)
             os.replace(self.partial, self.path)
@@ -219,14 +257,28 @@ class FrameFileWriter:
         self.done = True
         return self.path
 
+    def _flush_close(self) -> None:
+        """After HDF5 closed the file: its last writes are committed, the journal removed."""
+        io_, self._io = self._io, None
+        if io_.failed is not None:
+            e = io_.failed
+            with contextlib.suppress(OSError):
+                io_.rollback()
+            io_.close()
+            raise os_error(e, self.partial) from None
+        io_.commit()
+        io_.close()
+
     def abort(self) -> None:
         """Close, keeping the ``.partial`` file for a later resume."""
         if self._f is not None:
             with contextlib.suppress(Exception):     # a clean stop: every frame written counts
                 self._f.attrs["n_written"] = len(self._f["crc32"])
-                self._f.flush()
-            self._f.close()
-            self._f = None
+                self._flush()
+                self._f.close()                      # a clean close: committed, journal gone
+                self._f = None
+                self._flush_close()
+        self._close_file()
 
 
 def is_complete(path: str | os.PathLike, identity: str, config_hash: str | None = None) -> bool:
@@ -249,6 +301,8 @@ def frames_left(path: str | os.PathLike, identity: str, config_hash: str, n: int
     path = os.fspath(path)
     if is_complete(path, identity, config_hash):
         return 0
+    if rs.journal_pending(path + PARTIAL):
+        return n      # killed in a flush: not read before its writer puts it back
     try:
         with h5py.File(path + PARTIAL, "r") as f:
             a = f.attrs

@@ -145,6 +145,7 @@ def remove_prediction(seq_path: str | os.PathLike, name: str) -> bool:
 
 def clean_store(seq_path: str | os.PathLike) -> list[str]:
     """Remove temporaries of dead processes and ``.partial`` files nobody is writing."""
+    from staticdepth.dataset.resume import remove_journal
     from staticdepth.fileio import OutputLocked
 
     folder = store_dir(seq_path)
@@ -155,6 +156,7 @@ def clean_store(seq_path: str | os.PathLike) -> list[str]:
         try:
             with exclusive_lock(final):
                 os.remove(part)
+                remove_journal(part)
                 removed.append(part)
         except OutputLocked:
             continue

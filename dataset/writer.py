@@ -26,6 +26,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import h5py
 import numpy as np
 
+from staticdepth.dataset import resume as rs
 from staticdepth.dataset import schema
 from staticdepth.dataset.h5 import (PARTIAL_SUFFIX, SequenceMeta, _compression, _frame_checksum,
                                     _fsync_path)
@@ -82,7 +83,6 @@ class SequenceWriter:
         """``settings``: what else changes the output (beside ``meta``); ``inputs``: one identity
         per input frame (:func:`staticdepth.dataset.resume.task_identity`), ``labels`` their names;
         both are stored and a ``resume`` with others is refused (see :mod:`.resume`)."""
-        from staticdepth.dataset import resume as rs
         from staticdepth.fileio import exclusive_lock, remove_stale_temporaries
 
         self.path = os.fspath(path)
@@ -133,8 +133,6 @@ class SequenceWriter:
 
     # -- setup ----------------------------------------------------------------------------------
     def _create(self) -> None:
-        from staticdepth.dataset import resume as rs
-
         try:
             self._f, self._io = f, _ = rs.create_partial(self.partial)
         except OSError as e:
@@ -268,6 +266,7 @@ class SequenceWriter:
         if n == 0:
             with contextlib.suppress(OSError):
                 os.remove(self.partial)
+            rs.remove_journal(self.partial)
             self._lock.close()
             raise InputError(f"{err.problem}; nothing was kept", self.partial) from None
         self._lock.close()
@@ -378,6 +377,7 @@ class SequenceWriter:
         if self.n == 0:
             self._close_file()
             os.remove(self.partial)
+            rs.remove_journal(self.partial)
             self.abort()
             raise InputError("no frames were written", self.path)
         if self.meta.adapt_frames > self.n:
@@ -415,6 +415,9 @@ class SequenceWriter:
             if self._f is not None:
                 with contextlib.suppress(Exception):
                     self._f.flush()
+                    self._f.close()  # a clean close: committed, the journal goes
+                    self._f = None
+                    self._commit()
             self._close_file()
         finally:
             self._restore_sigterm()

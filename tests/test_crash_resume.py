@@ -130,14 +130,19 @@ class FrameCounter:
 
 
 def run_and_kill(args: list[str], partial: str, sig: int, at: int, timeout: float = 300):
-    """Run the CLI in a subprocess, wait until the partial holds ``at`` frames, send ``sig``;
-    (0, stderr) when the writer completed before the signal reached it."""
+    """Run the CLI in a subprocess, wait until the partial holds ``at`` complete frames, send
+    ``sig``; (0, stderr) when the writer completed before the signal reached it.
+
+    A count the reader sees may belong to a frame still being flushed (the counter is written
+    with the frame's data, in no set order), so ``at`` frames are complete once it reads
+    ``at + 1``: the flush of frame ``at`` starts after frame ``at - 1``'s ended. Waiting for
+    ``at`` only, a SIGKILL in that flush had the resume keep ``at - 1`` frames, rightly."""
     proc = subprocess.Popen([sys.executable, "-c", CLI, *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     frames_written = FrameCounter(partial)
     t0 = time.monotonic()
     try:
-        while frames_written() < at:
+        while frames_written() < at + 1:
             if proc.poll() is not None:
                 if proc.returncode == 0:   # done before we looked (a loaded machine): retried
                     return 0, proc.stderr.read()
