@@ -11,7 +11,11 @@ always aligned (Eq. 2) or never ground (``upright``). ``--mode`` (default the co
 align stage does (``adaptation.align.upright_options``; METHOD.md section 4). Aligned maps are float32 (NaN = unknown), written
 atomically. With a camera height (``--camera-height``, or the plane's ``camera_height_m``) the
 output is in metres and the anchor scale of section 5 is reported; otherwise it is in units of the
-camera height.
+camera height. As in adapt, a prediction whose inverse depth over the ground the plane does not
+explain (R^2 under ``align.min_ground_r2``, the median over up to 8 maps: the adaptation split's
+on a sequence) is not aligned: the output is the plane's depth along every ray, each
+``--agent-mask`` component at its contact (``adaptation.align.plane_frame``'s rule), with a
+warning; the JSON holds ``ground_r2`` and ``plane_only``.
 """
 from __future__ import annotations
 
@@ -107,17 +111,59 @@ def save_npy_atomic(path: str | os.PathLike, array: np.ndarray) -> None:
         np.save(f, array)
 
 
+def map_ground_r2(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: np.ndarray,
+                  agent_mask: np.ndarray | None = None, inverse: bool = False) -> float:
+    """:func:`~staticdepth.geometry.alignment.ground_fit_r2` of one predicted map over the
+    ground less the agents, as adapt's align stage measures it."""
+    from staticdepth.geometry.alignment import depth_from_inverse, ground_fit_r2
+    from staticdepth.geometry.alignment_upright import AlignCamera
+
+    pred = np.asarray(pred, dtype=np.float32)
+    Z = depth_from_inverse(pred) if inverse else pred
+    g = np.asarray(ground_mask, bool)
+    if agent_mask is not None:
+        g = g & ~np.asarray(agent_mask, bool)
+    h, w = Z.shape
+    return ground_fit_r2(Z, g, AlignCamera(K, w, h, plane.normal, 1.0))
+
+
+def plane_map(K: np.ndarray, plane: AgentPlane, ground_mask: np.ndarray, shape, d_g: float,
+              agent_mask: np.ndarray | None = None, align_conf=None) -> np.ndarray:
+    """The output for a prediction under ``align.min_ground_r2``, by adapt's rule
+    (:func:`staticdepth.adaptation.align.plane_frame`): the plane's depth along every ray, each
+    connected component of ``agent_mask`` an agent at its contact; units of ``d_g``."""
+    import dataclasses
+
+    import cv2
+
+    from staticdepth.adaptation.align import plane_frame
+    from staticdepth.adaptation.config import build_config
+    from staticdepth.detectors.base import rows_from_masks
+
+    conf = build_config({})
+    if align_conf is not None:
+        conf = dataclasses.replace(conf, align=align_conf)
+    masks = []
+    if agent_mask is not None and np.any(agent_mask):
+        n, labels = cv2.connectedComponents(np.asarray(agent_mask, np.uint8), connectivity=8)
+        masks = [labels == k for k in range(1, n)]
+    inst, rows = rows_from_masks(0, masks, [0] * len(masks), [1.0] * len(masks), tuple(shape))
+    return d_g * plane_frame(conf, K, plane.normal, np.asarray(ground_mask, bool), inst, rows)
+
+
 def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: np.ndarray, *,
               inverse: bool = False, camera_height_m: float | None = None,
               near_plane_rel: float | None = None, agent_mask: np.ndarray | None = None,
-              align_conf=None, image: np.ndarray | None = None
+              align_conf=None, image: np.ndarray | None = None, plane_only: bool = False
               ) -> tuple[np.ndarray, dict[str, Any]]:
     """Align one predicted map; returns the map and its info (plane fit, fallback, anchor scale).
     ``agent_mask`` (H, W) pixels leave the plane fit, are always aligned (eq2) or never ground
     (upright) and skip the anchor. ``align_conf``: an adaptation ``AlignConfig`` (default: the
     config's defaults) whose mode and settings are used as adapt's align stage uses them.
     ``image``: the static scene (adaptation.align.static_image) for ``align.colour_foot``; without
-    it (a single map, no frames) the rule is not applied and the info says so."""
+    it (a single map, no frames) the rule is not applied and the info says so. ``plane_only``:
+    the prediction does not see the ground (``align.min_ground_r2``): the map is
+    :func:`plane_map`, the info's ``mode`` is ``plane``."""
     from staticdepth.adaptation.align import upright_options
     from staticdepth.adaptation.config import AlignConfig
     from staticdepth.geometry.alignment import align_depth, depth_from_inverse
@@ -132,10 +178,19 @@ def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: n
     if near_plane_rel is not None and conf.mode != "eq2":
         raise InputError(f"--near-plane selects pixels for Eq. 2: it needs --mode eq2, not "
                          f"{conf.mode!r}")
+    info: dict[str, Any] = {"ground_r2": _r2_value(map_ground_r2(Z, K, plane, ground_mask,
+                                                                 agent_mask))}
+    if plane_only:
+        A = plane_map(K, plane, ground_mask, Z.shape, d_g, agent_mask, conf)
+        A[~np.isfinite(Z)] = np.nan
+        info["mode"] = "plane"
+        if camera_height_m is not None:
+            info.update(_anchor_info(Z, K, plane, camera_height_m, agent_mask))
+        return A, info
     res = align_depth(Z, K, plane.normal, d_g, ground_mask, near_plane_rel=near_plane_rel,
                       agent_mask=agent_mask, mode=conf.mode, snap_rel=conf.snap_rel,
                       image=image if use_image else None, **upright_options(conf))
-    info: dict[str, Any] = {"mode": conf.mode}
+    info["mode"] = conf.mode
     if conf.uses_image and not use_image:
         info["colour_foot"] = "not applied: no frames (on a sequence, --sequence applies it)"
     if conf.mode == "eq2":
@@ -147,11 +202,36 @@ def align_map(pred: np.ndarray, K: np.ndarray, plane: AgentPlane, ground_mask: n
         info.update(inverse_scale=s, inverse_shift=t, scale_only=bool(scale_only),
                     far_limit=res.plane_d, not_reanchored_pixels=res.n_fallback)
     if camera_height_m is not None:
-        a = scale_from_anchor(Z, K, plane.normal, camera_height_m, agent_mask=agent_mask)
-        info.update(anchor_depth_m=a.anchor_depth_m,
-                    anchor_depth_parallel_m=a.anchor_depth_parallel_m,
-                    scale=None if a.skipped else a.scale, scale_skipped=a.skipped)
+        info.update(_anchor_info(Z, K, plane, camera_height_m, agent_mask))
     return res.depth, info
+
+
+def _r2_value(r2: float) -> float | None:
+    return round(float(r2), 4) if np.isfinite(r2) else None
+
+
+def _anchor_info(Z, K, plane: AgentPlane, camera_height_m: float, agent_mask) -> dict[str, Any]:
+    a = scale_from_anchor(Z, K, plane.normal, camera_height_m, agent_mask=agent_mask)
+    return {"anchor_depth_m": a.anchor_depth_m,
+            "anchor_depth_parallel_m": a.anchor_depth_parallel_m,
+            "scale": None if a.skipped else a.scale, "scale_skipped": a.skipped}
+
+
+def ground_decision(r2_values, align_conf) -> tuple[float, bool]:
+    """(the median R^2, whether it is under ``align.min_ground_r2``), warning when it is."""
+    import sys
+
+    from staticdepth.adaptation.align import median_r2
+
+    r2 = median_r2(r2_values)
+    bar = align_conf.min_ground_r2
+    under = bool(r2 < bar)
+    if under:
+        print(f"warning: the prediction does not see the agents' ground (its inverse depth over "
+              f"the ground: R^2 {r2:.3f} against the plane's, under align.min_ground_r2 {bar:g}); "
+              f"the output is the plane's depth with the agents at their contact, without the "
+              f"network (--set align.min_ground_r2=0 aligns it anyway)", file=sys.stderr)
+    return r2, under
 
 
 def align_config(mode: str | None, sets: list[str]):
@@ -274,7 +354,9 @@ def _align_cmd(args: argparse.Namespace) -> int:
     else:
         frames, out_desc = _align_files(args, plane, height, masks)
     units = "m" if height is not None else "camera heights"
-    result: dict[str, Any] = {"units": units, "camera_height_m": height, "frames": frames}
+    result: dict[str, Any] = {"units": units, "camera_height_m": height,
+                              "ground_r2": _r2_value(args.ground_r2),
+                              "plane_only": args.plane_only, "frames": frames}
     if height is not None:
         scales = [f["scale"] for f in frames if f.get("scale") is not None]
         result["scale"] = temporal_scale(scales) if scales else None
@@ -301,16 +383,31 @@ def _align_files(args, plane: AgentPlane, height, masks: _Masks):
         outputs = [Path(args.out) / p.name for p in inputs]
     else:
         inputs, outputs = [src], [Path(args.out)]
-    frames = []
-    for i, o in progress(list(zip(inputs, outputs)), desc="align"):
+
+    def load(i: Path) -> np.ndarray:
         pred = check_prediction(_load_npy(os.fspath(i)), i)  # real, no +-inf (NaN = unknown)
         if pred.ndim != 2:
             raise InputError(f"a prediction must be a 2-D (H, W) map, got shape {pred.shape}", i)
+        return pred
+
+    from staticdepth.adaptation.align import r2_frames
+
+    def r2_of(i: Path) -> float:
+        pred = load(i)
+        return map_ground_r2(pred, camera.K, plane, masks.ground(pred.shape),
+                             masks.agent(pred.shape), args.inverse)
+
+    args.ground_r2, args.plane_only = ground_decision(
+        (r2_of(inputs[k]) for k in r2_frames([], len(inputs))), args.align_conf)
+    frames = []
+    for i, o in progress(list(zip(inputs, outputs)), desc="align"):
+        pred = load(i)
         ground, agents = masks.ground(pred.shape), masks.agent(pred.shape)
         try:
             out, info = align_map(pred, camera.K, plane, ground, inverse=args.inverse,
                                   camera_height_m=height, near_plane_rel=args.near_plane,
-                                  agent_mask=agents, align_conf=args.align_conf)
+                                  agent_mask=agents, align_conf=args.align_conf,
+                                  plane_only=args.plane_only)
         except InputError as e:
             raise InputError(e.problem, i) from None
         save_npy_atomic(o, out)
@@ -339,9 +436,17 @@ def _align_sequence(args, plane: AgentPlane, height, masks: _Masks):
         if masks.aux is not None and masks.aux not in r.aux_names():
             raise InputError(f"sequence has no aux map {masks.aux!r} (has {r.aux_names()})", seq)
 
-        from staticdepth.adaptation.align import align_image
+        from staticdepth.adaptation.align import align_image, r2_frames
 
         image = align_image(args.align_conf, r)         # as adapt's align stage
+
+        def r2_of(i: int) -> float:
+            pred = r.prediction(args.pred_name, i)
+            return map_ground_r2(pred, K, plane, masks.ground(pred.shape, r, i),
+                                 masks.agent(pred.shape), args.inverse)
+
+        args.ground_r2, args.plane_only = ground_decision(
+            (r2_of(i) for i in r2_frames(r.split("adapt"), len(r))), args.align_conf)
 
         def aligned(i: int, pred: np.ndarray) -> np.ndarray:
             try:
@@ -349,7 +454,8 @@ def _align_sequence(args, plane: AgentPlane, height, masks: _Masks):
                                       inverse=args.inverse, camera_height_m=height,
                                       near_plane_rel=args.near_plane,
                                       agent_mask=masks.agent(pred.shape),
-                                      align_conf=args.align_conf, image=image)
+                                      align_conf=args.align_conf, image=image,
+                                      plane_only=args.plane_only)
             except InputError as e:
                 if e.path:
                     raise
@@ -358,7 +464,7 @@ def _align_sequence(args, plane: AgentPlane, height, masks: _Masks):
             return out
 
         attrs = {"source_prediction": f"pred/{args.pred_name}", "plane": os.fspath(args.plane),
-                 "align_mode": args.align_conf.mode,
+                 "align_mode": "plane" if args.plane_only else args.align_conf.mode,
                  "units": "m" if height is not None else "camera heights"}
         align_prediction(ws, {out_name: (args.pred_name, aligned)},
                          f"align-command-{os.urandom(6).hex()}", attrs, rewrite=True)

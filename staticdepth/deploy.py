@@ -54,6 +54,7 @@ def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str 
     from staticdepth.locate import plane_from_summary
 
     s = read_json(summary_path)
+    check_sees_ground(s, summary_path)
     n_g, h_c = plane_from_summary(s, summary_path)
     scale = (s.get("scale") or {}).get("ft-align") if isinstance(s.get("scale"), dict) else None
     scale = float(scale) if scale else h_c
@@ -88,6 +89,20 @@ def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str 
             "upright": upright_options(ac) if mode == "upright" else {},
             "agents_at_contact": bool(setting_from(cfg, "align.agents_at_contact", False)),
             "image": image}
+
+
+def check_sees_ground(s: dict, summary_path: str) -> None:
+    """Refuse an adapt summary ``s`` whose ``ft-align`` was the plane alone
+    (``align.min_ground_r2``: the fine-tuned network's ground R^2 was under the bar): the
+    deployed chain would align a prediction adapt judged to be noise over the ground."""
+    if "ft-align" in (s.get("align_plane_only") or []):
+        r2 = (s.get("align_ground_r2") or {}).get("ft-align")
+        bar = setting_from(s.get("config") if isinstance(s.get("config"), dict) else {},
+                           "align.min_ground_r2", None)
+        raise InputError(f"adapt found that the fine-tuned network does not see the agents' "
+                         f"ground (R^2 {r2} under align.min_ground_r2 {bar}): its ft-align is "
+                         f"the plane alone, which an image-only model cannot reproduce (adapt "
+                         f"with --set align.min_ground_r2=0 aligns it anyway)", summary_path)
 
 
 def _align_config(cfg: dict, mode: str):

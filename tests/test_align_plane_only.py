@@ -106,3 +106,95 @@ def test_adapt_takes_the_plane_for_a_network_under_the_bar_and_says_so(tmp_path,
             assert m.mean() > 0.9
             prod = label[m] * A[m]
             np.testing.assert_allclose(prod, np.median(prod), rtol=1e-4)
+
+
+def _cli_inputs(tmp_path):
+    import cv2
+
+    from tests.test_cli_ground_align import _align_inputs
+
+    K, n, depth, ground = _align_inputs(tmp_path)     # cam.json, plane.json, mask.png, pred.npy
+    wall = scene()[4]
+    cv2.imwrite(str(tmp_path / "wall.png"), wall.astype(np.uint8) * 255)
+    noise = np.random.default_rng(1).uniform(0.01, 1.0, depth.shape).astype(np.float32)
+    np.save(tmp_path / "noise.npy", noise)
+    args = ["align", "--inverse", "--intrinsics", str(tmp_path / "cam.json"), "--plane",
+            str(tmp_path / "plane.json"), "--ground-mask", str(tmp_path / "mask.png"),
+            "--camera-height", "5", "--json", str(tmp_path / "info.json"),
+            "--out", str(tmp_path / "out.npy"), "--overwrite"]
+    return K, depth, ground, wall, noise, args
+
+
+def test_align_command_takes_the_plane_for_a_prediction_under_the_bar(tmp_path, capsys):
+    """`staticdepth align` applies align.min_ground_r2 as adapt does: a map whose ground is
+    noise becomes the plane's depth, the agent mask's component at its contact, with a warning;
+    a map that sees the ground (the paper's failure: 1/Z scaled and shifted) is aligned."""
+    import json
+
+    from staticdepth.cli import main
+
+    K, depth, ground, wall, _, args = _cli_inputs(tmp_path)
+    info = lambda: json.loads((tmp_path / "info.json").read_text())  # noqa: E731
+    assert main(args + ["--pred", str(tmp_path / "noise.npy"), "--agent-mask",
+                        str(tmp_path / "wall.png")]) == 0
+    err = capsys.readouterr().err.strip()
+    assert "does not see the agents' ground" in err and len(err.splitlines()) == 1
+    i = info()
+    assert i["plane_only"] is True and i["ground_r2"] < 0.05 and i["frames"][0]["mode"] == "plane"
+    out = np.load(tmp_path / "out.npy")
+    np.testing.assert_allclose(out[ground & ~wall], depth[ground & ~wall], rtol=1e-4)  # metres
+    vs, us = np.nonzero(wall)                       # the wall as one agent: its contact's depth
+    foot = depth[vs.max(), int(np.median(us[vs == vs.max()]))]
+    assert np.ptp(out[wall]) < 1e-4 * foot and out[wall][0] == pytest.approx(foot, rel=0.03)
+    # the bar at 0: the noise is aligned (and no warning)
+    assert main(args + ["--pred", str(tmp_path / "noise.npy"), "--set",
+                        "align.min_ground_r2=0"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert info()["plane_only"] is False and info()["frames"][0]["mode"] == "upright"
+    assert not np.allclose(np.load(tmp_path / "out.npy")[ground], depth[ground], rtol=0.05)
+    # a prediction that sees the ground: R^2 1, aligned
+    assert main(args + ["--pred", str(tmp_path / "pred.npy")]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert info()["plane_only"] is False and info()["ground_r2"] == pytest.approx(1.0, abs=1e-3)
+
+
+def test_align_sequence_decides_on_its_adaptation_frames(tmp_path, capsys):
+    import json
+
+    from staticdepth.cli import main
+    from staticdepth.dataset.h5 import SequenceReader, add_prediction
+    from tests.test_cli_ground_align import _sequence
+
+    K, depth, ground, wall, noise, _ = _cli_inputs(tmp_path)
+    seq = _sequence(tmp_path, depth, K, n_frames=3)
+    add_prediction(seq, "noise", [1.0 / np.roll(noise, k, axis=1) for k in range(3)])
+    common = ["align", "--sequence", str(seq), "--plane", str(tmp_path / "plane.json"),
+              "--ground-aux", "ground", "--camera-height", "5", "--json",
+              str(tmp_path / "i.json"), "--overwrite"]
+    assert main(common + ["--pred-name", "noise"]) == 0
+    assert "does not see the agents' ground" in capsys.readouterr().err
+    i = json.loads((tmp_path / "i.json").read_text())
+    assert i["plane_only"] is True and i["ground_r2"] < 0.05
+    with SequenceReader(seq) as r:
+        for k in range(3):
+            out = r.prediction("noise-align", k)
+            np.testing.assert_allclose(out[ground], depth[ground], rtol=1e-4)
+    assert main(common + ["--pred-name", "base"]) == 0
+    i = json.loads((tmp_path / "i.json").read_text())
+    assert i["plane_only"] is False and i["ground_r2"] == pytest.approx(1.0, abs=1e-3)
+
+
+def test_deployment_refuses_a_network_adapt_replaced_by_the_plane(tmp_path):
+    """export-model and predict --summary deploy ft + alignment: a summary whose ft-align was
+    the plane alone is refused in one line before the sequence is read."""
+    import json
+
+    from staticdepth.deploy import deployment_constants
+
+    summary = tmp_path / "s.adapt.json"
+    summary.write_text(json.dumps({"align_plane_only": ["align", "ft-align"],
+                                   "align_ground_r2": {"align": 0.01, "ft-align": 0.05},
+                                   "config": {"align": {"min_ground_r2": 0.2}}}))
+    with pytest.raises(InputError, match=r"R\^2 0.05 under align.min_ground_r2 0.2") as e:
+        deployment_constants(str(summary), str(tmp_path / "missing.h5"))
+    assert e.value.path == str(summary) and "\n" not in str(e.value)

@@ -139,19 +139,30 @@ def run_camera(conf: AdaptConfig, ws: Workspace, plane: AgentPlane) -> AlignCame
     return AlignCamera(ws.K, ws.width, ws.height, plane.normal, 1.0, image)
 
 
+def r2_frames(split, n: int, frames: int = GROUND_R2_FRAMES) -> list[int]:
+    """The frames whose ground R^2 decides ``align.min_ground_r2``: ``frames`` evenly spread
+    over the adaptation ``split`` (over all ``n`` frames without one)."""
+    split = np.asarray(split if len(split) else np.arange(n))
+    if not len(split):
+        return []
+    k = np.unique(np.linspace(0, len(split) - 1, min(frames, len(split))).astype(int))
+    return [int(i) for i in split[k]]
+
+
+def median_r2(values) -> float:
+    """The median of the finite R^2 values (NaN when none: too little ground to judge)."""
+    r2 = [x for x in values if np.isfinite(x)]
+    return float(np.median(r2)) if r2 else float("nan")
+
+
 def ground_r2(ws: Workspace, agents: Agents, src: str, ground: np.ndarray,
               camera: AlignCamera, frames: int = GROUND_R2_FRAMES) -> float:
-    """The median over ``frames`` adaptation frames (evenly spread; every frame without a split)
-    of :func:`~staticdepth.geometry.alignment.ground_fit_r2` of prediction ``src`` over the
+    """The median over ``frames`` adaptation frames (:func:`r2_frames`) of
+    :func:`~staticdepth.geometry.alignment.ground_fit_r2` of prediction ``src`` over the
     walked ``ground`` less the frame's agents: how well the network sees the agents' ground."""
-    split = ws.adapt_split if len(ws.adapt_split) else np.arange(ws.n)
-    pick = np.asarray(split)[np.unique(np.linspace(0, len(split) - 1, min(frames, len(split)))
-                                       .astype(int))]
     with ws.reader() as r:
-        r2 = [ground_fit_r2(r.prediction(src, int(i)), ground & (agents.instances(int(i)) == 0),
-                            camera) for i in pick]
-    r2 = [x for x in r2 if np.isfinite(x)]
-    return float(np.median(r2)) if r2 else float("nan")
+        return median_r2(ground_fit_r2(r.prediction(src, i), ground & (agents.instances(i) == 0),
+                                       camera) for i in r2_frames(ws.adapt_split, ws.n, frames))
 
 
 def plane_frame(conf: AdaptConfig, K: np.ndarray, normal: np.ndarray, ground: np.ndarray,
