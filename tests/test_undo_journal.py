@@ -104,11 +104,16 @@ def test_a_kill_at_any_write_of_a_flush_resumes_to_the_last_complete_frame(tmp_p
     assert results == {j: 13 for j in range(n_writes)}
 
 
-def test_recover_journal_restores_bytes_and_size_and_ignores_a_cut_record(tmp_path):
+def _opened(tmp_path) -> tuple[str, rs.UndoableFile]:
+    """A 100-byte file of "A", opened as a partial (its journal records the 100 bytes)."""
     p = str(tmp_path / "f.bin")
     with open(p, "wb") as f:
         f.write(b"A" * 100)
-    u = rs.UndoableFile(p, create=False)
+    return p, rs.UndoableFile(p, create=False)
+
+
+def test_recover_journal_restores_bytes_and_size_and_ignores_a_cut_record(tmp_path):
+    p, u = _opened(tmp_path)
     u.seek(10)
     u.write(b"B" * 20)                      # over committed bytes: journaled
     u.seek(100)
@@ -128,10 +133,7 @@ def test_recover_journal_restores_bytes_and_size_and_ignores_a_cut_record(tmp_pa
 
 
 def test_a_commit_empties_the_journal_and_a_clean_close_removes_it(tmp_path):
-    p = str(tmp_path / "f.bin")
-    with open(p, "wb") as f:
-        f.write(b"A" * 100)
-    u = rs.UndoableFile(p, create=False)
+    p, u = _opened(tmp_path)
     u.seek(0)
     u.write(b"B" * 10)
     assert os.path.getsize(p + rs.JOURNAL) > rs._HEAD.size
