@@ -187,3 +187,28 @@ def test_box_widths_fix_the_cylinder_that_rows_alone_missed():
     rows["left"] = rows["right"] = np.nan
     rows_only = angle_between_deg(fit_agent_plane(s.K, rows, FAST).normal, s.normal)
     assert with_sides < 0.5 and rows_only > 3.0, (with_sides, rows_only)
+
+
+def test_the_one_foot_extent_is_the_winning_fits(monkeypatch):
+    """The main fit and the wide start's each rewrite ``sub.e1``; the one kept is the lower
+    cost's, whichever ran last (the wide start's used to stay when it lost)."""
+    from types import SimpleNamespace
+
+    from staticdepth.geometry import agent_plane_joint as j
+
+    class Sub:
+        e1 = 0.0
+
+        def fit(self, conf, starts, theta0=None, **kw):
+            wide = theta0 is not None
+            self.e1 = 0.3 if wide else 0.1
+            return (0.5, 0.0, np.zeros(1), np.ones(1), costs["wide" if wide else "main"])
+
+    monkeypatch.setattr(j, "wide_start", lambda sub: np.ones(1))
+    monkeypatch.setattr(j, "RESTARTS_DEG", ())          # the fits alone
+    conf = SimpleNamespace(loss="soft_l1")
+    for costs, e1, cost in (({"main": 1.0, "wide": 2.0}, 0.1, 1.0),
+                            ({"main": 2.0, "wide": 1.0}, 0.3, 1.0)):
+        sub = Sub()
+        best = j._main_fit(sub, conf, [(20.0, 0.0)])
+        assert sub.e1 == e1 and best[4] == cost

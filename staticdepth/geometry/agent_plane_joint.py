@@ -82,6 +82,23 @@ def _restarts(sub: _Problem, conf, best: tuple, theta0) -> tuple:
     return best
 
 
+def _main_fit(sub: _Problem, conf, starts) -> tuple:
+    """The robust fit from ``starts`` with its restarts and, for people as boxes, the same from
+    disks as wide as the boxes (:func:`wide_start`); the lower cost wins, and ``sub.e1`` (the
+    one-foot extent, which every fit rewrites) is the winner's: it had kept the wide fit's even
+    when that fit lost."""
+    best = _restarts(sub, conf, sub.fit(conf, starts, loss=conf.loss, max_nfev=100), None)
+    e1 = sub.e1
+    wide = wide_start(sub)
+    if wide is not None:
+        alt = _restarts(sub, conf, sub.fit(conf, starts, wide, loss=conf.loss, max_nfev=100),
+                        wide)
+        if alt[4] < best[4]:
+            best, e1 = alt, sub.e1
+    sub.e1 = e1
+    return best
+
+
 def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     """Fit the joint model. Returns (n, s (J,), inliers (J,), row residuals (N,), extents
     {group name: list}, bootstrap {normal_std_deg, d_over_h_std, ...})."""
@@ -101,14 +118,7 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     aff = _affine_start(K, sub.obs)
     if aff is not None:
         starts.insert(1, aff)
-    p, r, theta, s, cost = _restarts(sub, conf, sub.fit(conf, starts, loss=conf.loss,
-                                                        max_nfev=100), None)
-    wide = wide_start(sub)      # people as boxes: also from disks as wide as the boxes
-    if wide is not None:
-        alt = _restarts(sub, conf, sub.fit(conf, starts, wide, loss=conf.loss, max_nfev=100),
-                        wide)
-        if alt[4] < cost:
-            p, r, theta, s, cost = alt
+    p, r, theta, s, cost = _main_fit(sub, conf, starts)
     # the rows' noise scale (gait, rough masks) sets the inlier threshold, never below inlier_px
     n = _normal(p, r)
     theta_all = _expand(prob, sub, theta)
