@@ -26,12 +26,26 @@ def test_ground_r2_is_one_for_a_scaled_and_shifted_ground_and_near_zero_for_nois
     # the paper's failure (inverse depth with a scale and a shift) is the plane exactly
     assert ground_fit_r2(depth_from_inverse(dpt_failure(depth)), ground, cam) \
         == pytest.approx(1.0, abs=1e-5)
-    # a noisy one keeps what its noise leaves: R^2 = var(signal) / (var(signal) + var(noise))
+    # a noisy one keeps what its noise leaves: R^2 = var(signal) / (var(signal) + var(noise)),
+    # the noise's variance over the 80% of pixels kept (R2_KEEP) that of a normal truncated at
+    # its 10th and 90th percentiles: with the signal's variance, 1 / (1 + 0.438) = 0.696
+    from scipy.stats import norm, truncnorm
+
+    from staticdepth.geometry.alignment import R2_KEEP
+
     rng = np.random.default_rng(0)
     inv = 1.0 / depth
     sd = float(np.std(inv[ground]))
     noisy = 1.0 / (inv + rng.normal(0, sd, inv.shape)).clip(1e-3)
-    assert ground_fit_r2(noisy, ground, cam) == pytest.approx(0.5, abs=0.05)
+    z = norm.ppf(0.5 + R2_KEEP / 2)
+    assert ground_fit_r2(noisy, ground, cam) == pytest.approx(1 / (1 + truncnorm.var(-z, z)),
+                                                              abs=0.04)
+    # a near patch on 15% of the ground (an undetected object) is left out
+    patch = depth_from_inverse(dpt_failure(depth)).copy()
+    vs, us = np.nonzero(ground)
+    near = vs >= np.quantile(vs, 0.85)
+    patch[vs[near], us[near]] = 0.2
+    assert ground_fit_r2(patch, ground, cam) > 0.95
     # a network whose ground is noise, or comes nearer up the image, does not see it
     assert ground_fit_r2(rng.uniform(1, 50, depth.shape), ground, cam) < 0.01
     assert ground_fit_r2(1.0 / (0.5 - inv), ground, cam) == 0.0
