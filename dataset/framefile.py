@@ -219,6 +219,11 @@ class FrameFileWriter:
         except (OSError, RuntimeError) as e:        # h5py raises RuntimeError for some
             if self._io.failed is None:
                 self._io.failed = e if isinstance(e, OSError) else OSError(str(e))
+        self._commit()
+
+    def _commit(self) -> None:
+        """The partial as it is now is complete, unless a write failed: then it is put back as
+        it was at the last commit, closed for a resume, and one line raised."""
         if self._io.failed is not None:
             e = self._io.failed
             with contextlib.suppress(OSError):
@@ -259,15 +264,8 @@ class FrameFileWriter:
 
     def _flush_close(self) -> None:
         """After HDF5 closed the file: its last writes are committed, the journal removed."""
-        io_, self._io = self._io, None
-        if io_.failed is not None:
-            e = io_.failed
-            with contextlib.suppress(OSError):
-                io_.rollback()
-            io_.close()
-            raise os_error(e, self.partial) from None
-        io_.commit()
-        io_.close()
+        self._commit()
+        self._close_file()
 
     def abort(self) -> None:
         """Close, keeping the ``.partial`` file for a later resume."""

@@ -295,8 +295,9 @@ class UndoableFile(io.RawIOBase):
     complete frame.
 
     A kill (SIGKILL, OOM) in the middle of a flush leaves the same half-rewritten metadata, and
-    HDF5 reading it crashed the resuming process (segfault, "addr overflow"; 1 kill in 4 at
-    64x32, ``benchmarks/bench_crash_resume.py``). So the old bytes also go to a journal,
+    HDF5 reading it crashed the resuming process (segfault, "addr overflow": 1 random kill in 84
+    at 64x32), finished a file with a frame that failed its checksum, or raised
+    (tests/test_undo_journal.py kills before every write of a flush). So the old bytes also go to a journal,
     ``<partial>.undo``, before the write that replaces them (each record a single ``write``:
     offset, length, CRC-32, the bytes), and :func:`recover_journal` applies it before the
     partial is reopened. A commit empties the journal and records the partial's size. The
