@@ -142,13 +142,7 @@ def camera_for(width: int, height: int, camera_json: str | None, fov_deg: float 
     if camera_json and fov_deg is not None:
         raise InputError("give either --camera or --fov-deg, not both")
     if camera_json:
-        cam = load_camera(camera_json)
-        if (cam.width, cam.height) != (width, height):
-            sx, sy = width / cam.width, height / cam.height
-            if abs(sx - sy) > 0.01 * max(sx, sy):
-                raise InputError(f"the camera is {cam.width}x{cam.height}, the frames "
-                                 f"{width}x{height}: not a uniform resize", camera_json)
-            cam = cam.scaled(sx, sy)
+        cam = load_camera(camera_json).fitted_to(width, height, "the frames", camera_json)
         return cam, f"camera JSON {os.path.abspath(camera_json)}"
     fov = DEFAULT_FOV_DEG if fov_deg is None else float(fov_deg)
     if not 1.0 <= fov <= 179.0:

@@ -392,9 +392,15 @@ def _align_files(args, plane: AgentPlane, height, masks: _Masks):
 
     from staticdepth.adaptation.align import r2_frames
 
+    def K_of(pred: np.ndarray, i: Path) -> np.ndarray:
+        """The intrinsics for this map (scaled when the map is a uniform resize of the
+        camera's image, as import-video does; else one line naming both sizes)."""
+        return camera.fitted_to(pred.shape[1], pred.shape[0], f"the map {i}",
+                                args.intrinsics).K
+
     def r2_of(i: Path) -> float:
         pred = load(i)
-        return map_ground_r2(pred, camera.K, plane, masks.ground(pred.shape),
+        return map_ground_r2(pred, K_of(pred, i), plane, masks.ground(pred.shape),
                              masks.agent(pred.shape), args.inverse)
 
     args.ground_r2, args.plane_only = ground_decision(
@@ -404,7 +410,7 @@ def _align_files(args, plane: AgentPlane, height, masks: _Masks):
         pred = load(i)
         ground, agents = masks.ground(pred.shape), masks.agent(pred.shape)
         try:
-            out, info = align_map(pred, camera.K, plane, ground, inverse=args.inverse,
+            out, info = align_map(pred, K_of(pred, i), plane, ground, inverse=args.inverse,
                                   camera_height_m=height, near_plane_rel=args.near_plane,
                                   agent_mask=agents, align_conf=args.align_conf,
                                   plane_only=args.plane_only)
@@ -429,7 +435,9 @@ def _align_sequence(args, plane: AgentPlane, height, masks: _Masks):
     frames: list[dict[str, Any]] = []
     ws = Workspace(seq, log=lambda m: None)
     with ws.reader() as r:
-        K = load_camera(args.intrinsics).K if args.intrinsics else r.camera.K
+        K = (load_camera(args.intrinsics).fitted_to(r.camera.width, r.camera.height,
+                                                    "the sequence's frames", args.intrinsics).K
+             if args.intrinsics else r.camera.K)
         if args.pred_name not in r.predictions():
             raise InputError(f"sequence has no prediction {args.pred_name!r} (has "
                              f"{r.predictions()})", seq)

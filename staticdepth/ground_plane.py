@@ -81,6 +81,29 @@ def read_observations_csv(path: str | os.PathLike) -> np.ndarray:
     return out
 
 
+#: how far (share of the image's size) observations may lie beyond the camera's image: a camera
+#: JSON without ``width``/``height`` gets a size from its principal point (``2 c + 1``)
+OUTSIDE_TOLERANCE = 0.2
+
+
+def check_in_image(obs: np.ndarray, camera, obs_path, camera_path) -> None:
+    """One line when the observations reach beyond the camera's image by more than
+    :data:`OUTSIDE_TOLERANCE` of its size: observations taken at another resolution than the
+    intrinsics (a video's full frames against the imported sequence's camera) would put every
+    ray, and so the plane, wrong without any other sign."""
+    pts = [("foot_u", camera.width), ("top_u", camera.width), ("foot_v", camera.height),
+           ("top_v", camera.height)]
+    for col, size in pts:
+        x = obs[col][np.isfinite(obs[col])]
+        if not len(x):
+            continue
+        lo, hi = float(x.min()), float(x.max())
+        if hi > (1 + OUTSIDE_TOLERANCE) * size or lo < -OUTSIDE_TOLERANCE * size:
+            raise InputError(f"{col} spans {lo:g} to {hi:g}, beyond the {camera.width}x"
+                             f"{camera.height} image of {os.fspath(camera_path)}: observations and "
+                             f"intrinsics of different resolutions?", obs_path)
+
+
 def estimate_ground_plane(observations: np.ndarray, K: np.ndarray,
                           conf: AgentPlaneConfig | None = None, *,
                           agent_height_m: float | None = None,
@@ -172,6 +195,7 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
     refuse_existing(args.out, overwrite=args.overwrite)
     camera = load_camera(args.intrinsics)
     obs = read_observations_csv(args.observations)
+    check_in_image(obs, camera, args.observations, args.intrinsics)
     conf = PRESETS[args.model]
     if args.radius is not None:
         conf = replace(conf, radius_m=args.radius)

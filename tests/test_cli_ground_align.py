@@ -361,3 +361,48 @@ def test_align_command_modes_are_adapts(tmp_path, capsys):
         rc = _align(tmp_path, "--ground-mask", str(tmp_path / "mask.png"), *extra)
         e = capsys.readouterr().err
         assert rc == 2 and msg in e and len(e.strip().splitlines()) == 1, (extra, e)
+
+
+def test_align_command_fits_the_camera_to_a_resized_map(tmp_path, capsys):
+    """A camera JSON of the image at half the map's size (a network's map at another resolution,
+    a sequence imported with --width) is scaled to the map as import-video scales it: the
+    metric output is the closed-form scene's depth, as with the map's own intrinsics; a size
+    that is not a uniform resize is one line naming the camera file and the map, nothing
+    written. Before, the half-size intrinsics were used as they were (every ray wrong)."""
+    K, n, depth, ground = _align_inputs(tmp_path)
+    h, w = depth.shape
+    half = {"fx": K[0, 0] / 2, "fy": K[1, 1] / 2, "cx": (K[0, 2] + 0.5) / 2 - 0.5,
+            "cy": (K[1, 2] + 0.5) / 2 - 0.5, "width": w // 2, "height": h // 2}
+    (tmp_path / "cam.json").write_text(json.dumps(half))
+    rc = _align(tmp_path, "--ground-mask", str(tmp_path / "mask.png"), "--json",
+                str(tmp_path / "info.json"))
+    assert rc == 0
+    out = np.load(tmp_path / "out.npy")
+    assert np.mean(np.abs(out - depth)[ground] / depth[ground]) < 0.01
+    info = json.loads((tmp_path / "info.json").read_text())
+    assert info["anchor_depth_m"] == pytest.approx(depth[-1, w // 2], rel=1e-3)
+    (tmp_path / "out.npy").unlink()
+    (tmp_path / "cam.json").write_text(json.dumps({**half, "width": int(w * 0.6)}))
+    capsys.readouterr()
+    rc = _align(tmp_path, "--ground-mask", str(tmp_path / "mask.png"))
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1
+    assert str(tmp_path / "cam.json") in err and "pred.npy" in err and "uniform resize" in err
+    assert not (tmp_path / "out.npy").exists()
+
+
+def test_ground_plane_refuses_observations_of_another_resolution(fitted, tmp_path, capsys):
+    """Observations read from a video's full frames against the camera of a sequence imported
+    at half the width: one line naming both files, nothing written (the fit ran before and
+    gave a plane with every ray wrong)."""
+    d = fitted[0]
+    cam = json.loads((d / "cam.json").read_text())
+    half = {k: (cam[k] + 0.5) / 2 - 0.5 if k in ("cx", "cy") else cam[k] / 2 for k in cam}
+    half["width"], half["height"] = cam["width"] // 2, cam["height"] // 2
+    (tmp_path / "half.json").write_text(json.dumps(half))
+    rc = main(["ground-plane", "--observations", str(d / "obs.csv"), "--intrinsics",
+               str(tmp_path / "half.json"), "--out", str(tmp_path / "p.json")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1
+    assert str(d / "obs.csv") in err and str(tmp_path / "half.json") in err
+    assert "different resolutions" in err and not (tmp_path / "p.json").exists()

@@ -106,6 +106,20 @@ class Camera:
         K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
         return Camera(K, round(self.width * sx), round(self.height * sy), self.dist)
 
+    def fitted_to(self, width: int, height: int, what: str = "the frames",
+                  source: str | os.PathLike | None = None) -> "Camera":
+        """The camera for images of ``width`` x ``height``: itself, or :meth:`scaled` when they are
+        a uniform resize of its own (a network's map at a lower resolution, a video imported
+        with ``--width``); else an :class:`InputError` naming ``source`` (the camera's file) that
+        says both sizes (a camera calibrated for another image: every ray would be wrong)."""
+        if (self.width, self.height) == (int(width), int(height)):
+            return self
+        sx, sy = width / self.width, height / self.height
+        if abs(sx - sy) > 0.01 * max(sx, sy):
+            raise InputError(f"the camera is {self.width}x{self.height}, {what} {width}x{height}: "
+                             f"not a uniform resize", source)
+        return self.scaled(sx, sy)
+
     def __eq__(self, other: object) -> bool:
         return (isinstance(other, Camera) and self.size == other.size
                 and np.array_equal(self.K, other.K) and np.array_equal(self.dist, other.dist))
