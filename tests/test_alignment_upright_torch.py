@@ -305,8 +305,11 @@ def test_colour_bins_are_ground_coloureds():
 def test_torch_colour_foot_leaves_the_walked_grounds_colour(monkeypatch):
     """tests/test_align_near.py's smooth road: a band the network keeps flat is traced like a
     wall and its colour runs on to a lane marking; its colour is the walked ground's (the frame's
-    histogram in the graph), so neither version pulls it; with that test off both do."""
+    histogram in the graph), so neither version pulls it; with that test off, the lawn test
+    (the road's colour comes back below the marking, on the frame's snapped pixels) keeps the
+    band's median in both; with both off both pull it. The twin matches numpy in each case."""
     import staticdepth.geometry.alignment_upright as au
+    import staticdepth.geometry.alignment_vertical as av
     import staticdepth.geometry.colour_foot_torch as cft
     from billboard_scene import billboard_camera
 
@@ -320,11 +323,32 @@ def test_torch_colour_foot_leaves_the_walked_grounds_colour(monkeypatch):
     ground = finite & (z_ground < 60)
     kw = _adapt_upright()
     off = align_depth(net, K, n, 3.0, ground, mode="upright", **kw).depth
-    for share in (au.FOOT_GROUND_SHARE, 2.0):          # 2.0: no pixel is ground-coloured
+    # 2.0: no pixel is ground-coloured; a RESUME_DIFF of -1: no colour ever comes back
+    for share, resume in ((au.FOOT_GROUND_SHARE, av.RESUME_DIFF), (2.0, av.RESUME_DIFF),
+                          (2.0, -1.0)):
         monkeypatch.setattr(au, "FOOT_GROUND_SHARE", share)
         monkeypatch.setattr(cft, "FOOT_GROUND_SHARE", share)
+        monkeypatch.setattr(av, "RESUME_DIFF", resume)
         ref = align_depth(net, K, n, 3.0, ground, mode="upright", image=img, **kw).depth
-        assert (np.median(ref[band] / off[band]) < 0.95) == (share > 1)
+        assert (np.median(ref[band] / off[band]) < 0.95) == (resume < 0)
         out = UprightAlignment(K, 160, 100, n, 3.0, ground, image=img, **kw)(
             torch.from_numpy(net)).numpy()
         assert _rel(out, ref).max() < 1e-5, (share, _rel(out, ref).max())
+
+
+def test_torch_colour_foot_keeps_a_lawn_on_the_plane(tmp_path):
+    """tests/test_align_near.py's lawn with a paper on it: the lawn test is static (the image's
+    runs) and reads the frame's snapped pixels in the graph; the twin and its ONNX export match
+    numpy there."""
+    from test_align_near import _lawn_scene
+
+    K, n, z, net, walked, lawn, img = _lawn_scene()
+    kw = _adapt_upright()
+    info: dict = {}
+    ref = align_depth(net, K, n, 3.0, walked, mode="upright", image=img, info=info, **kw).depth
+    assert info["colour_foot"].any() and not (info["colour_foot"] & info["snapped"] & lawn).any()
+    mod = UprightAlignment(K, 160, 100, n, 3.0, walked, image=img, **kw)
+    out = mod(torch.from_numpy(net)).numpy()
+    assert _rel(out, ref).max() < 1e-5, _rel(out, ref).max()
+    got = _onnx_session(mod, net, tmp_path).run(None, {"z": net})[0]
+    assert _rel(got, ref).max() < 1e-4, _rel(got, ref).max()

@@ -555,7 +555,8 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
             walked if walked is not None else True), FOOT_GROUND_SHARE, FOOT_LEVELS,
             cam.colour_codes(image, FOOT_LEVELS))
         feet = colour_foot(out, image, q, du, rays, n, ground, cand, idx, not_ground,
-                           foot_diff, foot_pull, cam.colour_feet(image, foot_diff))
+                           foot_diff, foot_pull, cam.colour_feet(image, foot_diff),
+                           surface_check=snapped)
         moved = moved | feet
         if info is not None:
             info["colour_foot"] = feet

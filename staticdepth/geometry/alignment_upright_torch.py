@@ -262,7 +262,7 @@ class UprightAlignment(nn.Module):
         out = torch.where(moved, src * ratio, A)
         out = torch.where(planar & ~moved, 1.0 / q, out)
         if self.colour is not None:
-            out, moved = self.colour(out, moved, have, foot, ground, self.walked)
+            out, moved = self.colour(out, moved, have, foot, ground, self.walked, snapped)
         out = out.to(torch.float32).reshape(h, w)
         # snapped pixels found to be structures keep their unsnapped depth (numpy: upright_depth)
         out = torch.where((moved | planar | (snapped & ~ground)).reshape(h, w), out, g_out)

@@ -13,6 +13,12 @@ import hashlib
 
 import numpy as np
 
+#: the colour foot's lawn test (:func:`reaches_bottom`): a run's colour "resumes" below what
+#: ended it when a pixel within ``max(2, H // RESUME_ROWS_DIV)`` rows further down its vertical
+#: is within RESUME_DIFF of its foot's colour on every channel
+RESUME_DIFF = 0.1
+RESUME_ROWS_DIV = 16
+
 
 def down_step(K: np.ndarray, n: np.ndarray, width: int, height: int) -> np.ndarray:
     """(H, W) horizontal pixel shift ``du`` per one row down along the image of the vertical
@@ -187,6 +193,60 @@ def ground_coloured(image: np.ndarray, ground: np.ndarray, share: float,
     return hist[code] >= share * g.sum()
 
 
+def resumes_below(image: np.ndarray, du: np.ndarray, feet: np.ndarray, max_diff: float,
+                  rows: int) -> np.ndarray:
+    """(len(feet),) flat index of the first pixel within ``rows`` rows below each flat ``feet``
+    pixel on its vertical whose colour is within ``max_diff`` of the foot's on every channel
+    (-1: none): where the colour that ended at the foot comes back, past what ended the run (a
+    stone or a sheet of paper on a lawn, a speckle on a wall)."""
+    h, w = du.shape
+    img = np.asarray(image, dtype=np.float64).reshape(h, w, -1)
+    f, back = np.unique(np.asarray(feet, dtype=np.int64), return_inverse=True)
+    v, u = np.divmod(f, w)
+    uf = u.astype(np.float64)
+    colour = img[v, u]
+    out = np.full(len(f), -1, np.int64)
+    act = np.arange(len(f))
+    for _ in range(max(int(rows), 0)):
+        va, fa = v[act], uf[act]
+        step = du[va, np.clip(np.rint(fa), 0, w - 1).astype(np.int64)]
+        un = fa + np.nan_to_num(step)
+        ui = np.rint(un).astype(np.int64)
+        ok = np.isfinite(step) & (va + 1 < h) & (ui >= 0) & (ui < w)
+        act, va, un, ui = act[ok], va[ok] + 1, un[ok], ui[ok]
+        v[act], uf[act] = va, un
+        hit = np.abs(img[va, ui] - colour[act]).max(-1) <= max_diff
+        out[act[hit]] = va[hit] * w + ui[hit]
+        act = act[~hit]
+        if not len(act):
+            break
+    return out[back.reshape(-1)]
+
+
+def reaches_bottom(image: np.ndarray, du: np.ndarray, feet: np.ndarray, all_feet: np.ndarray,
+                   chain: int = 16) -> np.ndarray:
+    """(len(feet),) bool: whether the colour run ending at each flat ``feet`` pixel, resumed
+    past each small object that ends it (:func:`resumes_below`, :data:`RESUME_DIFF`, over
+    ``max(2, H // RESUME_ROWS_DIV)`` rows; the resumed run's foot from ``all_feet``, every
+    pixel's :func:`static_colour_feet`), goes on to the image's last row within ``chain``
+    objects: a surface coming toward the camera (a lawn), not a structure standing on the
+    ground, whose colour ends for good at its foot."""
+    h, w = du.shape
+    rows = max(2, h // RESUME_ROWS_DIV)
+    cur = np.asarray(feet, dtype=np.int64).copy()
+    out = np.zeros(len(cur), bool)
+    act = np.arange(len(cur))
+    for _ in range(chain):
+        if not len(act):
+            break
+        out[act[cur[act] // w + 1 >= h]] = True
+        act = act[cur[act] // w + 1 < h]
+        r = resumes_below(image, du, cur[act], RESUME_DIFF, rows)
+        act, r = act[r >= 0], r[r >= 0]
+        cur[act] = all_feet[r]
+    return out
+
+
 def below_feet(feet: np.ndarray, du: np.ndarray) -> np.ndarray:
     """Flat index of the pixel one row below each flat ``feet`` pixel on its vertical (the last
     row: the same row)."""
@@ -211,7 +271,8 @@ def vertical_depth(rays: np.ndarray, n: np.ndarray, foot: np.ndarray, q_foot: np
 def colour_foot(out: np.ndarray, image: np.ndarray, q: np.ndarray, du: np.ndarray,
                 rays: np.ndarray, n: np.ndarray, ground: np.ndarray, traced: np.ndarray,
                 idx: np.ndarray, not_ground: np.ndarray | None, max_diff: float,
-                max_pull: float, feet: np.ndarray | None = None) -> np.ndarray:
+                max_pull: float, feet: np.ndarray | None = None,
+                surface_check: np.ndarray | None = None) -> np.ndarray:
     """In place on ``out`` (the re-anchored map): a ``traced`` pixel whose colour run down the
     vertical (alignment_vertical.colour_feet, ``image``) goes on below its contact (flat ``idx``)
     and ends above a ``ground`` pixel that is no agent (``not_ground``) stands there: it takes the
@@ -219,16 +280,26 @@ def colour_foot(out: np.ndarray, image: np.ndarray, q: np.ndarray, du: np.ndarra
     ``out``. A pole or crate the network does not resolve carries what stands behind it, and its
     lower part recedes like the ground, so its run took a contact behind its foot; its colour does
     not. ``feet``: :func:`colour_feet` of every pixel (default :func:`static_colour_feet`'s).
+    ``surface_check``: (H, W) bool pixels (upright passes the snapped ones: the network's depth
+    there is the plane's) whose run must not go on, past small objects, to the image's bottom
+    (:func:`reaches_bottom`): a lawn the walked ground's colour test does not know, ended by a
+    sheet of paper on it, is not a wall standing on the paper (vtest.avi: 382 lawn pixels of a
+    frame 1.8x too near; a speckled wall's run ends at its own foot and keeps the rule).
     Returns the (H, W) bool pixels it set."""
     h, w = out.shape
     pix = np.flatnonzero(traced)
     done = np.zeros(h * w, bool)
     if not len(pix):
         return done.reshape(h, w)
-    feet = (static_colour_feet(image, du, max_diff) if feet is None else feet.ravel())[pix]
+    all_feet = static_colour_feet(image, du, max_diff) if feet is None else feet.ravel()
+    feet = all_feet[pix]
     fv, fu = np.divmod(feet, w)
     bv, bu = np.divmod(below_feet(feet, du), w)
     ok = (fv + 1 < h) & ground[bv, bu] & (q[fv, fu] > 0) & (fv > idx.ravel()[pix] // w)
+    if surface_check is not None:     # a lawn's run that a small object ended is no contact
+        chk = ok & np.asarray(surface_check, bool).ravel()[pix]
+        if chk.any():
+            ok[chk] = ~reaches_bottom(image, du, feet[chk], all_feet)
     if not_ground is not None:
         ok &= ~not_ground[bv, bu]
     qf = 0.5 * (q[fv, fu] + q[bv, bu])             # the foot lies between the two rows

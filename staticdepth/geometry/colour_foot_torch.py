@@ -5,8 +5,9 @@ The static image is a constant of a deployment (a fixed camera: the adaptation f
 everything the rule reads from it is computed once, at construction, by the numpy functions
 themselves: the depth each pixel takes on the vertical line through its colour run's foot
 (``colour_foot`` on every pixel, the frame's part of its test passed), the foot's row and the pixel
-below it (``static_colour_feet``, ``below_feet``), and each pixel's colour bin (``colour_codes``,
-which ``ground_coloured`` reads).
+below it (``static_colour_feet``, ``below_feet``), each pixel's colour bin (``colour_codes``,
+which ``ground_coloured`` reads) and whether its run goes on to the image's bottom past small
+objects (``reaches_bottom``: the lawn test, which the frame's snapped pixels take).
 What depends on the frame stays in the graph, elementwise gathers: the traced pixels and their
 contact rows, the frame's ground (after the recession and walked rules) below each foot, and
 ``ground_coloured``'s histogram of the walked ground's bins (a ScatterElements add over the
@@ -21,7 +22,7 @@ from torch import nn
 from staticdepth.geometry.alignment_upright import (FOOT_DIFF, FOOT_GROUND_SHARE, FOOT_LEVELS,
                                                     FOOT_PULL)
 from staticdepth.geometry.alignment_vertical import (below_feet, colour_codes, colour_foot,
-                                                    static_colour_feet)
+                                                    reaches_bottom, static_colour_feet)
 
 
 def colour_bins(image: np.ndarray) -> tuple[np.ndarray, int]:
@@ -51,17 +52,20 @@ class ColourFoot(nn.Module):
         d = np.zeros((h, w))
         colour_foot(d, img, q, du, rays, n, np.ones((h, w), bool), np.ones((h, w), bool),
                     np.full((h, w), -1), None, foot_diff, 1.0, feet=feet)
+        # colour_foot's lawn test (surface_check, on the frame's snapped pixels): static too
+        surface = reaches_bottom(img, du, feet, feet)
         bins, k = colour_bins(img)
         # colour_foot's "the foot below the contact's row": contact < the foot row's first pixel
         self.register_buffer("foot_row0", torch.tensor(fv * w, dtype=torch.int64))
         self.register_buffer("below", torch.tensor(below_feet(feet, du), dtype=torch.int64))
         self.register_buffer("depth", torch.tensor(d.ravel(), dtype=torch.float64))
         self.register_buffer("bins", torch.tensor(bins, dtype=torch.int64))
+        self.register_buffer("surface", torch.tensor(surface, dtype=torch.bool))
         self.n_bins, self.foot_pull = k, float(foot_pull)
 
     def forward(self, out: torch.Tensor, moved: torch.Tensor, traced: torch.Tensor,
-                contact: torch.Tensor, ground: torch.Tensor, walked: torch.Tensor
-                ) -> tuple[torch.Tensor, torch.Tensor]:
+                contact: torch.Tensor, ground: torch.Tensor, walked: torch.Tensor,
+                snapped: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         # ground_coloured(image, ground & walked, FOOT_GROUND_SHARE): the walked ground's bins
         g = (ground & walked).to(torch.float64)
         n_g = g.sum()
@@ -71,5 +75,5 @@ class ColourFoot(nn.Module):
         ok = moved & traced & ~common & (self.depth > 0) \
             & torch.index_select(ground, 0, self.below) \
             & (contact < self.foot_row0) \
-            & (self.depth * self.foot_pull >= out)
+            & (self.depth * self.foot_pull >= out) & ~(snapped & self.surface)
         return torch.where(ok, self.depth, out), moved | ok
