@@ -119,6 +119,19 @@ def receding(maps, q: np.ndarray, du: np.ndarray, span: int, jump_rel: float,
     return flat, recedes
 
 
+def _step_down(du: np.ndarray, v: np.ndarray, uf: np.ndarray, act: np.ndarray):
+    """One row down the image of the vertical for the walks ``act`` at rows ``v`` and sub-pixel
+    columns ``uf``: (the walks still inside the image, their next row, column and sub-pixel
+    column)."""
+    h, w = du.shape
+    va, fa = v[act], uf[act]
+    step = du[va, np.clip(np.rint(fa), 0, w - 1).astype(np.int64)]
+    un = fa + np.nan_to_num(step)
+    ui = np.rint(un).astype(np.int64)
+    ok = np.isfinite(step) & (va + 1 < h) & (ui >= 0) & (ui < w)
+    return act[ok], va[ok] + 1, ui[ok], un[ok]
+
+
 def colour_feet(image: np.ndarray, du: np.ndarray, pix: np.ndarray,
                 max_diff: float) -> np.ndarray:
     """Flat index of the lowest pixel of each flat ``pix``'s colour run down its vertical: the
@@ -133,12 +146,7 @@ def colour_feet(image: np.ndarray, du: np.ndarray, pix: np.ndarray,
     cur = img[v, u]
     act = np.arange(len(v))             # the walks still going: each step looks at those only
     while len(act):
-        va, fa = v[act], uf[act]
-        step = du[va, np.clip(np.rint(fa), 0, w - 1).astype(np.int64)]
-        un = fa + np.nan_to_num(step)
-        ui = np.rint(un).astype(np.int64)
-        ok = np.isfinite(step) & (va + 1 < h) & (ui >= 0) & (ui < w)
-        act, va, ui, un = act[ok], va[ok] + 1, ui[ok], un[ok]
+        act, va, ui, un = _step_down(du, v, uf, act)
         nxt = img[va, ui]
         ok = np.abs(nxt - cur[act]).max(-1) <= max_diff
         act, va, ui, un, nxt = act[ok], va[ok], ui[ok], un[ok], nxt[ok]
@@ -208,12 +216,7 @@ def resumes_below(image: np.ndarray, du: np.ndarray, feet: np.ndarray, max_diff:
     out = np.full(len(f), -1, np.int64)
     act = np.arange(len(f))
     for _ in range(max(int(rows), 0)):
-        va, fa = v[act], uf[act]
-        step = du[va, np.clip(np.rint(fa), 0, w - 1).astype(np.int64)]
-        un = fa + np.nan_to_num(step)
-        ui = np.rint(un).astype(np.int64)
-        ok = np.isfinite(step) & (va + 1 < h) & (ui >= 0) & (ui < w)
-        act, va, un, ui = act[ok], va[ok] + 1, un[ok], ui[ok]
+        act, va, ui, un = _step_down(du, v, uf, act)
         v[act], uf[act] = va, un
         hit = np.abs(img[va, ui] - colour[act]).max(-1) <= max_diff
         out[act[hit]] = va[hit] * w + ui[hit]
