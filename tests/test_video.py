@@ -60,6 +60,11 @@ def test_folder_with_camera_json_scaled(tmp_path):
                                "width": 128, "height": 128}))
     with pytest.raises(InputError, match="not a uniform resize"):
         camera_for(64, 48, str(cam), None)
+    # no width/height: the size 2 c + 1 (65 x 49 for c = 32, 24) is the frames' 64 x 48, not a
+    # resize of it (scaling by 64 / 65 put a 1.5% error into the focal length)
+    cam.write_text(json.dumps({"fx": 200.0, "fy": 200.0, "cx": 32.0, "cy": 24.0}))
+    got = camera_for(64, 48, str(cam), None)[0]
+    assert (got.width, got.height) == (64, 48) and got.fx == 200.0 and got.cx == 32.0
 
 
 def test_bad_inputs(tmp_path):
