@@ -57,9 +57,8 @@ import numpy as np
 
 from staticdepth.errors import InputError
 from staticdepth.geometry.alignment_vertical import (colour_codes, colour_foot, down_step,
-                                                    ground_coloured, receding,
-                                                    static_colour_feet, vertical_depth,
-                                                    vertical_walk)
+                                                    ground_coloured, receding, static_colour_feet,
+                                                    static_surface, vertical_depth, vertical_walk)
 from staticdepth.geometry.projection import ray_grid
 
 SHAPES = ("network", "vertical")
@@ -186,6 +185,16 @@ class AlignCamera:
             return self._get(("feet", max_diff),
                              lambda: static_colour_feet(self.image, self.du, max_diff))
         return static_colour_feet(image, self.du, max_diff)
+
+    def colour_surface(self, image: np.ndarray, max_diff: float, feet: np.ndarray
+                       ) -> np.ndarray:
+        """``alignment_vertical.static_surface`` of ``image`` (the colour foot's lawn test of
+        every pixel) from its :meth:`colour_feet` ``feet``: kept here when ``image`` is the
+        camera's own."""
+        if self._own(image):
+            return self._get(("surface", max_diff),
+                             lambda: static_surface(self.image, self.du, max_diff, feet))
+        return static_surface(image, self.du, max_diff, feet)
 
     def colour_codes(self, image: np.ndarray, levels: int) -> np.ndarray:
         """``alignment_vertical.colour_codes`` of ``image``: kept here when ``image`` is the
@@ -554,9 +563,10 @@ def upright_depth(A: np.ndarray, K: np.ndarray, n_g: np.ndarray, d_g: float, gro
         cand = moved & (idx >= 0) & ~ground_coloured(image, ground & (
             walked if walked is not None else True), FOOT_GROUND_SHARE, FOOT_LEVELS,
             cam.colour_codes(image, FOOT_LEVELS))
+        all_feet = cam.colour_feet(image, foot_diff)
         feet = colour_foot(out, image, q, du, rays, n, ground, cand, idx, not_ground,
-                           foot_diff, foot_pull, cam.colour_feet(image, foot_diff),
-                           surface_check=snapped)
+                           foot_diff, foot_pull, all_feet, surface_check=snapped,
+                           surface=cam.colour_surface(image, foot_diff, all_feet))
         moved = moved | feet
         if info is not None:
             info["colour_foot"] = feet

@@ -250,6 +250,15 @@ def reaches_bottom(image: np.ndarray, du: np.ndarray, feet: np.ndarray, all_feet
     return out
 
 
+def static_surface(image: np.ndarray, du: np.ndarray, max_diff: float,
+                   feet: np.ndarray | None = None) -> np.ndarray:
+    """(H W,) bool :func:`reaches_bottom` of every pixel's colour run (``feet``: every pixel's
+    :func:`static_colour_feet`, computed when not given): a constant of the static image, as its
+    feet are (the upright alignment keeps it on its camera, the exported graph as a buffer)."""
+    all_feet = static_colour_feet(image, du, max_diff) if feet is None else feet.ravel()
+    return reaches_bottom(image, du, all_feet, all_feet)
+
+
 def below_feet(feet: np.ndarray, du: np.ndarray) -> np.ndarray:
     """Flat index of the pixel one row below each flat ``feet`` pixel on its vertical (the last
     row: the same row)."""
@@ -275,7 +284,8 @@ def colour_foot(out: np.ndarray, image: np.ndarray, q: np.ndarray, du: np.ndarra
                 rays: np.ndarray, n: np.ndarray, ground: np.ndarray, traced: np.ndarray,
                 idx: np.ndarray, not_ground: np.ndarray | None, max_diff: float,
                 max_pull: float, feet: np.ndarray | None = None,
-                surface_check: np.ndarray | None = None) -> np.ndarray:
+                surface_check: np.ndarray | None = None,
+                surface: np.ndarray | None = None) -> np.ndarray:
     """In place on ``out`` (the re-anchored map): a ``traced`` pixel whose colour run down the
     vertical (alignment_vertical.colour_feet, ``image``) goes on below its contact (flat ``idx``)
     and ends above a ``ground`` pixel that is no agent (``not_ground``) stands there: it takes the
@@ -287,7 +297,8 @@ def colour_foot(out: np.ndarray, image: np.ndarray, q: np.ndarray, du: np.ndarra
     there is the plane's) whose run must not go on, past small objects, to the image's bottom
     (:func:`reaches_bottom`): a lawn the walked ground's colour test does not know, ended by a
     sheet of paper on it, is not a wall standing on the paper (vtest.avi: 382 lawn pixels of a
-    frame 1.8x too near; a speckled wall's run ends at its own foot and keeps the rule).
+    frame 1.8x too near; a speckled wall's run ends at its own foot and keeps the rule);
+    ``surface``: :func:`static_surface` of every pixel (computed when not given).
     Returns the (H, W) bool pixels it set."""
     h, w = out.shape
     pix = np.flatnonzero(traced)
@@ -300,9 +311,9 @@ def colour_foot(out: np.ndarray, image: np.ndarray, q: np.ndarray, du: np.ndarra
     bv, bu = np.divmod(below_feet(feet, du), w)
     ok = (fv + 1 < h) & ground[bv, bu] & (q[fv, fu] > 0) & (fv > idx.ravel()[pix] // w)
     if surface_check is not None:     # a lawn's run that a small object ended is no contact
-        chk = ok & np.asarray(surface_check, bool).ravel()[pix]
-        if chk.any():
-            ok[chk] = ~reaches_bottom(image, du, feet[chk], all_feet)
+        if surface is None:
+            surface = static_surface(image, du, max_diff, all_feet)
+        ok &= ~(np.asarray(surface_check, bool).ravel()[pix] & surface.ravel()[pix])
     if not_ground is not None:
         ok &= ~not_ground[bv, bu]
     qf = 0.5 * (q[fv, fu] + q[bv, bu])             # the foot lies between the two rows

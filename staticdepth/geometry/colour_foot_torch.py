@@ -7,7 +7,7 @@ themselves: the depth each pixel takes on the vertical line through its colour r
 (``colour_foot`` on every pixel, the frame's part of its test passed), the foot's row and the pixel
 below it (``static_colour_feet``, ``below_feet``), each pixel's colour bin (``colour_codes``,
 which ``ground_coloured`` reads) and whether its run goes on to the image's bottom past small
-objects (``reaches_bottom``: the lawn test, which the frame's snapped pixels take).
+objects (``static_surface``: the lawn test, which the frame's snapped pixels take).
 What depends on the frame stays in the graph, elementwise gathers: the traced pixels and their
 contact rows, the frame's ground (after the recession and walked rules) below each foot, and
 ``ground_coloured``'s histogram of the walked ground's bins (a ScatterElements add over the
@@ -22,7 +22,7 @@ from torch import nn
 from staticdepth.geometry.alignment_upright import (FOOT_DIFF, FOOT_GROUND_SHARE, FOOT_LEVELS,
                                                     FOOT_PULL)
 from staticdepth.geometry.alignment_vertical import (below_feet, colour_codes, colour_foot,
-                                                    reaches_bottom, static_colour_feet)
+                                                    static_colour_feet, static_surface)
 
 
 def colour_bins(image: np.ndarray) -> tuple[np.ndarray, int]:
@@ -53,7 +53,7 @@ class ColourFoot(nn.Module):
         colour_foot(d, img, q, du, rays, n, np.ones((h, w), bool), np.ones((h, w), bool),
                     np.full((h, w), -1), None, foot_diff, 1.0, feet=feet)
         # colour_foot's lawn test (surface_check, on the frame's snapped pixels): static too
-        surface = reaches_bottom(img, du, feet, feet)
+        surface = static_surface(img, du, foot_diff, feet)
         bins, k = colour_bins(img)
         # colour_foot's "the foot below the contact's row": contact < the foot row's first pixel
         self.register_buffer("foot_row0", torch.tensor(fv * w, dtype=torch.int64))
