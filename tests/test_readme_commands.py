@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from staticdepth.adaptation.config import AdaptConfig, build_config
+from staticdepth.config import setting_keys
 from staticdepth.errors import InputError
 
 README = Path(__file__).resolve().parents[1] / "README.md"
@@ -77,13 +78,7 @@ def _set_keys(command: str) -> list[tuple[str, str]]:
 
 
 def _is_setting(key: str) -> bool:
-    obj = build_config({})
-    for part in key.split("."):
-        if not dataclasses.is_dataclass(obj) or part not in {f.name for f in
-                                                               dataclasses.fields(obj)}:
-            return False
-        obj = getattr(obj, part)
-    return True
+    return key in setting_keys(AdaptConfig)
 
 
 def test_every_set_of_an_adapt_command_is_accepted():
