@@ -90,7 +90,7 @@ def main() -> None:
         return
     if args.csv:
         from staticdepth.ground_plane import read_observations_csv
-        obs = read_observations_csv(args.csv)
+        obs, _ = read_observations_csv(args.csv)
         names = obs.dtype.names
         if "left" not in names or "right" not in names:
             print(f"{args.csv}: no left / right columns, no box widths")

@@ -1,7 +1,8 @@
 """Stage: the ground plane from agents' observations (``staticdepth ground-plane``).
 
 Reads an observation CSV (columns ``frame, track, foot_u, foot_v, height_px``, optional
-``class_id``, ``score`` and ``top_u``, the column of the agent's highest pixel), fits
+``class_id``, ``score``, ``top_u`` (the column of the agent's highest pixel), ``feet`` and the
+images' ``image_width, image_height``, to which the intrinsics are fitted), fits
 :func:`staticdepth.geometry.agent_plane.fit_agent_plane` and writes the plane as JSON
 (``normal``, ``horizon``, ``d_over_agent_height``, ``inliers``, ``uncertainty``,
 ``camera_height_m`` when an agent height or a camera height is given).
@@ -31,8 +32,13 @@ MODELS = ("joint", "exact", "affine", "paper")
 REQUIRED_COLUMNS = ("frame", "track", "foot_u", "foot_v", "height_px")
 
 
-def read_observations_csv(path: str | os.PathLike) -> np.ndarray:
-    """The observation table (:data:`~staticdepth.tracking.OBS_DTYPE`) from a CSV with a header."""
+def read_observations_csv(path: str | os.PathLike
+                          ) -> tuple[np.ndarray, tuple[int, int] | None]:
+    """(the observation table (:data:`~staticdepth.tracking.OBS_DTYPE`), the ``(width, height)``
+    of the images it was measured on, or None) from a CSV with a header; the size comes from the
+    optional ``image_width``, ``image_height`` columns (``staticdepth observations`` writes them),
+    one size for every row."""
+    from staticdepth.observations import SIZE_COLUMNS
     from staticdepth.tracking import OBS_DTYPE
 
     try:
@@ -52,16 +58,21 @@ def read_observations_csv(path: str | os.PathLike) -> np.ndarray:
         raise InputError(f"missing column(s) {', '.join(missing)} (header: {', '.join(header)})",
                          path)
     cols = {c: header.index(c) for c in header}
+    sized = [c in cols for c in SIZE_COLUMNS]
+    if any(sized) and not all(sized):
+        raise InputError(f"has one of the columns {' and '.join(SIZE_COLUMNS)} without the other",
+                         path)
     out = np.zeros(len(rows) - 1, OBS_DTYPE)
     out["class_id"] = -1
     out["score"] = 1.0
     out["top_u"] = np.nan
     out["left"] = out["right"] = np.nan
+    sizes = np.zeros((len(out), 2))
     for i, r in enumerate(rows[1:]):
         if len(r) != len(header):
             raise InputError(f"line {i + 2}: {len(r)} fields, the header has {len(header)}", path)
         for name in ("frame", "track", "foot_u", "foot_v", "height_px", "class_id", "score",
-                     "top_u", "feet"):
+                     "top_u", "feet") + SIZE_COLUMNS:
             if name not in cols:
                 continue
             text = r[cols[name]].strip()
@@ -72,13 +83,29 @@ def read_observations_csv(path: str | os.PathLike) -> np.ndarray:
                                  path) from None
             if not np.isfinite(val):
                 raise InputError(f"line {i + 2}: column {name!r} is not finite: {text!r}", path)
-            out[name][i] = val
+            if name in SIZE_COLUMNS:
+                sizes[i, SIZE_COLUMNS.index(name)] = val
+            else:
+                out[name][i] = val
     out["top_v"] = out["foot_v"] - out["height_px"]
     usable = int(np.sum(out["height_px"] > 0))
     if usable < 3:
         raise InputError(f"{usable} usable observation(s) (height_px > 0); the ground plane needs "
                          "at least 3", path)
-    return out
+    return out, (_image_size(sizes, path) if all(sized) else None)
+
+
+def _image_size(sizes: np.ndarray, path) -> tuple[int, int]:
+    """The one image size of every row."""
+    distinct = np.unique(sizes, axis=0)
+    if len(distinct) > 1:
+        raise InputError(f"rows of {len(distinct)} image sizes ("
+                         + ", ".join(f"{int(w)}x{int(h)}" for w, h in distinct[:3])
+                         + "): the observations of one camera have one size", path)
+    w, h = distinct[0]
+    if w < 1 or h < 1 or w != int(w) or h != int(h):
+        raise InputError(f"image size {w:g}x{h:g} is not a size in pixels", path)
+    return int(w), int(h)
 
 
 #: how far (share of the image's size) observations may lie beyond the camera's image: a camera
@@ -194,7 +221,10 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
     check_writable(args.out)
     refuse_existing(args.out, overwrite=args.overwrite)
     camera = load_camera(args.intrinsics)
-    obs = read_observations_csv(args.observations)
+    obs, size = read_observations_csv(args.observations)
+    if size is not None:        # the intrinsics scaled to the observations' images, or refused
+        camera = camera.fitted_to(*size, what=f"the images of {os.fspath(args.observations)}",
+                                  source=args.intrinsics)
     check_in_image(obs, camera, args.observations, args.intrinsics)
     conf = PRESETS[args.model]
     if args.radius is not None:

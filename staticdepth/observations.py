@@ -6,8 +6,9 @@ when it has them), ``motion`` (background subtraction, no weights, the default o
 ``yolox`` (``--detector-model yolox_nano.onnx``). Detections are tracked and filtered by
 :mod:`staticdepth.tracking` (the same functions ``adapt`` uses), so the CSV holds what the
 ground-plane fit would see: per kept detection ``frame, track, class_id, foot_u, foot_v,
-height_px, score, top_u`` in pixels (OpenCV convention; foot = lowest silhouette point, height =
-foot row - top row, both half a pixel beyond the extreme mask rows).
+height_px, score, top_u, feet`` in pixels (OpenCV convention; foot = lowest silhouette point,
+height = foot row - top row, both half a pixel beyond the extreme mask rows), then the images'
+``image_width, image_height``.
 """
 from __future__ import annotations
 
@@ -21,20 +22,25 @@ from staticdepth.errors import InputError
 
 COLUMNS = ("frame", "track", "class_id", "foot_u", "foot_v", "height_px", "score", "top_u",
            "feet")
+#: the size of the images the pixels were measured on, on every row: ``ground-plane`` fits the
+#: intrinsics to it (scaled for a uniform resize, refused otherwise)
+SIZE_COLUMNS = ("image_width", "image_height")
 SPLITS = ("adapt", "eval", "all")
 
 
-def observations_csv(obs: np.ndarray) -> str:
-    """The observation table (:data:`staticdepth.tracking.OBS_DTYPE`) as CSV text with a header."""
+def observations_csv(obs: np.ndarray, size: tuple[int, int]) -> str:
+    """The observation table (:data:`staticdepth.tracking.OBS_DTYPE`) as CSV text with a header,
+    each row ending with the ``(width, height)`` of the images it was measured on."""
     buf = io.StringIO()
-    buf.write(",".join(COLUMNS) + "\n")
+    buf.write(",".join(COLUMNS + SIZE_COLUMNS) + "\n")
+    tail = f"{int(size[0])},{int(size[1])}"
     for r in obs:
         vals = []
         for c in COLUMNS:
             v = r[c]
             vals.append(str(int(v)) if c in ("frame", "track", "class_id", "feet")
                         else ("" if not np.isfinite(v) else f"{float(v):.3f}"))
-        buf.write(",".join(vals) + "\n")
+        buf.write(",".join(vals) + "," + tail + "\n")
     return buf.getvalue()
 
 
@@ -160,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
     if len(obs) == 0:
         raise InputError(f"no agent was tracked ({info['detector']} detector): nothing to write",
                          args.input)
-    atomic_write_text(args.out, observations_csv(obs))
+    atomic_write_text(args.out, observations_csv(obs, (info["width"], info["height"])))
     print(f"{len(obs)} observations of {len(np.unique(obs['track']))} tracks "
           f"({info['detector']} detector) -> {args.out}")
     return 0

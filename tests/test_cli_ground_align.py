@@ -58,6 +58,10 @@ def test_ground_plane_command(fitted, capsys):
     ("frame,track,foot_u,foot_v,height_px\n1,1,2,3,4\n2,1,5,6,7\n", "2 usable observation(s)"),
     ("frame,track,foot_u,foot_v,height_px\n1,1,2,3\n", "line 2: 4 fields"),
     ("", "empty file"),
+    ("frame,track,foot_u,foot_v,height_px,image_width\n1,1,2,3,4,800\n",
+     "has one of the columns image_width and image_height without the other"),
+    ("frame,track,foot_u,foot_v,height_px,image_width,image_height\n1,1,2,3,4,800,400\n"
+     "2,1,5,6,7,800,400\n3,2,5,9,9,640,320\n", "rows of 2 image sizes (640x320, 800x400)"),
 ])
 def test_ground_plane_bad_csv(tmp_path, capsys, text, msg):
     (tmp_path / "obs.csv").write_text(text)
@@ -406,3 +410,35 @@ def test_ground_plane_refuses_observations_of_another_resolution(fitted, tmp_pat
     assert rc == 2 and len(err.splitlines()) == 1
     assert str(d / "obs.csv") in err and str(tmp_path / "half.json") in err
     assert "different resolutions" in err and not (tmp_path / "p.json").exists()
+
+
+def test_ground_plane_fits_the_intrinsics_to_the_observations_size(fitted, tmp_path, capsys):
+    """A CSV that says its images' size (``observations`` writes it) takes the camera of a
+    sequence imported at half the width as the same camera scaled (the plane of the full-size
+    camera comes back), and refuses in one line a camera whose image is not a uniform resize of
+    the observations' images: a 10% mismatch lies within the 20% margin the size-less check
+    allows."""
+    d, n, _ = fitted
+    cam = json.loads((d / "cam.json").read_text())
+    w, h = cam["width"], cam["height"]
+    lines = (d / "obs.csv").read_text().splitlines()
+    sized = tmp_path / "obs.csv"
+    sized.write_text("\n".join([lines[0] + ",image_width,image_height"]
+                               + [ln + f",{w},{h}" for ln in lines[1:]]) + "\n")
+    half = {k: (cam[k] + 0.5) / 2 - 0.5 if k in ("cx", "cy") else cam[k] / 2 for k in cam}
+    half["width"], half["height"] = w // 2, h // 2
+    (tmp_path / "half.json").write_text(json.dumps(half))
+    args = ["ground-plane", "--observations", str(sized), "--agent-height", "1.7",
+            "--bootstrap", "5", "--intrinsics"]
+    assert main(args + [str(tmp_path / "half.json"), "--out", str(tmp_path / "p.json")]) == 0
+    full = json.loads((d / "plane.json").read_text())
+    got = json.loads((tmp_path / "p.json").read_text())
+    assert angle_between_deg(got["normal"], full["normal"]) < 1e-3
+    assert got["camera_height_m"] == pytest.approx(full["camera_height_m"], rel=1e-4)
+    (tmp_path / "squat.json").write_text(json.dumps({**cam, "height": int(h * 0.9)}))
+    capsys.readouterr()
+    rc = main(args + [str(tmp_path / "squat.json"), "--out", str(tmp_path / "q.json")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1
+    assert str(tmp_path / "squat.json") in err and str(sized) in err
+    assert "not a uniform resize" in err and not (tmp_path / "q.json").exists()

@@ -17,8 +17,10 @@ def test_sequence_to_ground_plane_recovers_the_pitch(tmp_path, capsys):
     assert main(["synth", "--preset", "demo", "--frames", "16", "--adapt-frames", "16",
                  "--set", "fps=1", "--set", "n_agents=48", "--out", str(seq)]) == 0
     assert main(["observations", str(seq), "--out", str(obs), "--camera-out", str(cam)]) == 0
-    rows = read_observations_csv(obs)
+    rows, size = read_observations_csv(obs)
     assert len(np.unique(rows["track"])) >= 4 and np.all(rows["height_px"] > 0)
+    camera = json.loads(cam.read_text())
+    assert size == (camera["width"], camera["height"])      # the size the pixels belong to
     assert main(["ground-plane", "--observations", str(obs), "--intrinsics", str(cam),
                  "--camera-height", "5.0", "--out", str(plane),
                  "--accept-uncertain"]) == 0  # 16 frames: few tracks, the gate would refuse
@@ -34,7 +36,8 @@ def test_video_with_the_motion_detector(shared_data, tmp_path):
     obs = tmp_path / "obs.csv"
     assert main(["observations", str(shared_data / "video" / "vtest.avi"), "--max-frames", "30",
                  "--out", str(obs)]) == 0
-    rows = read_observations_csv(obs)
+    rows, size = read_observations_csv(obs)
+    assert size == (768, 576)                               # vtest.avi's frames
     assert len(np.unique(rows["track"])) >= 3 and rows["frame"].max() <= 29
     # Upright people on one ground plane: pixel height is affine in the foot pixel (Eq. 1).
     A = np.column_stack([rows["foot_u"], rows["foot_v"], np.ones(len(rows))])
