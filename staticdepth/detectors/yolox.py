@@ -119,8 +119,11 @@ class YoloxDetector(Detector):
         if self.mask not in MASK_MODES:
             raise InputError(f"yolox mask mode must be one of {MASK_MODES}, got {self.mask!r}")
         if not self.model or not os.path.isfile(self.model):
-            raise InputError("YOLOX ONNX model not found (give --set detector.model=PATH.onnx, "
-                             "e.g. yolox_nano.onnx)", self.model or None)
+            # the caller names its own option (adapt: detector.model, observations:
+            # --detector-model); here the file and what it should be
+            raise InputError("YOLOX ONNX model not found (a YOLOX ONNX export such as "
+                             "yolox_nano.onnx)" if self.model else "no YOLOX ONNX model given",
+                             self.model or None)
         from staticdepth.onnx_session import onnx_session
         self.session = onnx_session(self.model, what="YOLOX ONNX model")
         self.input_name = self.session.get_inputs()[0].name
