@@ -86,6 +86,8 @@ def _predict(args: argparse.Namespace) -> int:
     ckpt = args.checkpoint or default_checkpoint_path(args.sequence)
     info = predict_sequence(args.sequence, ckpt, resolve_device(args.device), name=args.name,
                             batch_size=args.batch_size)
-    print(f"stored pred/{info['name']}/depth ({info['frames']} frames, metric) in "
-          f"{args.sequence}")
+    from staticdepth.dataset.predictions import prediction_path
+
+    print(f"stored prediction {info['name']!r} ({info['frames']} frames, metric) -> "
+          f"{prediction_path(args.sequence, info['name'])}")
     return 0
