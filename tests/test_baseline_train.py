@@ -53,7 +53,7 @@ def test_training_lowers_the_loss(trained):
 def test_predictions_are_metric_and_beat_a_constant(trained, capsys):
     seq, ckpt = trained
     assert main(["baseline", "predict", seq, "--device", "cpu"]) == 0
-    assert "pred/stereo-baseline/depth" in capsys.readouterr().out
+    assert f"{seq}.pred/stereo-baseline.h5" in capsys.readouterr().out     # the file written
     with SequenceReader(seq) as r:
         assert "stereo-baseline" in r.predictions()
         assert r.prediction_attrs("stereo-baseline")["metric"] == 1
