@@ -1,8 +1,9 @@
 """Stage pipeline: on-site adaptation of a depth network to one static camera (``staticdepth adapt``).
 
-base prediction -> agents (a detector, or the sequence's own instances with ``detector.name=gt``)
--> ground plane from the agents -> pseudo labels on the adaptation split -> fine-tuning -> scene
-alignment -> metric scale from the camera height; one module per stage in
+agents (a detector, or the sequence's own instances with ``detector.name=gt``) -> ground plane
+from the agents -> base prediction -> pseudo labels on the adaptation split -> fine-tuning ->
+scene alignment -> metric scale from the camera height (the agents and the plane first, so that
+a sequence they cannot serve is refused before the network's pass over every frame); one module per stage in
 :mod:`staticdepth.adaptation`, each streamed frame by frame and resumable. Predictions (the
 sequence's prediction store, ``<SEQ>.h5.pred/<name>.h5``): ``base``, ``ft`` (relative depth
 1 / max(D, eps), METHOD.md), ``align``, ``ft-align`` (aligned to the agents' plane with unit camera
@@ -24,7 +25,7 @@ import numpy as np
 
 from staticdepth.errors import InputError
 
-STAGES = ("base", "agents", "ground_plane", "pseudo_labels", "finetune", "ft", "align", "scale")
+STAGES = ("agents", "ground_plane", "base", "pseudo_labels", "finetune", "ft", "align", "scale")
 
 
 def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
@@ -55,13 +56,16 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
         clock[0] = now
         log(f"{stage}: {timings[stage]:.1f} s")
 
-    predict.run(conf, ws, model, h["base"], name="base")
-    lap("base")
+    # the agents and their plane first: a sequence they refuse (no agents tracked, collinear
+    # feet, a nadir camera) fails before the network's pass over every frame, the long part
+    # with a real network (neither stage reads the base prediction)
     agents.run(conf, ws, detector, h["agents"])
     lap("agents")
     with Agents(ws, conf.detector.name) as ag:
         plane, feet = ground_plane.run(conf, ws, ag, h["ground_plane"])
         lap("ground_plane")
+        predict.run(conf, ws, model, h["base"], name="base")
+        lap("base")
         n_agent_px = pseudo_labels.run(conf, ws, ag, h["pseudo_labels"], plane, feet)
         lap("pseudo_labels")
         history: list[dict[str, float]] = []

@@ -158,3 +158,32 @@ def test_adapt_with_the_motion_detector(tmp_path, tiny_model):
     with SequenceReader(seq) as r:
         assert set(r.predictions()) == OUTPUTS
         assert np.isfinite(r.prediction("ft-align-metric", 35)).mean() > 0.9
+
+
+class _TwoChannels(torch.nn.Module):
+    def forward(self, x):
+        return torch.cat([x[:, :1], x[:, 1:2]], 1)
+
+
+def test_adapt_refuses_before_the_network_pass(tmp_path, tiny_model):
+    """What the agents and their plane cannot serve, and a network whose output is not one map,
+    are refused before the network's pass over every frame (with a real network the hours of a
+    long sequence): nothing of the base prediction is written."""
+    from staticdepth.dataset.predictions import prediction_path
+
+    empty = tmp_path / "empty.h5"
+    render_to_file(empty, preset_name="c1", n_frames=24, adapt_frames=16, seed=1,
+                   overrides={"width": 128, "height": 64, "n_agents": 0})
+    model = tmp_path / "two.pt"
+    torch.jit.script(_TwoChannels()).save(str(model))
+    conf = build_config({"model": f"torch:{model}", "detector.name": "motion",
+                         "finetune.epochs": 0})
+    with pytest.raises(InputError, match="expected one channel"):
+        adapt(str(empty), conf, log=lambda m: None)
+    assert not os.path.exists(f"{empty}.adapt/agents.h5")     # before the detector's pass
+    conf = build_config({"model": f"builtin:{tiny_model}", "detector.name": "motion",
+                         "finetune.epochs": 0})
+    with pytest.raises(InputError, match="0 usable agent observations"):
+        adapt(str(empty), conf, log=lambda m: None)
+    assert not os.path.exists(prediction_path(empty, "base"))
+    assert not os.path.exists(f"{empty}.adapt/inverse-base.h5")

@@ -11,6 +11,8 @@ from __future__ import annotations
 import os
 import shutil
 
+import numpy as np
+
 from staticdepth.adaptation import agents
 from staticdepth.adaptation.common import Workspace
 from staticdepth.adaptation.config import AdaptConfig, is_builtin
@@ -83,7 +85,22 @@ def prepare(conf: AdaptConfig, ws: Workspace, *, device=None, summary_path: str,
             ws.log(f"model {conf.model!r} names no layer groups: fine-tuning all its parameters")
     if device is not None and isinstance(model, TorchDepthModel):
         model.to(device)
+    probe_model(conf, ws, model)
     return model, detector, layers
+
+
+def probe_model(conf: AdaptConfig, ws: Workspace, model) -> None:
+    """Run the network on the first adaptation frame before any stage: a model whose output is
+    not one map of the frame (a wrong output head, a segmentation export) or not finite fails
+    in seconds, not after the agents' pass over the sequence."""
+    i = int(ws.adapt_split[0])
+    with ws.reader() as r:
+        inv = np.asarray(model.predict(r.left(i)))
+    if inv.shape != (ws.height, ws.width):
+        raise InputError(f"model {conf.model!r} returned a map of shape {inv.shape} for a "
+                         f"{ws.width}x{ws.height} frame; expected {(ws.height, ws.width)}")
+    if not np.isfinite(inv).any():
+        raise InputError(f"model {conf.model!r} returned no finite value on frame {i}")
 
 
 # (output, stage hash it carries, bytes per pixel); "<name>" = the prediction store's file
