@@ -130,3 +130,23 @@ def test_motion_default_min_area_scales_with_the_image():
     frames[-2][5:9, 5:9] = 255                 # 16 px: kept
     out = list(MotionDetector().detect_sequence(frames))
     assert len(out[0][1]) == 2 and len(out[-1][1]) == 2 and len(out[-2][1]) == 3
+
+
+def test_masks_reach_the_image_edges_their_boxes_reach():
+    """A mask that stops short of the image edge its box reaches gets that edge's pixel in its
+    own rows (columns): its top and lowest rows stay, and tracking's border test sees the cut."""
+    from staticdepth.detectors.yolox import reach_cut_edges
+    from staticdepth.tracking import detections_from_instances
+
+    m = np.zeros((40, 60), bool)
+    m[10:30, 3:12] = True                       # stops 3 px short of the left edge
+    box = (0, 8, 13, 39)                        # the box reaches the left and bottom edges
+    out = reach_cut_edges(m, box)
+    assert out[10:30, 0].all() and not out[:10, 0].any() and not out[30:39, 0].any()
+    assert out[39, 3:12].all() and out[39].sum() == 9 and out[:39, 12:].sum() == 0
+    assert m.sum() == 180                       # the input is left as it was
+    d = detections_from_instances(out.astype(np.uint16))
+    assert d["border"][0] and d["top_v"][0] == 10 and d["foot_v"][0] == 39
+    assert not detections_from_instances(m.astype(np.uint16))["border"][0]
+    inner = reach_cut_edges(m, (2, 8, 13, 30))  # a box inside the frame: the mask as it is
+    assert inner is m

@@ -86,3 +86,22 @@ def test_tracks_last_and_the_ground_plane_predicts_held_out_heights(vtest_people
     per_track = [np.median(pred[people["track_id"][held] == t] / h[held][people["track_id"][held] == t])
                  for t in tracks[1::2]]
     assert np.mean(np.abs(np.asarray(per_track) - 1) <= 0.10) >= 0.7
+
+
+def test_an_agent_cut_by_the_image_edge_is_not_an_observation(vtest_people, shared_data):
+    """The parked car at vtest's right edge: YOLOX's box reaches column 767 (the car goes on
+    beyond the frame) while its GrabCut mask stopped at 763, so tracking's border test passed it
+    and a cut box entered the ground plane (336 observations of the second half). The mask now
+    reaches every edge its box reaches, and the car is no observation."""
+    from staticdepth import tracking
+
+    _, (H, W), out = vtest_people
+    frames, model = vtest_frames(shared_data, 300, 1)
+    boxes, _, cls = make_detector("yolox", model=str(model)).boxes(frames[0])
+    cut = boxes[(cls == COCO["car"]) & (boxes[:, 2] >= W - 1)]
+    assert len(cut) == 1 and cut[0, 0] > 700                    # the car the frame cuts
+    inst, rows = out[0]
+    car = rows[(rows["class_id"] == COCO["car"]) & (rows["foot_u"] > 700)]
+    assert len(car) == 1 and np.any(inst[:, W - 1] == car["instance_id"][0])
+    obs = tracking.observations_from_instances(out, tracking.TrackingConfig())
+    assert len(obs) > 100 and not np.any((obs["class_id"] == COCO["car"]) & (obs["right"] > 700))

@@ -104,6 +104,31 @@ def grabcut_mask(image_rgb: np.ndarray, box: Sequence[float], iters: int = 3,
     return out
 
 
+def reach_cut_edges(mask: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+    """``mask`` (H, W) bool, extended to each image edge its box (u0, v0, u1, v1, inclusive
+    pixels) reaches: an object the frame cuts (a car half outside, a person's feet below the
+    bottom row) continues there, but a motion or GrabCut mask inside its box often stops a few
+    pixels short, and then the object passes for a whole one (tracking's border test reads the
+    mask; on vtest.avi a car cut by the right edge, box to column 767, mask to 763, entered the
+    ground plane). On each reached edge the mask's own rows (columns) get that edge's pixel, so
+    its extent along the edge is unchanged."""
+    if not mask.any():
+        return mask
+    h, w = mask.shape
+    u0, v0, u1, v1 = box
+    rows, cols = mask.any(1), mask.any(0)
+    out = mask
+    for hit, edge in ((u0 <= 0, (rows, 0)), (u1 >= w - 1, (rows, w - 1))):
+        if hit:
+            out = out.copy() if out is mask else out
+            out[edge[0], edge[1]] = True
+    for hit, row in ((v0 <= 0, 0), (v1 >= h - 1, h - 1)):
+        if hit:
+            out = out.copy() if out is mask else out
+            out[row, cols] = True
+    return out
+
+
 @dataclass
 class YoloxDetector(Detector):
     model: str = ""
@@ -149,9 +174,9 @@ class YoloxDetector(Detector):
             if self.mask == "motion" and fg is not None:
                 m = fg & inside
                 if m.sum() >= self.min_fill * inside.sum():
-                    out.append(m)
+                    out.append(reach_cut_edges(m, (u0, v0, u1, v1)))
                     continue
-            out.append(grabcut_mask(image_rgb, b) & inside)
+            out.append(reach_cut_edges(grabcut_mask(image_rgb, b) & inside, (u0, v0, u1, v1)))
         return out
 
     def detect_sequence(self, images: Iterable[np.ndarray]
