@@ -97,6 +97,13 @@ def test_classwise_nms():
     assert list(cls) == [0, 2]
     np.testing.assert_allclose(boxes[0], [45, 40, 55, 60])          # (cx -+ w/2, cy -+ h/2) / r
     assert scores[0] == pytest.approx(0.81)
+    # the vehicle classes are one: a van scored as a truck and as a car is one truck; a bus
+    # beside it and a bicycle over a person are objects of their own
+    v = np.stack([det(400, 100, 60, 40, 0.9, 7, 0.8), det(399, 101, 58, 40, 0.9, 2, 0.7),
+                  det(500, 100, 60, 40, 0.9, 5, 0.6),
+                  det(100, 100, 20, 40, 0.9, 0, 0.9), det(100, 110, 20, 30, 0.9, 1, 0.8)])
+    boxes, scores, cls = boxes_from_output(v, 1.0, 0.3, 0.45, {0, 1, 2, 5, 7})
+    assert sorted(cls) == [0, 1, 5, 7] and scores[list(cls).index(7)] == pytest.approx(0.72)
 
 
 def test_grabcut_mask_stays_in_box():
