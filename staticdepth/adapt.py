@@ -3,8 +3,8 @@
 agents (a detector, or the sequence's own instances with ``detector.name=gt``) -> ground plane
 from the agents -> base prediction -> pseudo labels on the adaptation split -> fine-tuning ->
 scene alignment -> metric scale from the camera height (the agents and the plane first, so that
-a sequence they cannot serve is refused before the network's pass over every frame); one module per stage in
-:mod:`staticdepth.adaptation`, each streamed frame by frame and resumable. Predictions (the
+a sequence they cannot serve is refused before the network's pass over every frame); one module
+per stage in :mod:`staticdepth.adaptation`, each streamed frame by frame and resumable. Predictions (the
 sequence's prediction store, ``<SEQ>.h5.pred/<name>.h5``): ``base``, ``ft`` (relative depth
 1 / max(D, eps), METHOD.md), ``align``, ``ft-align`` (aligned to the agents' plane with unit camera
 height: relative), and ``align-metric``, ``ft-align-metric`` (metres: the aligned maps are in

@@ -118,20 +118,18 @@ def reach_cut_edges(mask: np.ndarray, box: tuple[int, int, int, int]) -> np.ndar
     mask; on vtest.avi a car cut by the right edge, box to column 767, mask to 763, entered the
     ground plane). On each reached edge the mask's own rows (columns) get that edge's pixel, so
     its extent along the edge is unchanged."""
-    if not mask.any():
-        return mask
     h, w = mask.shape
     u0, v0, u1, v1 = box
+    cut_cols = [c for c, hit in ((0, u0 <= 0), (w - 1, u1 >= w - 1)) if hit]
+    cut_rows = [r for r, hit in ((0, v0 <= 0), (h - 1, v1 >= h - 1)) if hit]
+    if not (cut_cols or cut_rows) or not mask.any():
+        return mask
+    out = mask.copy()
     rows, cols = mask.any(1), mask.any(0)
-    out = mask
-    for hit, edge in ((u0 <= 0, (rows, 0)), (u1 >= w - 1, (rows, w - 1))):
-        if hit:
-            out = out.copy() if out is mask else out
-            out[edge[0], edge[1]] = True
-    for hit, row in ((v0 <= 0, 0), (v1 >= h - 1, h - 1)):
-        if hit:
-            out = out.copy() if out is mask else out
-            out[row, cols] = True
+    for c in cut_cols:
+        out[rows, c] = True
+    for r in cut_rows:
+        out[r, cols] = True
     return out
 
 
