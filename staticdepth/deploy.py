@@ -130,7 +130,6 @@ def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:
     """adapt's ground region: the eroded hull of the adaptation split's foot points (the
     sequence's agents, else the summary's detector run again on the adaptation frames)."""
     from staticdepth.geometry.alignment import ground_mask_from_feet
-    from staticdepth.locate import FrameSeq
 
     W, H = reader.width, reader.height
     split = reader.split("adapt")
@@ -141,21 +140,13 @@ def _ground_from_feet(reader, cfg: dict, log) -> tuple[np.ndarray, str]:
         rows = [reader.agents(i) for i in split]
     else:
         from staticdepth.detectors import make_detector
+        from staticdepth.detectors.frames import SequenceFrames
 
         opts = ({"model": setting_from(cfg, "detector.model", "")}
                 if det in ("yolox", "mask2former") else {})
         log(f"ground region: running the {det} detector on {len(split)} adaptation frames")
-
-        class _Split(FrameSeq):
-            def __len__(self):
-                return len(split)
-
-            def __getitem__(self, i):
-                if isinstance(i, slice):
-                    return [self.r.left(split[k]) for k in range(*i.indices(len(self)))]
-                return self.r.left(split[int(i)])
-
-        rows = [r for _, r in make_detector(det, **opts).detect_sequence(_Split(reader))]
+        rows = [r for _, r in make_detector(det, **opts).detect_sequence(
+            SequenceFrames(reader, split))]
     feet = [np.stack([r["foot_u"], r["foot_v"]], 1) for r in rows if len(r)]
     feet = np.concatenate(feet) if feet else np.zeros((0, 2))
     feet = feet[feet[:, 1] >= 0]

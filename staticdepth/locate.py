@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Sequence as _SequenceABC
 from dataclasses import dataclass
 from typing import Any
 
@@ -93,21 +92,6 @@ def load_plane(summary_path: str | None, plane_path: str | None, camera_height: 
     return n, (float(camera_height) if camera_height is not None else h), f"summary {path}"
 
 
-class FrameSeq(_SequenceABC):
-    """The frames of an open sequence, read on demand (detectors index it; never loaded whole)."""
-
-    def __init__(self, reader):
-        self.r = reader
-
-    def __len__(self) -> int:
-        return len(self.r)
-
-    def __getitem__(self, i):
-        if isinstance(i, slice):
-            return [self.r.left(k) for k in range(*i.indices(len(self)))]
-        return self.r.left(int(i))
-
-
 def _instances_and_rows(reader, detector: str | None, detector_model: str | None,
                         detector_mask: str):
     """Yield (frame, instance map, rows or None) from the sequence's instances or a detector."""
@@ -118,11 +102,12 @@ def _instances_and_rows(reader, detector: str | None, detector_model: str | None
     if detector == "gt":
         raise InputError("--detector gt needs the sequence's 'instances' stream", reader.path)
     from staticdepth.detectors import make_detector
+    from staticdepth.detectors.frames import SequenceFrames
 
     name = detector or "motion"
     opts = {"model": detector_model or "", "mask": detector_mask} if name == "yolox" else {}
     det = make_detector(name, **opts)
-    for i, (inst, rows) in enumerate(det.detect_sequence(FrameSeq(reader))):
+    for i, (inst, rows) in enumerate(det.detect_sequence(SequenceFrames(reader))):
         yield i, inst, rows
 
 

@@ -45,6 +45,8 @@ def observations_csv(obs: np.ndarray, size: tuple[int, int]) -> str:
 
 
 def _tracked(frames, indices, model: str, min_height_px: float | None) -> np.ndarray:
+    """Track the per-frame ``(instance map, rows)`` pairs of ``frames`` (an iterable, consumed
+    one frame at a time) and number them with ``indices``, the input's frame numbers."""
     from staticdepth import tracking
 
     extra = {} if min_height_px is None else {"min_height_px": min_height_px}
@@ -54,20 +56,25 @@ def _tracked(frames, indices, model: str, min_height_px: float | None) -> np.nda
     return obs
 
 
-def _detect(detector: str, images: list[np.ndarray], model: str | None):
+def _detect(detector: str, images, model: str | None):
+    """The detector's ``(instance map, rows)`` per frame of ``images`` (a lazy ``Sequence``:
+    :mod:`staticdepth.detectors.frames`), yielded one frame at a time, with a progress bar."""
     from staticdepth.detectors import make_detector
+    from staticdepth.progress import progress
 
     if detector == "yolox" and not model:
         raise InputError("--detector yolox needs --detector-model yolox_nano.onnx")
     opts = {"model": model} if detector in ("yolox", "mask2former") else {}
-    return list(make_detector(detector, **opts).detect_sequence(images))
+    return progress(make_detector(detector, **opts).detect_sequence(images), total=len(images),
+                    desc=detector, unit="frame")
 
 
 def from_sequence(path: str, *, detector: str | None = None, split: str = "adapt",
                   detector_model: str | None = None, model: str = "exact",
                   min_height_px: float | None = None) -> tuple[np.ndarray, dict]:
-    """(observations, camera dict) of a sequence file's ``split`` frames."""
+    """(observations, camera dict) of a sequence file's ``split`` frames, read one at a time."""
     from staticdepth.dataset.h5 import SequenceReader
+    from staticdepth.detectors.frames import SequenceFrames
 
     with SequenceReader(path) as r:
         indices = list(range(len(r))) if split == "all" else list(r.split(split))
@@ -78,35 +85,35 @@ def from_sequence(path: str, *, detector: str | None = None, split: str = "adapt
             if not r.has("instances"):
                 raise InputError("--detector gt needs the sequence's 'instances' stream; use "
                                  "--detector motion or yolox", path)
-            frames = [(r.instances(i), r.agents(i)) for i in indices]
+            frames = ((r.instances(i), r.agents(i)) for i in indices)
         else:
-            frames = _detect(detector, [r.left(i) for i in indices], detector_model)
+            frames = _detect(detector, SequenceFrames(r, indices), detector_model)
+        obs = _tracked(frames, indices, model, min_height_px)
         camera = r.meta.camera.to_dict()
-    return _tracked(frames, indices, model, min_height_px), {"detector": detector, **camera}
+    return obs, {"detector": detector, **camera}
 
 
 def from_video(path: str, *, detector: str = "motion", detector_model: str | None = None,
                start: int = 0, max_frames: int = 300, step: int = 1, model: str = "exact",
                min_height_px: float | None = None) -> tuple[np.ndarray, dict]:
-    """(observations, info) of up to ``max_frames`` frames of a video, every ``step``-th."""
-    from staticdepth.stereo.io import iter_video
+    """(observations, info) of up to ``max_frames`` frames of a video, every ``step``-th, read one
+    at a time (:class:`staticdepth.detectors.frames.VideoFrames`)."""
+    from staticdepth.detectors.frames import VideoFrames
 
     if detector == "gt":
         raise InputError("a video has no ground-truth instances: use --detector motion or yolox",
                          path)
     if max_frames < 3 or step < 1 or start < 0:
         raise InputError("--max-frames must be >= 3, --step >= 1 and --start >= 0")
-    images, indices = [], []
-    for k, img in enumerate(iter_video(path, start)):
-        if k % step == 0:
-            images.append(img)
-            indices.append(start + k)
-            if len(images) == max_frames:
-                break
-    if len(images) < 3:
-        raise InputError(f"only {len(images)} frames read from the video", path)
-    obs = _tracked(_detect(detector, images, detector_model), indices, model, min_height_px)
-    h, w = images[0].shape[:2]
+    images = VideoFrames(path, start, step, max_frames)
+    try:
+        if len(images) < 3:
+            raise InputError(f"only {len(images)} frames read from the video", path)
+        h, w = images[0].shape[:2]
+        indices = [images.source_index(i) for i in range(len(images))]
+        obs = _tracked(_detect(detector, images, detector_model), indices, model, min_height_px)
+    finally:
+        images.close()
     return obs, {"detector": detector, "width": w, "height": h}
 
 

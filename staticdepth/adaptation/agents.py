@@ -13,7 +13,8 @@ import os
 
 import numpy as np
 
-from staticdepth.adaptation.common import LazyFrames, Workspace
+from staticdepth.adaptation.common import Workspace
+from staticdepth.detectors.frames import SequenceFrames
 from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.dataset.schema import AGENT_DTYPE
 from staticdepth.errors import InputError
@@ -46,7 +47,7 @@ def run(conf: AdaptConfig, ws: Workspace, detector, config_hash: str) -> None:
     if w.done:
         return ws.skip("agents")
     with w, ws.reader() as r:
-        out = detector.detect_sequence(LazyFrames(r))
+        out = detector.detect_sequence(SequenceFrames(r))
         for i, (inst, rows) in enumerate(progress(out, total=ws.n, desc="agents")):
             if i >= w.written:
                 w.write(i, inst, rows)

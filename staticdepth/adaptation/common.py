@@ -1,9 +1,8 @@
-"""What every stage shares: the workspace (sequence, prediction store, stage files), lazy frames
-and the agents' per-frame instance maps and rows."""
+"""What every stage shares: the workspace (sequence, prediction store, stage files) and the
+agents' per-frame instance maps and rows."""
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
 from typing import Callable
 
 import numpy as np
@@ -66,21 +65,6 @@ class Workspace:
 
     def pred_done(self, name: str, config_hash: str) -> bool:
         return is_complete(prediction_path(self.seq, name), self.identity, config_hash)
-
-
-class LazyFrames(Sequence):
-    """The sequence's left images, read one at a time (detectors take it as a ``Sequence``)."""
-
-    def __init__(self, reader: SequenceReader):
-        self.reader = reader
-
-    def __len__(self) -> int:
-        return len(self.reader)
-
-    def __getitem__(self, i):
-        if isinstance(i, slice):
-            return [self.reader.left(k) for k in range(*i.indices(len(self)))]
-        return self.reader.left(i)
 
 
 class RowIndex:
