@@ -157,3 +157,6 @@ def test_masks_reach_the_image_edges_their_boxes_reach():
     assert not detections_from_instances(m.astype(np.uint16))["border"][0]
     inner = reach_cut_edges(m, (2, 8, 13, 30))  # a box inside the frame: the mask as it is
     assert inner is m
+    near = reach_cut_edges(m, (2, 8, 13, 37), tol_px=2.0)     # 2 px from the left and bottom
+    assert near[10:30, 0].all() and near[39, 3:12].all() and near[:39, 12:].sum() == 0
+    assert reach_cut_edges(m, (3, 8, 13, 36), tol_px=2.0) is m     # 3 px from both: inside

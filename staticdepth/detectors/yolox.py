@@ -26,6 +26,11 @@ from staticdepth.errors import InputError
 
 STRIDES = (8, 16, 32)
 MASK_MODES = ("motion", "grabcut", "box")
+#: a box within this many pixels of the network's input (2 px of 416 = 3.7 px of a 768-wide
+#: frame) of an image edge reaches it: the boxes of people whose feet the bottom edge of vtest.avi
+#: cuts end 1.1-2.2 px above its last row (frames 507-612 of the second half), so their GrabCut
+#: masks, 1 px short, passed tracking's border test and their cut feet entered the ground plane
+EDGE_TOL_INPUT_PX = 2.0
 
 
 def letterbox(image_rgb: np.ndarray, size: int) -> tuple[np.ndarray, float]:
@@ -110,18 +115,19 @@ def grabcut_mask(image_rgb: np.ndarray, box: Sequence[float], iters: int = 3,
     return out
 
 
-def reach_cut_edges(mask: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+def reach_cut_edges(mask: np.ndarray, box: tuple[int, int, int, int], tol_px: float = 0.0
+                    ) -> np.ndarray:
     """``mask`` (H, W) bool, extended to each image edge its box (u0, v0, u1, v1, inclusive
-    pixels) reaches: an object the frame cuts (a car half outside, a person's feet below the
-    bottom row) continues there, but a motion or GrabCut mask inside its box often stops a few
-    pixels short, and then the object passes for a whole one (tracking's border test reads the
-    mask; on vtest.avi a car cut by the right edge, box to column 767, mask to 763, entered the
-    ground plane). On each reached edge the mask's own rows (columns) get that edge's pixel, so
-    its extent along the edge is unchanged."""
+    pixels) reaches, within ``tol_px``: an object the frame cuts (a car half outside, a person's
+    feet below the bottom row) continues there, but a motion or GrabCut mask inside its box often
+    stops a few pixels short, and then the object passes for a whole one (tracking's border test
+    reads the mask; on vtest.avi a car cut by the right edge, box to column 767, mask to 763,
+    entered the ground plane). On each reached edge the mask's own rows (columns) get that edge's
+    pixel, so its extent along the edge is unchanged."""
     h, w = mask.shape
     u0, v0, u1, v1 = box
-    cut_cols = [c for c, hit in ((0, u0 <= 0), (w - 1, u1 >= w - 1)) if hit]
-    cut_rows = [r for r, hit in ((0, v0 <= 0), (h - 1, v1 >= h - 1)) if hit]
+    cut_cols = [c for c, hit in ((0, u0 <= tol_px), (w - 1, u1 >= w - 1 - tol_px)) if hit]
+    cut_rows = [r for r, hit in ((0, v0 <= tol_px), (h - 1, v1 >= h - 1 - tol_px)) if hit]
     if not (cut_cols or cut_rows) or not mask.any():
         return mask
     out = mask.copy()
@@ -166,6 +172,7 @@ class YoloxDetector(Detector):
 
     def masks(self, image_rgb, boxes, fg: np.ndarray | None) -> list[np.ndarray]:
         h, w = image_rgb.shape[:2]
+        tol = EDGE_TOL_INPUT_PX * max(h, w) / self.input_size     # in image pixels
         out = []
         for b in boxes:
             u0, v0 = max(int(np.floor(b[0])), 0), max(int(np.floor(b[1])), 0)
@@ -173,14 +180,15 @@ class YoloxDetector(Detector):
             inside = np.zeros((h, w), bool)
             inside[v0:v1 + 1, u0:u1 + 1] = True
             if self.mask == "box":
-                out.append(inside)
+                out.append(reach_cut_edges(inside, (u0, v0, u1, v1), tol))
                 continue
             if self.mask == "motion" and fg is not None:
                 m = fg & inside
                 if m.sum() >= self.min_fill * inside.sum():
-                    out.append(reach_cut_edges(m, (u0, v0, u1, v1)))
+                    out.append(reach_cut_edges(m, (u0, v0, u1, v1), tol))
                     continue
-            out.append(reach_cut_edges(grabcut_mask(image_rgb, b) & inside, (u0, v0, u1, v1)))
+            out.append(reach_cut_edges(grabcut_mask(image_rgb, b) & inside, (u0, v0, u1, v1),
+                                       tol))
         return out
 
     def detect_sequence(self, images: Iterable[np.ndarray]
