@@ -165,7 +165,10 @@ def summary(plane: AgentPlane) -> str:
              f"{int(plane.inliers.sum())}/{len(plane.inliers)}, {plane.n_observations} "
              f"observations, rms {plane.rms_px:.2f} px"]
     if np.isfinite(plane.normal_std_deg):
-        lines.append(f"  uncertainty: normal {plane.normal_std_deg:.2f} deg, d/H "
+        q = plane.normal_std_parts
+        axes = (f" (pitch {q['pitch_std_deg']:.2f}, roll {q['roll_std_deg']:.2f})"
+                if "pitch_std_deg" in q else "")
+        lines.append(f"  uncertainty: normal {plane.normal_std_deg:.2f} deg{axes}, d/H "
                      f"{plane.d_over_h_std:.3f}")
     if plane.camera_height_m is not None:
         sd = (f" +- {plane.camera_height_std_m:.3f}" if np.isfinite(plane.camera_height_std_m)

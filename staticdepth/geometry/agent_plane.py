@@ -63,7 +63,8 @@ MODELS = ("joint", "exact", "affine", "paper")
 PERSON_CLASSES = (0, -1)  # COCO person, or unknown class (a CSV without classes)
 # the normal's uncertainty, part by part (joint model; agent_plane_boot, agent_plane_laplace)
 UNCERTAINTY_PARTS = ("bootstrap_std_deg", "class_misfit_deg", "laplace_std_deg",
-                     "laplace_data_std_deg", "boxed_share")
+                     "laplace_data_std_deg", "boxed_share", "pitch_std_deg", "roll_std_deg",
+                     "pitch_roll_corr")
 
 
 @dataclass(frozen=True)

@@ -145,6 +145,33 @@ def combined_variance(bootstrap_deg: float, laplace_deg: float, misfit_deg: floa
         1.0 + (BOX_INFLATION ** 2 - 1.0) * boxed)
 
 
+def axis_std(n, replicates, total_deg: float, laplace_cov_deg2=None) -> dict:
+    """The normal's uncertainty split into pitch and roll: ``pitch_std_deg``, ``roll_std_deg``
+    and ``pitch_roll_corr`` from the second moments of the bootstrap ``replicates``' (normals)
+    pitch and roll about the solution ``n``'s, averaged with the Laplace (pitch, roll)
+    covariance ``laplace_cov_deg2`` when given (as the total averages their variances), scaled
+    so that pitch_std^2 + cos^2(pitch) roll_std^2 = ``total_deg``^2 (a roll change dr about the
+    optical axis tilts the normal by cos(pitch) dr): the shape is theirs, the size the combined
+    std's. Empty when nothing moves or the total is not finite."""
+    p0, r0 = pitch_roll_from_normal(n)
+    d = np.array([pitch_roll_from_normal(m) for m in replicates], np.float64).reshape(-1, 2)
+    d -= (p0, r0)
+    d[:, 1] = (d[:, 1] + 180.0) % 360.0 - 180.0
+    if not len(d) or not np.isfinite(total_deg):
+        return {}
+    C = d.T @ d / len(d)
+    if laplace_cov_deg2 is not None and np.all(np.isfinite(laplace_cov_deg2)):
+        C = 0.5 * (C + np.asarray(laplace_cov_deg2, np.float64))
+    c2 = np.cos(np.radians(p0)) ** 2
+    angle2 = C[0, 0] + c2 * C[1, 1]
+    if not angle2 > 0:
+        return {}
+    k = total_deg ** 2 / angle2
+    sp, sr = np.sqrt(k * C[0, 0]), np.sqrt(k * C[1, 1])
+    corr = C[0, 1] / np.sqrt(C[0, 0] * C[1, 1]) if C[0, 0] > 0 and C[1, 1] > 0 else 0.0
+    return {"pitch_std_deg": float(sp), "roll_std_deg": float(sr), "pitch_roll_corr": float(corr)}
+
+
 def boxed_share(prob: _Problem, inl: np.ndarray) -> float:
     """The share of the inlier tracks ``inl`` ((J,) bool) that are people none of whose
     observations has a top column (people seen as boxes)."""
@@ -159,7 +186,8 @@ def joint_uncertainty(K, prob: _Problem, conf, n, theta, inl, rng, s, thr: float
     """The Laplace uncertainty (:func:`staticdepth.geometry.agent_plane_laplace.
     laplace_uncertainty`, at the solution's track scales ``s`` and inlier threshold ``thr``) and,
     with ``conf.bootstrap`` > 0: ``normal_std_deg`` (the bootstrap's, the Laplace's and the class
-    misfit's squares, summed and halved, see the module doc), ``bootstrap_std_deg``,
+    misfit's squares, summed and halved, see the module doc), its split into pitch and roll
+    (:func:`axis_std`), ``bootstrap_std_deg``,
     ``class_misfit_deg``, ``d_over_h_std`` (bootstrap std of d/H of a typical agent) and
     ``n_tracks``; empty with fewer than 3 inlier
     tracks."""
@@ -167,20 +195,23 @@ def joint_uncertainty(K, prob: _Problem, conf, n, theta, inl, rng, s, thr: float
     if len(tracks) < 3:
         return {}
     out = laplace_uncertainty(K, prob, conf, n, theta, s, inl, thr)
+    lap_cov = out.pop("laplace_cov_pr_deg2", None)
     if conf.bootstrap <= 0:
         return out
-    angles, dh = [], []
+    angles, dh, normals = [], [], []
     for _ in range(conf.bootstrap):
         m, s_med = replicate_normal(K, prob, conf, n, theta, rng.choice(tracks, len(tracks)),
                                     thr, "reselect")
         angles.append(angle_between_deg(m, n))
         dh.append(1.0 / s_med)
+        normals.append(m)
     boot = float(np.sqrt(np.mean(np.square(angles))))
     misfit, misfit_group = class_misfit_deg(K, prob, conf, n, theta, inl)
     boxed = boxed_share(prob, inl)
     total = float(np.sqrt(combined_variance(boot, out.get("laplace_std_deg", boot), misfit,
                                             boxed)))
-    return {**out, "normal_std_deg": total, "bootstrap_std_deg": boot,
+    return {**out, **axis_std(n, normals, total, lap_cov), "normal_std_deg": total,
+            "bootstrap_std_deg": boot,
             "class_misfit_deg": misfit, "class_misfit_group": misfit_group,
             "boxed_share": boxed,
             "d_over_h_std": float(np.std(dh, ddof=1)),

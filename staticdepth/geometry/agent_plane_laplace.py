@@ -154,9 +154,10 @@ def _at_bound(prob: _Problem, x: np.ndarray, with_one: bool) -> np.ndarray:
     return out
 
 
-def _std_pair(n, data, prior_D, lam_col: int, conf, robust: bool) -> tuple[float, float, float]:
-    """(RMS angle deg with the priors, without them, residual scale) from the rows; ``lam_col``:
-    the camera-height term's column."""
+def _std_pair(n, data, prior_D, lam_col: int, conf, robust: bool
+              ) -> tuple[float, float, float, np.ndarray]:
+    """(RMS angle deg with the priors, without them, residual scale, the (pitch, roll) covariance
+    with the priors in deg^2) from the rows; ``lam_col``: the camera-height term's column."""
     r, D = data
     if robust and conf.loss == "soft_l1":
         z = 1.0 + (r / conf.f_scale_px) ** 2
@@ -167,17 +168,19 @@ def _std_pair(n, data, prior_D, lam_col: int, conf, robust: bool) -> tuple[float
     scale = (float(np.sum(psi ** 2)) / max(len(r) - p, 1) / float(np.mean(dpsi))
              if robust else 1.0)
     A = (D * dpsi[:, None]).T @ D / scale
-    with_p = _angle_std_deg(n, _normal_block(A + prior_D.T @ prior_D))
+    cov = _normal_block(A + prior_D.T @ prior_D)
+    with_p = _angle_std_deg(n, cov)
     # without priors the camera-height term (in the height rows only) has no information
     drop = np.ones(p, bool)
     drop[lam_col] = False
     no_p = _angle_std_deg(n, _normal_block(A[np.ix_(drop, drop)]))
-    return with_p, no_p, math.sqrt(scale)
+    return with_p, no_p, math.sqrt(scale), np.degrees(np.degrees(cov))
 
 
 def laplace_uncertainty(K, prob: _Problem, conf, n, theta, s, inl, thr: float) -> dict:
-    """``laplace_std_deg`` (priors in), ``laplace_data_std_deg`` (data only) and
-    ``laplace_scale`` (residual scale in noise-model units) of the joint fit's solution, on the
+    """``laplace_std_deg`` (priors in), ``laplace_data_std_deg`` (data only),
+    ``laplace_scale`` (residual scale in noise-model units) and ``laplace_cov_pr_deg2`` (the
+    (pitch, roll) covariance with the priors, deg^2) of the joint fit's solution, on the
     observations of inlier tracks within ``thr``; empty with fewer than 3 inlier tracks."""
     keep = inl[prob.obs.idx] & (prob.errors(n, theta, s, 0.0) < thr)
     if np.count_nonzero(inl) < 3 or keep.sum() < 3:
@@ -189,8 +192,9 @@ def laplace_uncertainty(K, prob: _Problem, conf, n, theta, s, inl, thr: float) -
     s_sub = s[tracks]
     x = _state(sub, n, theta, s_sub, _height_offset(sub, s_sub), with_one)
     data, prior_D, lam_col = _information(sub, conf, x, with_one, _at_bound(sub, x, with_one))
-    with_p, no_p, scale = _std_pair(n, data, prior_D, lam_col, conf, robust=True)
-    return {"laplace_std_deg": with_p, "laplace_data_std_deg": no_p, "laplace_scale": scale}
+    with_p, no_p, scale, cov = _std_pair(n, data, prior_D, lam_col, conf, robust=True)
+    return {"laplace_std_deg": with_p, "laplace_data_std_deg": no_p, "laplace_scale": scale,
+            "laplace_cov_pr_deg2": cov}
 
 
 @dataclass(frozen=True)
@@ -241,7 +245,7 @@ def cramer_rao_std(K, obs, conf, n_true, s_true, height_m: float, theta, kappa=0
                -math.log(height_m), with_one)
     (r, D), prior_D, lam_col = _information(prob, conf, x, with_one)
     ok = np.abs(r) < max_residual
-    with_p, no_p, _ = _std_pair(n_true, (r[ok], D[ok]), prior_D, lam_col, conf, robust=False)
+    with_p, no_p, _, _ = _std_pair(n_true, (r[ok], D[ok]), prior_D, lam_col, conf, robust=False)
     A = D[ok].T @ D[ok] + prior_D.T @ prior_D
     return CramerRao(no_p, with_p, _inverse_block(A, [0, 1, lam_col]),
                      np.asarray(n_true, float))
