@@ -47,6 +47,7 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
                                              save_model=save_model)
     h = stage_hashes(conf, model_identity(conf.model))
     checks.disk_space(conf, ws, h, model)
+    checks.probe_model(conf, ws, model, h["base"])
     timings: dict[str, float] = {}
     clock = [time.perf_counter()]
 

@@ -180,9 +180,15 @@ def test_killed_adapt_resumes_to_the_same_predictions_redoing_no_stage(tmp_path,
     assert not [f for f in os.listdir(pred) if ".partial" in f or ".tmp-" in f]
 
 
-def test_a_late_setting_reruns_only_the_stages_after_it(tmp_path, clip, tiny, one_thread):
+def test_a_late_setting_reruns_only_the_stages_after_it(tmp_path, clip, tiny, one_thread,
+                                                        monkeypatch):
     from staticdepth.adapt import adapt
+    from staticdepth.adaptation import checks
     from staticdepth.adaptation.config import build_config
+
+    probes = []                         # the network's probe runs only while base is to make
+    probe = checks.probe_model
+    monkeypatch.setattr(checks, "probe_model", lambda *a: probes.append(probe(*a)))
 
     seq = str(tmp_path / "s.h5")
     shutil.copy(clip, seq)
@@ -199,6 +205,7 @@ def test_a_late_setting_reruns_only_the_stages_after_it(tmp_path, clip, tiny, on
     assert set(s2["skipped_stages"]) == {"base", "agents", "pseudo_labels", "finetune", "ft",
                                          "ground_plane", "align"}
     assert s2["stage_frames"]["scale"] == 40 and s2["stage_frames"]["base"] == 0
+    assert probes == [True, False]
     now = _predictions(seq)
     for name in ("base", "ft", "align", "ft-align"):
         np.testing.assert_array_equal(now[name], first[name])

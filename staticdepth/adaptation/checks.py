@@ -85,14 +85,19 @@ def prepare(conf: AdaptConfig, ws: Workspace, *, device=None, summary_path: str,
             ws.log(f"model {conf.model!r} names no layer groups: fine-tuning all its parameters")
     if device is not None and isinstance(model, TorchDepthModel):
         model.to(device)
-    probe_model(conf, ws, model)
     return model, detector, layers
 
 
-def probe_model(conf: AdaptConfig, ws: Workspace, model) -> None:
+def probe_model(conf: AdaptConfig, ws: Workspace, model, base_hash: str) -> bool:
     """Run the network on the first adaptation frame before any stage: a model whose output is
     not one map of the frame (a wrong output head, a segmentation export) or not finite fails
-    in seconds, not after the agents' pass over the sequence."""
+    in seconds, not after the agents' pass over the sequence. Not run (False) when the base
+    prediction of these settings (``base_hash``, which holds the model's identity) is complete:
+    this model has already made every map of the sequence."""
+    from staticdepth.dataset.predictions import is_complete, prediction_path
+
+    if is_complete(prediction_path(ws.seq, "base"), ws.identity, base_hash):
+        return False
     i = int(ws.adapt_split[0])
     with ws.reader() as r:
         inv = np.asarray(model.predict(r.left(i)))
@@ -101,6 +106,7 @@ def probe_model(conf: AdaptConfig, ws: Workspace, model) -> None:
                          f"{ws.width}x{ws.height} frame; expected {(ws.height, ws.width)}")
     if not np.isfinite(inv).any():
         raise InputError(f"model {conf.model!r} returned no finite value on frame {i}")
+    return True
 
 
 # (output, stage hash it carries, bytes per pixel); "<name>" = the prediction store's file
