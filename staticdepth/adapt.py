@@ -253,10 +253,14 @@ def run(args) -> int:
     device = resolve_device(extras.get("device", args.device))
     summary = adapt(seq, conf, device=device, summary_path=extras.get("summary"),
                     save_model=extras.get("save_model"))
-    sd = (summary["plane"].get("uncertainty") or {}).get("camera_height_std_m")
-    print(f"plane: pitch {summary['plane']['pitch_deg']:.2f} deg, roll "
-          f"{summary['plane']['roll_deg']:.2f} deg; camera height {summary['camera_height_m']:.2f}"
-          + (f" +- {sd:.2f}" if sd is not None else "") + f" m ({summary['camera_height_source']})")
+    unc = summary["plane"].get("uncertainty") or {}
+    sd, sp, sr = (unc.get(k) for k in ("camera_height_std_m", "pitch_std_deg", "roll_std_deg"))
+    def pm(x):
+        return "" if x is None else f" +- {x:.2f}"
+
+    print(f"plane: pitch {summary['plane']['pitch_deg']:.2f}{pm(sp)} deg, roll "
+          f"{summary['plane']['roll_deg']:.2f}{pm(sr)} deg; camera height "
+          f"{summary['camera_height_m']:.2f}{pm(sd)} m ({summary['camera_height_source']})")
     if summary.get("metric_note"):
         print(summary["metric_note"])
     print(f"predictions written to {seq}.pred/: {', '.join(summary['predictions'])}")

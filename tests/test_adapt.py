@@ -82,7 +82,7 @@ def test_adapt_writes_every_stage_and_is_reproducible(tmp_path, sequence, tiny_m
     assert not list(tmp_path.glob("*.ckpt"))
 
 
-def test_adapt_command_with_recipe_and_overrides(tmp_path, sequence, tiny_model):
+def test_adapt_command_with_recipe_and_overrides(tmp_path, sequence, tiny_model, capsys):
     seq = _copy(sequence, tmp_path / "r.h5")
     recipe = tmp_path / "r.yaml"
     recipe.write_text(f"name: R\ncamera_height_m: 6.0\nstages:\n  adapt:\n"
@@ -98,6 +98,10 @@ def test_adapt_command_with_recipe_and_overrides(tmp_path, sequence, tiny_model)
     assert s["config"]["tracking"]["min_height_px"] == 8
     assert s["camera_height_m"] == 6.0 and s["camera_height_source"] == "given"
     assert s["finetune"] == []
+    p, u = s["plane"], s["plane"]["uncertainty"]       # the plane's line names each axis' std
+    assert (f"plane: pitch {p['pitch_deg']:.2f} +- {u['pitch_std_deg']:.2f} deg, roll "
+            f"{p['roll_deg']:.2f} +- {u['roll_std_deg']:.2f} deg; camera height 6.00 m (given)"
+            ) in capsys.readouterr().out
     with SequenceReader(seq) as r:
         np.testing.assert_array_equal(r.prediction("ft", 2), r.prediction("base", 2))
 
