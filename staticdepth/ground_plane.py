@@ -240,6 +240,9 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
         conf = replace(conf, agent_height_m=args.agent_height)
     if args.classes is not None:
         conf = replace(conf, classes=class_set(args.classes))
+    print(f"fitting the {conf.model} ground plane to {len(obs)} observations of "
+          f"{len(np.unique(obs['track']))} tracks ({conf.bootstrap} bootstrap resamples)",
+          flush=True)
     try:
         plane = estimate_ground_plane(obs, camera.K, conf, agent_height_m=args.agent_height,
                                       camera_height_m=args.camera_height)
