@@ -58,7 +58,8 @@ def _tracked(frames, indices, model: str, min_height_px: float | None) -> np.nda
 
 def _detect(detector: str, images, model: str | None):
     """The detector's ``(instance map, rows)`` per frame of ``images`` (a lazy ``Sequence``:
-    :mod:`staticdepth.detectors.frames`), yielded one frame at a time, with a progress bar."""
+    :class:`staticdepth.detectors.frames.SequenceFrames`,
+    :class:`staticdepth.dataset.video.VideoFrames`), yielded one frame at a time, with a progress bar."""
     from staticdepth.detectors import make_detector
     from staticdepth.progress import progress
 
@@ -97,8 +98,8 @@ def from_video(path: str, *, detector: str = "motion", detector_model: str | Non
                start: int = 0, max_frames: int = 300, step: int = 1, model: str = "exact",
                min_height_px: float | None = None) -> tuple[np.ndarray, dict]:
     """(observations, info) of up to ``max_frames`` frames of a video, every ``step``-th, read one
-    at a time (:class:`staticdepth.detectors.frames.VideoFrames`)."""
-    from staticdepth.detectors.frames import VideoFrames
+    at a time (:class:`staticdepth.dataset.video.VideoFrames`)."""
+    from staticdepth.dataset.video import VideoFrames
 
     if detector == "gt":
         raise InputError("a video has no ground-truth instances: use --detector motion or yolox",

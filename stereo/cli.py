@@ -297,11 +297,12 @@ class _Frames:
 
 def _stream(spec: str):
     """(count, iterator factory(start), files or None) for a folder/glob of images or a video."""
-    from staticdepth.stereo.io import expand_images, is_video, iter_video, read_rgb, \
-        video_frame_count
+    from staticdepth.dataset.video import VideoFrames
+    from staticdepth.stereo.io import expand_images, is_video, read_rgb
 
     if is_video(spec):
-        return video_frame_count(spec), lambda start: iter_video(spec, start), None
+        video = VideoFrames(spec)
+        return len(video), lambda start: (video[i] for i in range(start, len(video))), None
     files = expand_images(spec)
     return len(files), lambda start: (read_rgb(f) for f in files[start:]), files
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 import glob
 import os
 import re
-from typing import Iterator
 
 import cv2
 import numpy as np
@@ -70,32 +69,6 @@ def expand_images(pattern: str) -> list[str]:
 
 def is_video(path: str) -> bool:
     return os.path.isfile(path) and path.lower().endswith(VIDEO_EXTS)
-
-
-def video_frame_count(path: str) -> int:
-    cap = cv2.VideoCapture(path)
-    if not cap.isOpened():
-        raise InputError("cannot open video", path)
-    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-    cap.release()
-    return n
-
-
-def iter_video(path: str, start: int = 0) -> Iterator[np.ndarray]:
-    """Frames of a video as RGB uint8, from frame ``start``."""
-    cap = cv2.VideoCapture(path)
-    if not cap.isOpened():
-        raise InputError("cannot open video", path)
-    try:
-        if start:
-            cap.set(cv2.CAP_PROP_POS_FRAMES, start)
-        while True:
-            ok, frame = cap.read()
-            if not ok:
-                return
-            yield np.ascontiguousarray(frame[..., ::-1])
-    finally:
-        cap.release()
 
 
 # -- PFM ----------------------------------------------------------------------------------------

@@ -1,7 +1,7 @@
-"""Detectors read their frames one at a time (staticdepth.detectors.frames): a video's frames by
-``start`` / ``step`` / ``max_frames`` (checked against a plain sequential decode of the same file),
-a sequence's split, and ``observations`` on a video keeps neither the frames nor the instance maps
-of the whole run in memory."""
+"""Frames read one at a time (dataset.video.VideoFrames, detectors.frames.SequenceFrames): a
+video's frames by ``start`` / ``step`` / ``max_frames`` (checked against a plain sequential decode
+of the same file), a sequence's split, and ``observations`` on a video keeps neither the frames
+nor the instance maps of the whole run in memory."""
 from __future__ import annotations
 
 import tracemalloc
@@ -10,7 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from staticdepth.detectors.frames import SequenceFrames, VideoFrames
+from staticdepth.dataset.video import VideoFrames
+from staticdepth.detectors.frames import SequenceFrames
 from staticdepth.errors import InputError
 
 W, H = 160, 96

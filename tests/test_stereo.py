@@ -245,6 +245,47 @@ def test_cli_sequence_resume_and_errors(tmp_path, capsys):
     assert rc == 2 and "calibrated for 640x480" in capsys.readouterr().err
 
 
+def test_cli_sequence_from_two_videos_resumes(tmp_path, capsys):
+    """Left and right videos (lossless FFV1) give the sequence the same pairs as image folders
+    give, frame for frame; an interrupted run resumes from its third frame (the video is read
+    forward to it)."""
+    frames = [ground_pair(seed=s) for s in range(3)]
+    for side, k in (("L", 0), ("R", 1)):
+        out = cv2.VideoWriter(str(tmp_path / f"{side}.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 5,
+                              (frames[0][k].shape[1], frames[0][k].shape[0]))
+        for f in frames:
+            out.write(np.ascontiguousarray(f[k][..., ::-1]))
+        out.release()
+    _write_frames(tmp_path / "L", [f[0] for f in frames])
+    _write_frames(tmp_path / "R", [f[1] for f in frames])
+    rig = tmp_path / "rig.json"
+    StereoRig.rectified(CAM, BASELINE).save(rig)
+    common = ["--rig", str(rig), "--min-depth", "2"]
+    assert main(["stereo", *common, "--left", str(tmp_path / "L"), "--right",
+                 str(tmp_path / "R"), "--out", str(tmp_path / "folders.h5")]) == 0
+    args = ["stereo", *common, "--left", str(tmp_path / "L.avi"), "--right",
+            str(tmp_path / "R.avi"), "--out", str(tmp_path / "videos.h5")]
+    calls = {"n": 0}
+    real = StereoPipeline.process
+
+    def crash_on_third(self, L, R):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt
+        return real(self, L, R)
+
+    StereoPipeline.process = crash_on_third
+    try:
+        assert main(args) == 130
+    finally:
+        StereoPipeline.process = real
+    assert main(args + ["--resume"]) == 0 and "(2 resumed)" in capsys.readouterr().out
+    with h5py.File(tmp_path / "videos.h5") as v, h5py.File(tmp_path / "folders.h5") as f:
+        assert v["depth"].shape == f["depth"].shape == (3, 200, 400)
+        np.testing.assert_array_equal(v["left"][:], f["left"][:])
+        np.testing.assert_array_equal(v["depth"][:], f["depth"][:])
+
+
 def _sequence_args(tmp_path, out="seq.h5"):
     return ["stereo", "--rig", str(tmp_path / "rig.json"), "--left", str(tmp_path / "L"),
             "--right", str(tmp_path / "R"), "--out", str(tmp_path / out), "--min-depth", "2"]
