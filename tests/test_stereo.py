@@ -200,17 +200,8 @@ def _write_frames(folder, frames):
         cv2.imwrite(str(folder / f"{i:04d}.png"), f[..., ::-1])
 
 
-def test_cli_sequence_resume_and_errors(tmp_path, capsys):
-    frames = [ground_pair(seed=s) for s in range(3)]
-    _write_frames(tmp_path / "L", [f[0] for f in frames])
-    _write_frames(tmp_path / "R", [f[1] for f in frames])
-    rig = tmp_path / "rig.json"
-    StereoRig.rectified(CAM, BASELINE).save(rig)
-    out = tmp_path / "seq.h5"
-    args = ["stereo", "--rig", str(rig), "--left", str(tmp_path / "L"), "--right",
-            str(tmp_path / "R"), "--out", str(out), "--min-depth", "2"]
-    from staticdepth.stereo import cli as stereo_cli
-
+def _interrupted_on_third_pair(args) -> int:
+    """``main(args)`` with Ctrl-C arriving while the third pair is matched."""
     calls = {"n": 0}
     real = StereoPipeline.process
 
@@ -222,9 +213,23 @@ def test_cli_sequence_resume_and_errors(tmp_path, capsys):
 
     StereoPipeline.process = crash_on_third
     try:
-        assert main(args) == 130
+        return main(args)
     finally:
         StereoPipeline.process = real
+
+
+def test_cli_sequence_resume_and_errors(tmp_path, capsys):
+    frames = [ground_pair(seed=s) for s in range(3)]
+    _write_frames(tmp_path / "L", [f[0] for f in frames])
+    _write_frames(tmp_path / "R", [f[1] for f in frames])
+    rig = tmp_path / "rig.json"
+    StereoRig.rectified(CAM, BASELINE).save(rig)
+    out = tmp_path / "seq.h5"
+    args = ["stereo", "--rig", str(rig), "--left", str(tmp_path / "L"), "--right",
+            str(tmp_path / "R"), "--out", str(out), "--min-depth", "2"]
+    from staticdepth.stereo import cli as stereo_cli
+
+    assert _interrupted_on_third_pair(args) == 130
     assert (tmp_path / "seq.h5.partial").exists() and not out.exists()
     assert main(args + ["--resume"]) == 0 and "(2 resumed)" in capsys.readouterr().out
     with h5py.File(out) as f:
@@ -265,20 +270,7 @@ def test_cli_sequence_from_two_videos_resumes(tmp_path, capsys):
                  str(tmp_path / "R"), "--out", str(tmp_path / "folders.h5")]) == 0
     args = ["stereo", *common, "--left", str(tmp_path / "L.avi"), "--right",
             str(tmp_path / "R.avi"), "--out", str(tmp_path / "videos.h5")]
-    calls = {"n": 0}
-    real = StereoPipeline.process
-
-    def crash_on_third(self, L, R):
-        calls["n"] += 1
-        if calls["n"] == 3:
-            raise KeyboardInterrupt
-        return real(self, L, R)
-
-    StereoPipeline.process = crash_on_third
-    try:
-        assert main(args) == 130
-    finally:
-        StereoPipeline.process = real
+    assert _interrupted_on_third_pair(args) == 130
     assert main(args + ["--resume"]) == 0 and "(2 resumed)" in capsys.readouterr().out
     with h5py.File(tmp_path / "videos.h5") as v, h5py.File(tmp_path / "folders.h5") as f:
         assert v["depth"].shape == f["depth"].shape == (3, 200, 400)
