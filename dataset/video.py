@@ -73,6 +73,8 @@ def iter_frames(source: str, *, every: int = 1, max_frames: int | None = None,
     (they count towards ``max_frames``)."""
     import cv2
 
+    from staticdepth.dataset.pack import read_rgb
+
     if every < 1:
         raise InputError(f"--every must be >= 1, got {every}")
     if max_frames is not None and max_frames < 1:
@@ -88,9 +90,7 @@ def iter_frames(source: str, *, every: int = 1, max_frames: int | None = None,
             if n_out < skip:
                 n_out += 1
                 continue
-            data = np.fromfile(path, dtype=np.uint8)
-            img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-            yield VideoFrame(i, i / rate, _to_rgb(img, path))
+            yield VideoFrame(i, i / rate, read_rgb(path))
             n_out += 1
             if max_frames is not None and n_out >= max_frames:
                 return
