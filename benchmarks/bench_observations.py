@@ -1,7 +1,7 @@
 """Peak memory and seconds per frame of ``staticdepth observations`` on a video against its length.
 
-The command reads its frames one at a time (``staticdepth.dataset.video.VideoFrames``); before, it read
-every frame of the run into a list and kept every instance map the detector made, so its memory
+The command reads its frames one at a time (``staticdepth.dataset.video.VideoFrames``); before,
+it read every frame of the run into a list and kept every instance map the detector made, so its memory
 grew with ``--max-frames`` (vtest.avi, 768x576: 1.9 GB at 800 frames). Each run is a child
 process (peak RSS from its own ``rusage``); ratios are against the shortest run of the same
 command, measured in this run.

@@ -1,17 +1,17 @@
 """Stage pipeline: on-site adaptation of a depth network to one static camera (``staticdepth adapt``).
 
-agents (a detector, or the sequence's own instances with ``detector.name=gt``) -> ground plane
-from the agents -> base prediction -> pseudo labels on the adaptation split -> fine-tuning ->
-scene alignment -> metric scale from the camera height (the agents and the plane first, so that
-a sequence they cannot serve is refused before the network's pass over every frame); one module
-per stage in :mod:`staticdepth.adaptation`, each streamed frame by frame and resumable. Predictions (the
-sequence's prediction store, ``<SEQ>.h5.pred/<name>.h5``): ``base``, ``ft`` (relative depth
-1 / max(D, eps), METHOD.md), ``align``, ``ft-align`` (aligned to the agents' plane with unit camera
-height: relative), and ``align-metric``, ``ft-align-metric`` (metres: the aligned maps are in
-units of the camera height, so they are multiplied by H_c; ``scale.metric_scale=anchor`` uses the
-anchor pixel's scale of METHOD.md section 5 instead; the summary reports both). The stages' own
-files (inverse depth, instance maps, labels, checkpoint, plane) are kept in ``<SEQ>.h5.adapt/``
-so that a rerun with other late settings redoes only the stages after them.
+agents (a detector, or the sequence's own instances with ``detector.name=gt``) -> ground plane from
+the agents -> base prediction -> pseudo labels on the adaptation split -> fine-tuning -> scene
+alignment -> metric scale from the camera height (the agents and the plane first, so that a sequence
+they cannot serve is refused before the network's pass over every frame); one module per stage in
+:mod:`staticdepth.adaptation`, each streamed frame by frame and resumable. Predictions (the
+sequence's prediction store, ``<SEQ>.h5.pred/<name>.h5``): ``base``, ``ft`` (relative depth 1 /
+max(D, eps), METHOD.md), ``align``, ``ft-align`` (aligned to the agents' plane with unit camera
+height: relative), and ``align-metric``, ``ft-align-metric`` (metres: the aligned maps are in units
+of the camera height, so they are multiplied by H_c; ``scale.metric_scale=anchor`` uses the anchor
+pixel's scale of METHOD.md section 5 instead; the summary reports both). The stages' own files
+(inverse depth, instance maps, labels, checkpoint, plane) are kept in ``<SEQ>.h5.adapt/`` so that a
+rerun with other late settings redoes only the stages after them.
 A JSON summary holds the plane, the scale, the fine-tuning history and the stage timings.
 """
 from __future__ import annotations
@@ -255,6 +255,7 @@ def run(args) -> int:
                     save_model=extras.get("save_model"))
     unc = summary["plane"].get("uncertainty") or {}
     sd, sp, sr = (unc.get(k) for k in ("camera_height_std_m", "pitch_std_deg", "roll_std_deg"))
+
     def pm(x):
         return "" if x is None else f" +- {x:.2f}"
 

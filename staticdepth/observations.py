@@ -59,7 +59,8 @@ def _tracked(frames, indices, model: str, min_height_px: float | None) -> np.nda
 def _detect(detector: str, images, model: str | None):
     """The detector's ``(instance map, rows)`` per frame of ``images`` (a lazy ``Sequence``:
     :class:`staticdepth.detectors.frames.SequenceFrames`,
-    :class:`staticdepth.dataset.video.VideoFrames`), yielded one frame at a time, with a progress bar."""
+    :class:`staticdepth.dataset.video.VideoFrames`), yielded one frame at a time, with a
+    progress bar."""
     from staticdepth.detectors import make_detector
     from staticdepth.progress import progress
 

@@ -14,9 +14,9 @@ import os
 import numpy as np
 
 from staticdepth.adaptation.common import Workspace
-from staticdepth.detectors.frames import SequenceFrames
 from staticdepth.adaptation.config import AdaptConfig
 from staticdepth.dataset.schema import AGENT_DTYPE
+from staticdepth.detectors.frames import SequenceFrames
 from staticdepth.errors import InputError
 from staticdepth.progress import progress
 

@@ -94,9 +94,7 @@ def probe_model(conf: AdaptConfig, ws: Workspace, model, base_hash: str) -> bool
     in seconds, not after the agents' pass over the sequence. Not run (False) when the base
     prediction of these settings (``base_hash``, which holds the model's identity) is complete:
     this model has already made every map of the sequence."""
-    from staticdepth.dataset.predictions import is_complete, prediction_path
-
-    if is_complete(prediction_path(ws.seq, "base"), ws.identity, base_hash):
+    if ws.pred_done("base", base_hash):
         return False
     i = int(ws.adapt_split[0])
     with ws.reader() as r:
