@@ -25,40 +25,13 @@ import os
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
-import cv2
 import numpy as np
 
 from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
 from staticdepth.errors import InputError
+# the toolkit's one image reader; the importers import it from here too
+from staticdepth.fileio import read_image, read_rgb  # noqa: F401
 from staticdepth.progress import progress
-
-
-# -- image reading ------------------------------------------------------------------------------
-def read_image(path: str | os.PathLike, *, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
-    """Read an image file; a missing, empty or undecodable file is an :class:`InputError`."""
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise InputError("file not found", path)
-    try:
-        data = np.fromfile(path, dtype=np.uint8)
-    except OSError as e:
-        raise InputError(f"cannot read: {e}", path) from None
-    img = cv2.imdecode(data, flags) if data.size else None
-    if img is None:
-        raise InputError("corrupt or unreadable image", path)
-    return img
-
-
-def read_rgb(path: str | os.PathLike) -> np.ndarray:
-    """An 8-bit colour image as RGB (H, W, 3) uint8 (grey images are repeated to 3 channels)."""
-    img = read_image(path, flags=cv2.IMREAD_UNCHANGED)
-    if img.dtype != np.uint8:
-        raise InputError(f"expected an 8-bit image, got {img.dtype}", path)
-    if img.ndim == 2:
-        return np.repeat(img[..., None], 3, axis=2)
-    if img.shape[2] == 4:
-        img = img[..., :3]
-    return np.ascontiguousarray(img[..., ::-1])
 
 
 def read_left_right(left_path: str | os.PathLike, right_path: str | os.PathLike | None,

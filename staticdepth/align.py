@@ -46,13 +46,9 @@ def load_mask(path: str | os.PathLike, what: str = "ground", allow_empty: bool =
     if path.endswith(".npy"):
         m = _load_npy(path)
     else:
-        if not os.path.exists(path):
-            raise InputError("file not found", path)
-        import cv2
+        from staticdepth.fileio import read_image
 
-        m = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-        if m is None:
-            raise InputError("cannot read the mask image", path)
+        m = read_image(path)
     if m.ndim == 3:
         m = m.max(axis=2)
     if m.ndim != 2:

@@ -62,7 +62,7 @@ def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str 
     with SequenceReader(seq_path) as r:
         K, W, H = r.camera.K, r.width, r.height
         if ground_mask_png:
-            from staticdepth.dataset.pack import read_image
+            from staticdepth.fileio import read_image
 
             G = read_image(ground_mask_png, flags=0) > 0
             if G.shape != (H, W):

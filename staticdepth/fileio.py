@@ -1,4 +1,4 @@
-"""The one atomic writer and the one output lock.
+"""The one atomic writer, the one image reader and the one output lock.
 
 Every command that writes a file goes through here:
 
@@ -13,6 +13,10 @@ Every command that writes a file goes through here:
   whole time a process writes ``out`` (or adds to it); a second writer gets one clear error line.
   The kernel drops the lock when the process dies (also on SIGKILL), so a crash never leaves a
   stale lock behind; the lock file itself is left in place (removing it would race).
+- :func:`read_image` decodes an image file (missing, empty or undecodable: one
+  :class:`InputError` naming it) and :func:`read_rgb` gives an 8-bit colour image as RGB; every
+  command reads images through these two (the dataset importers, ``stereo``, ``calibrate``,
+  ``capture``'s replay, masks).
 - :func:`os_error` turns an ``OSError`` into an :class:`InputError` naming the path and the
   problem (disk full, read-only, permission denied, is a folder, ...).
 """
@@ -122,6 +126,48 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             f.write(data)
+
+
+def read_image(path: str | os.PathLike, *, flags: int | None = None):
+    """The one image decoder: the file's pixels as OpenCV decodes them with ``flags``
+    (``cv2.IMREAD_UNCHANGED`` when None: grey stays grey, 16-bit stays 16-bit, BGR order). A
+    missing, unreadable, empty or undecodable file is an :class:`InputError` naming it."""
+    import cv2
+    import numpy as np
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError("file not found", path)
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as e:
+        raise os_error(e, path) from None
+    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED if flags is None else flags) \
+        if data.size else None
+    if img is None:
+        raise InputError("corrupt or unreadable image", path)
+    return img
+
+
+def read_rgb(path: str | os.PathLike):
+    """An 8-bit image as RGB (H, W, 3) uint8: grey is repeated to 3 channels, alpha is dropped.
+
+    Anything but 8 bits per channel is refused, not scaled: OpenCV's own conversion divides a
+    16-bit image by 256, which leaves 12-bit sensor data (0-4095) at 0-15, too dark to match or
+    to detect a chessboard in, without a word."""
+    import numpy as np
+
+    img = read_image(path)
+    if img.dtype != np.uint8:
+        raise InputError(f"expected an 8-bit image, got {img.dtype} (convert it to 8 bits per "
+                         "channel first)", path)
+    if img.ndim == 2:
+        return np.repeat(img[..., None], 3, axis=2)
+    if img.shape[2] == 4:
+        img = img[..., :3]
+    elif img.shape[2] == 1:
+        return np.repeat(img, 3, axis=2)
+    return np.ascontiguousarray(img[..., ::-1])
 
 
 def write_image(path: str | os.PathLike, image, *, fsync: bool = True) -> None:

@@ -13,21 +13,10 @@ import cv2
 import numpy as np
 
 from staticdepth.errors import InputError
+from staticdepth.fileio import read_image, read_rgb  # noqa: F401  (the toolkit's one reader)
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 VIDEO_EXTS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v")
-
-
-def read_rgb(path: str | os.PathLike) -> np.ndarray:
-    """An 8-bit image file as RGB (H, W, 3) uint8; grey images are repeated to 3 channels."""
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise InputError("file not found", path)
-    data = np.fromfile(path, dtype=np.uint8)
-    img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
-    if img is None:
-        raise InputError("corrupt or unreadable image", path)
-    return np.ascontiguousarray(img[..., ::-1])
 
 
 def check_image_headers(files: list[str], size: tuple[int, int] | None = None) -> None:
@@ -145,8 +134,8 @@ def read_disparity(path: str | os.PathLike) -> np.ndarray:
     if ext == ".pfm":
         d = read_pfm(path)
     elif ext == ".png":
-        q = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-        if q is None or q.dtype != np.uint16:
+        q = read_image(path)
+        if q.dtype != np.uint16 or q.ndim != 2:
             raise InputError("expected a 16-bit disparity PNG", path)
         d = q.astype(np.float32) / 256.0
         d[q == 0] = np.nan

@@ -219,7 +219,7 @@ CASES = [
     ("nonsense-capture-corrupt-frame", lambda d: ["capture", "--source", "replay", "--input",
                                                   d["pairs"], "--out",
                                                   os.path.join(d["root"], "rec")],
-     "001.png: not a decodable image"),
+     "001.png: corrupt or unreadable image"),
 ]
 
 

@@ -199,7 +199,7 @@ def test_replay_errors(tmp_path):
             FolderSource(tmp_path / "l", tmp_path / "r") as fs:
         list(fs.frames())
     (tmp_path / "r" / "a.png").write_bytes(b"not a png")
-    with pytest.raises(SourceError, match="not a decodable image"), \
+    with pytest.raises(SourceError, match="corrupt or unreadable image"), \
             FolderSource(tmp_path / "l", tmp_path / "r") as fs:
         list(fs.frames())
     with pytest.raises(SourceError, match="neither a recording"):

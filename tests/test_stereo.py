@@ -316,6 +316,45 @@ def test_cli_bad_files_are_refused_before_any_work(tmp_path, three_pairs, capsys
     assert "(2 resumed)" in capsys.readouterr().out
 
 
+def test_cli_refuses_a_16_bit_pair_instead_of_darkening_it(tmp_path, three_pairs, capsys):
+    # stereo reads through the toolkit's one image reader: a 16-bit frame (here 12-bit sensor data)
+    # is refused with its name, where OpenCV's colour decode divided it by 256 into 0-15
+    bad = tmp_path / "R" / "0002.png"
+    grey = cv2.cvtColor(cv2.imread(str(bad)), cv2.COLOR_BGR2GRAY).astype(np.uint16) * 16
+    cv2.imwrite(str(bad), grey)
+    assert main(_sequence_args(tmp_path)) == 2
+    err = capsys.readouterr().err
+    assert "0002.png: expected an 8-bit image, got uint16" in err and err.count("\n") == 1
+    with h5py.File(tmp_path / "seq.h5.partial", "r") as f:     # the frames before it are kept
+        assert f["left"].shape[0] == 2
+
+
+def test_one_image_reader_for_every_command(tmp_path):
+    from staticdepth import fileio
+    from staticdepth.capture.sources import replay
+    from staticdepth.dataset import pack
+    from staticdepth.stereo import io as stereo_io
+
+    assert stereo_io.read_rgb is pack.read_rgb is fileio.read_rgb
+    rgb = np.random.default_rng(0).integers(0, 256, (6, 5, 3), dtype=np.uint8)
+    cv2.imwrite(str(tmp_path / "c.png"), rgb[..., ::-1])
+    cv2.imwrite(str(tmp_path / "a.png"), np.dstack([rgb[..., ::-1], np.full((6, 5), 7, np.uint8)]))
+    cv2.imwrite(str(tmp_path / "g.png"), rgb[..., 0])
+    cv2.imwrite(str(tmp_path / "w.png"), rgb[..., 0].astype(np.uint16) * 256)
+    np.testing.assert_array_equal(fileio.read_rgb(tmp_path / "c.png"), rgb)
+    np.testing.assert_array_equal(fileio.read_rgb(tmp_path / "a.png"), rgb)       # alpha dropped
+    np.testing.assert_array_equal(fileio.read_rgb(tmp_path / "g.png"),
+                                  np.repeat(rgb[..., :1], 3, axis=2))
+    with pytest.raises(InputError, match="w.png: expected an 8-bit image, got uint16"):
+        fileio.read_rgb(tmp_path / "w.png")
+    # capture's replay keeps 16-bit as recorded, through the same decoder
+    assert replay.read_image(tmp_path / "w.png").dtype == np.uint16
+    (tmp_path / "x.png").write_bytes(b"")
+    for f in ("x.png", "missing.png"):
+        with pytest.raises(InputError, match=f"{f}: (corrupt or unreadable image|file not found)"):
+            fileio.read_rgb(tmp_path / f)
+
+
 def test_cli_unrectified_sequence_and_size_mismatch(tmp_path, three_pairs, capsys):
     for f in (tmp_path / "R").iterdir():              # right view moved down by 12 rows
         cv2.imwrite(str(f), np.roll(cv2.imread(str(f)), 12, axis=0))

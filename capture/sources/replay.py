@@ -18,23 +18,22 @@ from typing import Any, Iterator
 import cv2
 import numpy as np
 
+from staticdepth import fileio
 from staticdepth.capture import layout
 from staticdepth.capture.sources.base import SourceError, StereoFrame, StereoSource
+from staticdepth.errors import InputError
 from staticdepth.geometry.camera import StereoRig
 
 IMAGE_EXTENSIONS = (".png", ".pgm", ".ppm", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg")
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
-    """Decode an image unchanged (grey stays grey, 16-bit stays 16-bit); errors name the file."""
+    """Decode an image unchanged (grey stays grey, 16-bit stays 16-bit) through the toolkit's one
+    reader; a file that cannot be decoded is a :class:`SourceError` naming it."""
     try:
-        data = np.fromfile(os.fspath(path), dtype=np.uint8)
-    except OSError as e:
-        raise SourceError(f"cannot read image: {e.strerror or e}", path) from None
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    if img is None:
-        raise SourceError("not a decodable image", path)
-    return img
+        return fileio.read_image(path)
+    except InputError as e:
+        raise SourceError(e.problem, e.path) from None
 
 
 class RecordingSource(StereoSource):
