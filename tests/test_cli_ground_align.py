@@ -442,3 +442,20 @@ def test_ground_plane_fits_the_intrinsics_to_the_observations_size(fitted, tmp_p
     assert rc == 2 and len(err.splitlines()) == 1
     assert str(tmp_path / "squat.json") in err and str(sized) in err
     assert "not a uniform resize" in err and not (tmp_path / "q.json").exists()
+
+
+def test_ground_plane_shows_the_bootstraps_progress(fitted, monkeypatch, capsys):
+    # the resamples are most of a fit's time: on a terminal they get a bar (off when not one)
+    from staticdepth import progress
+
+    d, n, _ = fitted
+    args = ["ground-plane", "--observations", str(d / "obs.csv"), "--intrinsics",
+            str(d / "cam.json"), "--agent-height", "1.7", "--bootstrap", "3", "--accept-uncertain"]
+    assert main(args + ["--out", str(d / "quiet.json")]) == 0
+    assert "ground plane (bootstrap)" not in capsys.readouterr().err
+    monkeypatch.setattr(progress, "progress_enabled", lambda: True)
+    assert main(args + ["--out", str(d / "bar.json")]) == 0
+    err = capsys.readouterr().err
+    assert "ground plane (bootstrap)" in err and "/3 [" in err
+    quiet, bar = (json.loads((d / f).read_text()) for f in ("quiet.json", "bar.json"))
+    assert bar["normal"] == quiet["normal"] and bar["uncertainty"] == quiet["uncertainty"]

@@ -23,6 +23,7 @@ from staticdepth.errors import InputError
 from staticdepth.fileio import atomic_write_json
 from staticdepth.geometry.agent_plane import AgentPlane, fit_agent_plane
 from staticdepth.geometry.agent_plane_gate import plane_gate
+from staticdepth.ground_plane import bootstrap_bar
 
 FILE = "ground_plane.json"
 
@@ -77,7 +78,8 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str
         raise InputError(f"only {len(obs)} usable agent observations in the adaptation split: "
                          "the ground plane needs tracked agents (check the detector)")
     known = known_camera_height(conf, ws.camera_height_m)
-    plane = fit_agent_plane(ws.K, obs, plane_config(conf, None if known is None else known[0]))
+    pconf = plane_config(conf, None if known is None else known[0])
+    plane = fit_agent_plane(ws.K, obs, pconf, bootstrap_bar(pconf.bootstrap))
     if "left_out" in plane.extra:
         lo = plane.extra["left_out"]
         ws.log(f"ground plane: {lo['group']} left out (leaving them out moved the normal by "

@@ -316,7 +316,7 @@ def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact",
 
 
 def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
-                    conf: AgentPlaneConfig = AgentPlaneConfig()) -> AgentPlane:
+                    conf: AgentPlaneConfig = AgentPlaneConfig(), steps=None) -> AgentPlane:
     """Fit the ground plane to agents' observations (see module doc).
 
     K: (3, 3) intrinsics; observations: structured (N,) with ``track``, ``foot_u``, ``foot_v``
@@ -328,6 +328,8 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
     (near-)nadir camera: the people's head-foot axes' vanishing point (where top columns are
     known) or, for ``joint`` and ``exact``, the fitted normal above ``conf.max_pitch_deg`` or a
     fit that puts over 5% of the inlier feet above its horizon.
+    ``steps`` (optional) wraps the ``joint`` model's bootstrap resamples, e.g. in a progress bar
+    (``staticdepth.progress.progress``); the math itself prints nothing.
     """
     K = np.asarray(K, dtype=np.float64)
     observations = np.asarray(observations)
@@ -347,10 +349,10 @@ def fit_agent_plane(K: np.ndarray, observations: np.ndarray,
         s = np.full(len(obs.ids), 1.0 / d_over_h)
         res = K[1, 1] * (obs.rays @ n) / d_over_h - obs.h
     elif conf.model == "joint":
-        n, s, inl, res, extents, boot = fit_joint(K, obs, conf, rng)
+        n, s, inl, res, extents, boot = fit_joint(K, obs, conf, rng, steps)
         left_out = _disagreeing_group(boot, conf)
         if left_out is not None:
-            return _without_group(K, observations, obs, conf, left_out, boot)
+            return _without_group(K, observations, obs, conf, left_out, boot, steps)
         check_fitted_plane(n, conf, obs, inl)
         d_over_h = 1.0 / float(np.median(s[inl]))
         rms = float(np.sqrt(np.mean(res[inl[obs.idx]] ** 2)))
@@ -392,14 +394,14 @@ def _disagreeing_group(boot: dict, conf: AgentPlaneConfig) -> tuple[int, ...] | 
 
 
 def _without_group(K, observations, obs, conf: AgentPlaneConfig, gs: tuple[int, ...],
-                   boot: dict):
+                   boot: dict, steps=None):
     """The joint fit again without class groups ``gs`` (recorded in ``extra["left_out"]``)."""
     from staticdepth.geometry.agent_shape import GROUPS
 
     out = [c for g in gs for c in GROUPS[g].classes]
     keep = tuple(int(c) for c in np.unique(obs.cls) if c not in out)
     plane = fit_agent_plane(K, observations, replace(conf, classes=keep,
-                                                     max_class_misfit_deg=None))
+                                                     max_class_misfit_deg=None), steps)
     plane.extra["left_out"] = {"group": ", ".join(GROUPS[g].name for g in gs),
                                "misfit_deg": boot["class_misfit_deg"],
                                "bootstrap_std_deg": boot.get("bootstrap_std_deg")}

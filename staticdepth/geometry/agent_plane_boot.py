@@ -182,7 +182,8 @@ def boxed_share(prob: _Problem, inl: np.ndarray) -> float:
     return float(np.mean(people[inl] & ~topped[inl])) if np.any(inl) else 0.0
 
 
-def joint_uncertainty(K, prob: _Problem, conf, n, theta, inl, rng, s, thr: float) -> dict:
+def joint_uncertainty(K, prob: _Problem, conf, n, theta, inl, rng, s, thr: float,
+                      steps=None) -> dict:
     """The Laplace uncertainty (:func:`staticdepth.geometry.agent_plane_laplace.
     laplace_uncertainty`, at the solution's track scales ``s`` and inlier threshold ``thr``) and,
     with ``conf.bootstrap`` > 0: ``normal_std_deg`` (the bootstrap's, the Laplace's and the class
@@ -190,7 +191,8 @@ def joint_uncertainty(K, prob: _Problem, conf, n, theta, inl, rng, s, thr: float
     (:func:`axis_std`), ``bootstrap_std_deg``,
     ``class_misfit_deg``, ``d_over_h_std`` (bootstrap std of d/H of a typical agent) and
     ``n_tracks``; empty with fewer than 3 inlier
-    tracks."""
+    tracks. ``steps`` wraps the resamples' range (a progress bar: the CLI's and adapt's), most of
+    a fit's time."""
     tracks = np.flatnonzero(inl)
     if len(tracks) < 3:
         return {}
@@ -199,7 +201,7 @@ def joint_uncertainty(K, prob: _Problem, conf, n, theta, inl, rng, s, thr: float
     if conf.bootstrap <= 0:
         return out
     angles, dh, normals = [], [], []
-    for _ in range(conf.bootstrap):
+    for _ in (steps or iter)(range(conf.bootstrap)):
         m, s_med = replicate_normal(K, prob, conf, n, theta, rng.choice(tracks, len(tracks)),
                                     thr, "reselect")
         angles.append(angle_between_deg(m, n))

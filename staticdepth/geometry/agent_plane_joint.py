@@ -99,9 +99,10 @@ def _main_fit(sub: _Problem, conf, starts) -> tuple:
     return best
 
 
-def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
+def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng, steps=None):
     """Fit the joint model. Returns (n, s (J,), inliers (J,), row residuals (N,), extents
-    {group name: list}, bootstrap {normal_std_deg, d_over_h_std, ...})."""
+    {group name: list}, bootstrap {normal_std_deg, d_over_h_std, ...}); ``steps`` wraps the
+    bootstrap's resamples (a progress bar)."""
     auto_noise = conf.relative_noise is None
     prob = _Problem(K, obs, 0.0 if auto_noise else conf.relative_noise)
     J = prob.J
@@ -153,7 +154,7 @@ def fit_joint(K: np.ndarray, obs: AgentObservations, conf, rng):
     from staticdepth.geometry.agent_plane_boot import joint_uncertainty
 
     # the Laplace part at the fit's own heights (its optimum), not the metric ones
-    boot = joint_uncertainty(K, prob, conf, n, theta_all, inl, rng, s_fit, thr)
+    boot = joint_uncertainty(K, prob, conf, n, theta_all, inl, rng, s_fit, thr, steps)
     boot["column_weight"] = conf.fit_column_weight
     boot["inlier_px"] = thr
     k2, k1 = (prob.kappa, prob.kappa) if np.isscalar(prob.kappa) else prob.kappa
