@@ -220,6 +220,52 @@ def refuse_existing(*paths, overwrite: bool) -> None:
             raise InputError("exists already; pass --overwrite to replace it", os.fspath(path))
 
 
+# options that name a file or folder a command writes (every other path argument is read)
+OUTPUT_DESTS = ("out", "json", "camera_out", "disparity_out", "summary_json", "bev", "annotate",
+                "ply", "save_model", "sheet", "pairs")
+# read and written on purpose: ``mount --rig rig.json --out rig.json`` adds the mount to the rig
+IN_PLACE = {("mount", "out", "rig")}
+NEITHER = ("checkpoint", "func", "command", "set", "var")   # resumed from and written; not paths
+
+
+def _flag(dest: str) -> str:
+    return "--" + dest.replace("_", "-")
+
+
+def _path_values(value) -> list[str]:
+    vals = value if isinstance(value, (list, tuple)) else [value]
+    return [os.fspath(v) for v in vals if isinstance(v, (str, os.PathLike)) and v]
+
+
+def _same(a: str, b: str) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def refuse_output_over_input(args: argparse.Namespace) -> None:
+    """Refuse, before any work, an output that is also one of the command's inputs or another
+    output (``evaluate seq.h5 --json seq.h5 --overwrite`` replaced the sequence with JSON): one
+    line naming the file and both options. Existing files are compared with ``samefile`` (links,
+    relative paths), names not yet written by their real path."""
+    outs = [(d, p) for d in OUTPUT_DESTS for p in _path_values(getattr(args, d, None))]
+    ins = [(d, p) for d, v in vars(args).items()
+           if d not in OUTPUT_DESTS and d not in NEITHER for p in _path_values(v)
+           if os.path.exists(p)]
+    for k, (dest, out) in enumerate(outs):
+        for other, p in outs[k + 1:]:
+            if _same(out, p):
+                raise InputError(f"{_flag(dest)} and {_flag(other)} name the same file", out)
+        if not os.path.exists(out):
+            continue
+        for src, p in ins:
+            if _same(out, p) and (args.command, dest, src) not in IN_PLACE:
+                raise InputError(f"{_flag(dest)} names this command's input "
+                                 f"({src.replace('_', '-')}): writing it would destroy the input; "
+                                 "choose another output", out)
+
+
 def _add_trust_model_arguments(parser: argparse.ArgumentParser) -> None:
     commands = dict(_subcommands(parser))
     for name in TRUST_MODEL_COMMANDS:
@@ -284,6 +330,7 @@ def main(argv: Sequence[str] | None = None, *, recipe: str | None = None) -> int
         if trust and recipe is not None:
             raise InputError("a recipe cannot pass --trust-model (pickled model files run code): "
                              "give --trust-model to 'staticdepth run' yourself", recipe)
+        refuse_output_over_input(args)
         with trusted_models(trust):
             return int(args.func(args) or 0)
     except InputError as e:

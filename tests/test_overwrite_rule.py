@@ -162,3 +162,52 @@ def test_existing_output_is_refused_then_replaced_with_overwrite(case, tmp_path,
     assert main([*argv, "--overwrite"]) == 0
     assert out.read_bytes() != OLD and is_new(out)       # replaced by this run's output
     assert not list(tmp_path.rglob("*.tmp-*"))           # the atomic writer left nothing behind
+
+
+def _input_cases(d: Path) -> dict:
+    argv, _, _ = _align(d, "npy")
+    pred = d / "pred.npy"
+    np.save(d / "gt.npy", np.load(pred) + 1.0)
+    (d / "link.npy").symlink_to(pred)
+    swap = lambda opt, path: [path if a == argv[argv.index(opt) + 1] and i == argv.index(opt) + 1
+                              else a for i, a in enumerate(argv)]
+    return {
+        "align --out over --pred": (swap("--out", str(pred)), pred, "--out names this command's "
+                                    "input (pred)"),
+        "align --json over --plane": (swap("--json", str(d / "plane.json")), d / "plane.json",
+                                      "--json names this command's input (plane)"),
+        "metrics --json over --pred, through a link": (
+            ["metrics", "--pred", str(d / "link.npy"), "--gt", str(d / "gt.npy"), "--json",
+             str(pred)], pred, "--json names this command's input (pred)"),
+        "align --out and --json one file": (swap("--json", str(d / "out.npy")), d / "out.npy",
+                                            "--out and --json name the same file"),
+    }
+
+
+@pytest.mark.parametrize("case", ["align --out over --pred", "align --json over --plane",
+                                  "metrics --json over --pred, through a link",
+                                  "align --out and --json one file"])
+def test_an_output_that_is_an_input_is_refused_even_with_overwrite(case, tmp_path, capsys):
+    # `evaluate seq.h5 --json seq.h5 --overwrite` replaced a sequence with JSON: an output that
+    # names one of the command's inputs (or another output) is refused before any work
+    argv, victim, msg = _input_cases(tmp_path)[case]
+    if not victim.exists():
+        victim.write_bytes(OLD)
+    before = victim.read_bytes()
+    capsys.readouterr()
+    assert main([*argv, "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and msg in err and str(victim) in err, err
+    assert victim.read_bytes() == before
+
+
+def test_evaluate_refuses_to_write_its_json_over_the_sequence(tmp_path, capsys):
+    seq = tmp_path / "s.h5"
+    assert main(["synth", "--preset", "c1", "--frames", "3", "--adapt-frames", "1", "--set",
+                 "width=96", "--set", "height=48", "--out", str(seq)]) == 0
+    before = seq.read_bytes()
+    for cmd in (["evaluate", str(seq)], ["inspect", str(seq)]):
+        capsys.readouterr()
+        assert main([*cmd, "--json", str(seq), "--overwrite"]) == 2
+        assert "names this command's input" in capsys.readouterr().err
+    assert seq.read_bytes() == before
