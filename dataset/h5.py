@@ -142,12 +142,18 @@ class SequenceReader:
             raise InputError(f"not a readable HDF5 file ({e})", self.path) from None
         try:
             self._check()
-        except Exception:
+        except InputError:
             self._f.close()
             raise
+        except (KeyError, RuntimeError, OSError, ValueError, TypeError, OverflowError) as e:
+            # h5py's errors on a damaged header or attribute ("exponent range out of bounds",
+            # "integer offset out of bounds"): the file, not a bug
+            self._f.close()
+            raise InputError(f"corrupt sequence file ({type(e).__name__}: {e})",
+                             self.path) from None
 
     def _check(self) -> None:
-        from staticdepth.dataset.integrity import link_problems
+        from staticdepth.dataset.integrity import link_problems, size_problem
 
         f, p = self._f, self.path
         if f.attrs.get("format") != schema.FORMAT:
@@ -178,6 +184,8 @@ class SequenceReader:
                 raise InputError(f"dataset {name!r} has dtype {f[name].dtype}", p)
         if "timestamps" not in f or f["timestamps"].shape != (n,):
             raise InputError("missing or wrong-length 'timestamps'", p)
+        if "agents" in f and size_problem(f["agents"]):
+            raise InputError(size_problem(f["agents"]), p)
         if self.meta.adapt_frames > n:
             raise InputError(f"adapt_frames {self.meta.adapt_frames} > {n} frames", p)
         if (self.meta.camera.width, self.meta.camera.height) != (w, h):

@@ -4,7 +4,9 @@ Checksum convention (every writer follows it):
 
 - a per-frame dataset ``D`` (frames along axis 0: ``left``, ``depth``, ``aux/ground``,
   ``pred/<name>/depth``, a prediction file's ``depth``) has ``crc32/D``: one CRC-32 per frame;
-- any other dataset (``timestamps``, ``agents``) has an attribute ``crc32`` over all its bytes.
+- any other dataset (``timestamps``, ``agents``) has an attribute ``crc32`` over all its bytes;
+- the file's own attributes (camera, rig, split, provenance, ...) have ``attrs_crc32``, the
+  CRC-32 of every other root attribute (:func:`attrs_checksum`), set when the writer finishes.
 
 :func:`checksum_problems` recomputes them all and names every dataset without one ("not covered
 by a checksum": a file of an older version), so nothing passes unchecked.
@@ -75,9 +77,57 @@ def _datasets(f: h5py.File) -> list[str]:
     return sorted(n for n in names if not n.startswith(BOOKKEEPING))
 
 
+#: The root attribute holding :func:`attrs_checksum`.
+ATTRS_CRC = "attrs_crc32"
+#: A dataset read whole may claim at most this many times its stored bytes (gzip's ceiling is
+#: about 1030:1): a header corrupted into a billion rows is refused before it is allocated.
+MAX_EXPANSION = 2000
+
+
+def attrs_checksum(attrs) -> int:
+    """CRC-32 over the root attributes but :data:`ATTRS_CRC`, in key order, as h5py reads them
+    back (strings as UTF-8, numbers and arrays as their dtype, shape and bytes)."""
+    crc = 0
+    for k in sorted(attrs):
+        if k == ATTRS_CRC:
+            continue
+        v = attrs[k]
+        if isinstance(v, bytes):
+            data = b"b" + v
+        elif isinstance(v, str):
+            data = b"s" + v.encode("utf-8", "surrogatepass")
+        else:
+            a = np.asarray(v)
+            data = (repr(a.tolist()).encode() if a.dtype.kind == "O"
+                    else f"{a.dtype.str}{a.shape}".encode() + a.tobytes())
+        crc = zlib.crc32(k.encode() + b"\0" + data + b"\0", crc)
+    return crc & 0xFFFFFFFF
+
+
+def attrs_problem(f: h5py.File) -> str | None:
+    """The line for root attributes that differ from their checksum, or that have none."""
+    if ATTRS_CRC not in f.attrs:
+        return ("file attributes: not covered by a checksum (written by an older version; not "
+                "verified)")
+    if int(f.attrs[ATTRS_CRC]) != attrs_checksum(f.attrs):
+        return "file attributes: checksum mismatch (the camera, split or other metadata changed)"
+    return None
+
+
+def size_problem(ds: h5py.Dataset) -> str | None:
+    """A dataset whose shape claims far more bytes than the file stores for it (a corrupted
+    header), before anything reads it whole."""
+    stored = ds.id.get_storage_size()
+    if ds.nbytes > max(1 << 20, MAX_EXPANSION * stored):
+        return (f"{ds.name.lstrip('/')}: shape {ds.shape} claims {ds.nbytes} bytes but the file "
+                f"stores {stored} (corrupt header)")
+    return None
+
+
 def checksum_problems(f: h5py.File, limit: int = 100) -> list[str]:
-    """Recompute every dataset's stored checksums; a line per mismatch or uncovered dataset."""
-    bad: list[str] = []
+    """Recompute the root attributes' and every dataset's stored checksums; a line per mismatch
+    or uncovered part."""
+    bad: list[str] = [p for p in (attrs_problem(f),) if p]
     for name in _datasets(f):
         ds = f[name]
         crc_key = f"crc32/{name}"
@@ -96,12 +146,14 @@ def checksum_problems(f: h5py.File, limit: int = 100) -> list[str]:
                     if checksum(a) != int(stored[i]):
                         bad.append(f"{name}[{i}]: checksum mismatch")
             elif "crc32" in ds.attrs:
-                if checksum(ds[()]) != int(ds.attrs["crc32"]):
+                if size_problem(ds):
+                    bad.append(size_problem(ds))
+                elif checksum(ds[()]) != int(ds.attrs["crc32"]):
                     bad.append(f"{name}: checksum mismatch")
             else:
                 bad.append(f"{name}: not covered by a checksum (written by an older version; "
                            "not verified)")
-        except (OSError, ValueError) as e:
+        except (OSError, ValueError, KeyError, RuntimeError, TypeError) as e:
             bad.append(f"{name}: unreadable ({e})")
         if len(bad) >= limit:
             break

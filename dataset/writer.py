@@ -30,6 +30,7 @@ from staticdepth.dataset import resume as rs
 from staticdepth.dataset import schema
 from staticdepth.dataset.h5 import (PARTIAL_SUFFIX, SequenceMeta, _compression, _frame_checksum,
                                     _fsync_path)
+from staticdepth.dataset.integrity import ATTRS_CRC, attrs_checksum
 from staticdepth.errors import InputError
 
 
@@ -390,6 +391,7 @@ class SequenceWriter:
                 f[key].attrs["crc32"] = _frame_checksum(f[key][:])
             f.attrs["n_frames"] = self.n
             f.attrs["complete"] = True
+            f.attrs[ATTRS_CRC] = attrs_checksum(f.attrs)      # the metadata, for verify
             f.flush()
             self._commit()
             f.close()

@@ -324,6 +324,65 @@ def test_legacy_dataset_without_checksum_is_not_covered(tmp_path, capsys):
     assert "timestamps: not covered by a checksum" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("attr,value", [("camera", None), ("camera_height_m", 9.9),
+                                        ("name", "renamed")])
+def test_verify_detects_changed_metadata(tmp_path, capsys, attr, value):
+    # the camera, the split and the rest of the file's attributes have a checksum of their own
+    p = tmp_path / "s.h5"
+    assert main(synth_args(p, 3)) == 0
+    with h5py.File(p, "a") as f:
+        if value is None:                          # one digit of K, as a flipped byte would
+            cam = json.loads(f.attrs[attr])
+            cam["fx"] = cam["fx"] + 90.0
+            f.attrs[attr] = json.dumps(cam)
+        else:
+            f.attrs[attr] = value
+    capsys.readouterr()
+    assert main(["verify", str(p)]) == 2
+    assert "file attributes: checksum mismatch" in capsys.readouterr().out
+    with h5py.File(p, "a") as f:                     # a file of an older version
+        del f.attrs["attrs_crc32"]
+    assert main(["verify", str(p)]) == 2
+    assert "file attributes: not covered by a checksum" in capsys.readouterr().out
+
+
+def test_damaged_headers_give_one_line_never_a_traceback(tmp_path, capsys):
+    # single bytes flipped in the file's first 20 kB (its headers and attributes): h5py's
+    # KeyError / RuntimeError there were tracebacks (10 of 60 flips); now exit 2 and one line,
+    # or 0 where the byte was unused (the checksums then match)
+    p = tmp_path / "s.h5"
+    assert main(synth_args(p, 3)) == 0
+    data = p.read_bytes()
+    rng = np.random.default_rng(0)
+    bad = tmp_path / "f.h5"
+    codes = []
+    for off in rng.integers(0, min(20_000, len(data)), 40):
+        b = bytearray(data)
+        b[int(off)] ^= 0x5A
+        bad.write_bytes(bytes(b))
+        for cmd in (["verify", str(bad)], ["inspect", str(bad)]):
+            capsys.readouterr()
+            rc = main(cmd)
+            err = capsys.readouterr().err
+            assert rc in (0, 2) and err.count("\n") <= 1, (int(off), cmd[0], err)
+            codes.append(rc)
+    assert codes.count(2) >= 10                # most flips hit something verify notices
+
+
+def test_a_header_claiming_a_billion_agents_is_refused_unread(tmp_path, capsys):
+    # a corrupted shape made verify allocate 90 GiB for the agents table
+    p = tmp_path / "s.h5"
+    assert main(synth_args(p, 2)) == 0
+    with h5py.File(p, "a") as f:
+        f["agents"].resize((1_500_000_000,))
+    capsys.readouterr()
+    assert main(["verify", str(p)]) == 2
+    out = capsys.readouterr().out
+    assert "agents: shape (1500000000,) claims" in out and "corrupt header" in out
+    assert main(["inspect", str(p)]) == 2
+    assert "corrupt header" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("how", ["external_link", "external_storage", "virtual", "soft_link"])
 def test_data_from_another_file_is_refused(tmp_path, capsys, how):
     p, other = tmp_path / "s.h5", tmp_path / "other.h5"
