@@ -14,7 +14,8 @@ import numpy as np
 from staticdepth.dataset import schema
 from staticdepth.errors import InputError
 from staticdepth.metrics import (METRIC_KEYS, PROTOCOLS, apply_protocol, average,
-                                 check_prediction, depth_metrics, evaluate, valid_mask)
+                                 check_depth_range, check_prediction, depth_metrics, evaluate,
+                                 valid_mask)
 from staticdepth.progress import progress
 
 DISTANCE_BANDS_M = ((0.0, 10.0), (10.0, 20.0), (20.0, 40.0), (40.0, 80.0))
@@ -81,10 +82,16 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
                       regions: bool = True) -> dict[str, Any]:
     """Per prediction and protocol: averages over the split's frames, per region.
 
-    Returns ``{"sequence": ..., "split": ..., "frames": n, "results": {name: {protocol:
-    {region: averages}}}}``. ``protocols=None`` uses :func:`default_protocol` per prediction.
+    Returns ``{"sequence": ..., "split": ..., "frames": n, "frames_with_gt": m, "results":
+    {name: {protocol: {region: averages}}}, "missing": {name: {"pixels", "share"}}}``:
+    ``missing`` counts the pixels of valid ground truth where a prediction has no depth (NaN:
+    a stereo map's holes), which its metrics leave out. ``protocols=None`` uses
+    :func:`default_protocol` per prediction. Raises when no frame of the split has ground truth
+    within the depth range.
     """
     from staticdepth.dataset.h5 import SequenceReader
+
+    check_depth_range(min_depth, max_depth)
 
     with SequenceReader(path) as r:
         if not r.has("depth"):
@@ -110,6 +117,7 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
                    for n in names}
         conf_of = {n: attrs[n].get("confidence") for n in names
                    if attrs[n].get("confidence") in attrs}
+        used, n_valid, n_missing = 0, 0, dict.fromkeys(names, 0)
         for i in progress(frames, desc="evaluate", unit="frame"):
             gt = r.depth(i)
             inst = r.instances(i) if r.has("instances") else None
@@ -118,8 +126,10 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
             vm = valid_mask(gt, min_depth, max_depth)
             if not vm.any():
                 continue
+            used, n_valid = used + 1, n_valid + int(vm.sum())
             for name in names:
                 pred = r.prediction(name, i)
+                n_missing[name] += int((~np.isfinite(pred) & vm).sum())
                 bands = confidence_masks(r.prediction(conf_of[name], i)) if name in conf_of \
                     else {}
                 for prot in prot_of[name]:
@@ -133,14 +143,20 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
                         res["scale"] = s
                         per.setdefault((name, prot, reg), []).append(res)
         name_seq = r.meta.name
+        if used == 0:
+            raise InputError(f"no frame of split {split!r} ({len(frames)} frames) has ground truth "
+                             f"between {min_depth:g} and {max_depth:g} m: nothing to evaluate",
+                             r.path)
     results: dict[str, Any] = {}
     for (name, prot, reg), rows in per.items():
         avg = average(rows)
         avg["scale_median"] = float(np.median([x["scale"] for x in rows]))
         avg["pixels"] = int(sum(x["n"] for x in rows))
         results.setdefault(name, {}).setdefault(prot, {})[reg] = avg
+    missing = {n: {"pixels": k, "share": k / n_valid} for n, k in n_missing.items()}
     return {"sequence": name_seq, "path": os.fspath(path), "split": split,
-            "frames": len(frames), "results": results}
+            "frames": len(frames), "frames_with_gt": used, "results": results,
+            "missing": missing}
 
 
 # --------------------------------------------------------------------------------------------
@@ -176,6 +192,7 @@ def load_maps(path: str | os.PathLike) -> list[np.ndarray]:
 
 def metrics_on_maps(preds: list[np.ndarray], gts: list[np.ndarray], protocol: str,
                     max_depth: float, pred_src: str = "", gt_src: str = "") -> dict[str, Any]:
+    check_depth_range(1e-3, max_depth)
     if len(preds) != len(gts):
         raise InputError(f"{len(preds)} predictions ({pred_src}) but {len(gts)} ground-truth "
                          f"maps ({gt_src})")
@@ -274,7 +291,13 @@ def _evaluate_cmd(args: argparse.Namespace) -> int:
     refuse_existing(args.json, overwrite=args.overwrite)
     res = evaluate_sequence(args.sequence, args.pred, split=args.split,
                             protocols=args.protocol, max_depth=args.max_depth)
-    print(f"{res['sequence']}: split {res['split']} ({res['frames']} frames)")
+    used = res["frames_with_gt"]
+    print(f"{res['sequence']}: split {res['split']} ({res['frames']} frames"
+          + ("" if used == res["frames"] else f", {used} with ground truth") + ")")
+    for name, miss in res["missing"].items():
+        if miss["pixels"]:
+            print(f"warning: {name} has no depth (NaN) at {miss['pixels']} pixels "
+                  f"({100 * miss['share']:.1f}%) of valid ground truth; its metrics leave them out")
     print(header())
     for name, by_prot in res["results"].items():
         for prot, regs in by_prot.items():

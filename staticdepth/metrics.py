@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from typing import Iterable, Mapping
 
+import math
+
 import numpy as np
 
 from staticdepth.errors import InputError
@@ -29,6 +31,14 @@ def valid_mask(gt: np.ndarray, min_depth: float = 1e-3, max_depth: float = 80.0,
     if mask is not None:
         m &= np.asarray(mask, dtype=bool)
     return m
+
+
+def check_depth_range(min_depth: float, max_depth: float) -> None:
+    """Refuse a depth cap that leaves no depth to evaluate (0, negative, NaN, below the floor):
+    every pixel would leave the metrics and the error would blame the data."""
+    if not (math.isfinite(max_depth) and max_depth > min_depth):
+        raise InputError(f"--max-depth must be a finite depth above {min_depth:g} m "
+                         f"(got {max_depth:g})")
 
 
 def check_prediction(pred: np.ndarray, where=None, *, valid: np.ndarray | None = None

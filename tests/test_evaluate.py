@@ -93,3 +93,54 @@ def test_region_masks_ground_matches_plane(tmp_path):
     m = region_masks(ground, inst, ag, cam.K, (mnt.normal, mnt.height_m), 80)
     assert m["ground"].sum() == (np.isfinite(ground) & (inst == 0)).sum()
     assert m["agents"].sum() == 100
+
+
+def test_evaluate_counts_the_pixels_a_prediction_leaves_out(tmp_path, capsys):
+    # a map with holes (a stereo prediction) is evaluated where it has depth, and says how much
+    # of the valid ground truth it left out: the count was nowhere before
+    p, ground, _ = _sequence_with_ground(tmp_path)
+    holes = ground * 2.0
+    holes[25:, :] = np.nan
+    add_prediction(p, "holes", [holes] * 3)
+    add_prediction(p, "full", [ground * 2.0] * 3)
+    valid = np.isfinite(ground) & (ground > 1e-3) & (ground < 80)
+    want = int((valid & np.isnan(holes)).sum())
+    assert want > 0
+    res = evaluate_sequence(p)
+    assert res["missing"]["holes"]["pixels"] == 2 * want          # the 2 eval frames
+    assert res["missing"]["holes"]["share"] == pytest.approx(want / valid.sum())
+    assert res["missing"]["full"]["pixels"] == 0
+    assert res["results"]["holes"]["median"]["all"]["pixels"] == 2 * int(valid.sum()) - 2 * want
+    assert main(["evaluate", str(p)]) == 0
+    out = capsys.readouterr().out
+    assert f"warning: holes has no depth (NaN) at {2 * want} pixels" in out
+    assert "warning: full" not in out
+
+
+@pytest.mark.parametrize("cap", ["0", "-3", "nan"])
+def test_a_depth_cap_that_leaves_nothing_is_refused(tmp_path, capsys, cap):
+    p, ground, _ = _sequence_with_ground(tmp_path)
+    add_prediction(p, "rel", [ground] * 3)
+    np.save(tmp_path / "g.npy", ground)
+    for argv in (["evaluate", str(p)], ["metrics", "--pred", str(tmp_path / "g.npy"), "--gt",
+                                        str(tmp_path / "g.npy")]):
+        capsys.readouterr()
+        assert main([*argv, f"--max-depth={cap}"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--max-depth must be a finite depth above" in err
+
+
+def test_evaluate_without_ground_truth_in_the_split_is_an_error(tmp_path, capsys):
+    cam = Camera.from_fov(80, 40, 90)
+    p = tmp_path / "s.h5"
+    with SequenceWriter(p, SequenceMeta(name="k", camera=cam, gt_kind="lidar", adapt_frames=1),
+                        streams=("left", "depth")) as w:
+        for i in range(3):          # LiDAR on the adaptation frame only
+            d = np.full((40, 80), 10.0 if i == 0 else np.nan, np.float32)
+            w.append(left=np.zeros((40, 80, 3), np.uint8), depth=d)
+    add_prediction(p, "base", [np.full((40, 80), 5.0, np.float32)] * 3)
+    assert main(["evaluate", str(p)]) == 2
+    err = capsys.readouterr().err
+    assert "no frame of split 'eval' (2 frames) has ground truth between 0.001 and 80 m" in err
+    assert main(["evaluate", str(p), "--split", "adapt"]) == 0
+    assert "(1 frames)" in capsys.readouterr().out
