@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import glob
 import os
+import re
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -207,6 +208,10 @@ def drive_dir(root: str | os.PathLike, drive: str) -> str:
     The ``_sync`` suffix of the name is optional.
     """
     name = drive if drive.endswith("_sync") else drive + "_sync"
+    if not re.match(r"\d{4}_\d{2}_\d{2}_", name):
+        raise InputError(f"drive {drive!r} does not start with its recording date (KITTI raw "
+                         "drives are <root>/YYYY_MM_DD/YYYY_MM_DD_drive_NNNN_sync)",
+                         os.fspath(root))
     d = os.path.join(os.fspath(root), name[:10], name)
     if not os.path.isdir(d):
         raise InputError("drive folder not found", d)
@@ -224,8 +229,12 @@ def _depth_map_dir(depth_root: str, drive_folder: str) -> str:
 
 
 def drive_tasks(root: str | os.PathLike, drive: str, *, right: bool = False,
-                depth_maps: str | None = None) -> tuple[list[KittiTask], list[str], KittiCalib]:
-    """Tasks and labels (``<drive>/<frame>``) for every frame of one drive, in frame order."""
+                depth_maps: str | None = None, skip_bad: bool = False
+                ) -> tuple[list[KittiTask], list[str], KittiCalib]:
+    """Tasks and labels (``<drive>/<frame>``) for every frame of one drive, in frame order.
+
+    The image size is the first frame's; with ``skip_bad`` the first readable frame's.
+    """
     d = drive_dir(root, drive)
     calib = KittiCalib.load(os.path.dirname(d))
     left_dir = os.path.join(d, "image_02", "data")
@@ -249,7 +258,7 @@ def drive_tasks(root: str | os.PathLike, drive: str, *, right: bool = False,
     ts = dict(zip(all_stems, ts_all))
     dm = None if depth_maps is None else _depth_map_dir(depth_maps, d)
     # The image size comes from the first frame; every frame is checked against it when loaded.
-    first = read_rgb(os.path.join(d, "image_02", "data", stems[0] + ".png"))
+    first = _sample_images([os.path.join(left_dir, s + ".png") for s in stems], 1, skip_bad)[0]
     size = (first.shape[1], first.shape[0])
     P = calib.img2_from_velo
     tasks = [KittiTask(image=os.path.join(d, "image_02", "data", s + ".png"),
@@ -258,6 +267,26 @@ def drive_tasks(root: str | os.PathLike, drive: str, *, right: bool = False,
                        right=os.path.join(d, "image_03", "data", s + ".png") if right else None,
                        timestamp=float(ts[s]), img2_from_velo=P, size=size) for s in stems]
     return tasks, [f"{os.path.basename(d)}/{s}" for s in stems], calib
+
+
+def _sample_images(paths: Sequence[str], n: int, skip_bad: bool) -> list[np.ndarray]:
+    """Up to ``n`` images spread over ``paths`` (the first always among them). With ``skip_bad``
+    an unreadable one is replaced by another readable image (its frame is skipped when the frames
+    are written); without, its error stops the import."""
+    spread = np.unique(np.linspace(0, len(paths) - 1, min(n, len(paths))).astype(int)).tolist()
+    rest = sorted(set(range(len(paths))) - set(spread))
+    images = []
+    for i in spread + rest:
+        if len(images) == len(spread):
+            break
+        try:
+            images.append(read_rgb(paths[i]))
+        except InputError:
+            if not skip_bad:
+                raise
+    if not images:
+        raise InputError("no readable image among the drive's frames", os.path.dirname(paths[0]))
+    return images
 
 
 def load_frame(task: KittiTask) -> LoadedFrame:
@@ -309,10 +338,16 @@ def import_kitti(root: str | os.PathLike, drives: Sequence[str], out: str | os.P
 
     if not drives:
         raise InputError("--drives needs at least one drive")
+    names = [dv[:-len("_sync")] if dv.endswith("_sync") else dv for dv in drives]
+    twice = [dv for k, dv in enumerate(names) if dv in names[:k]]
+    if twice:
+        raise InputError(f"drive {twice[0]} is listed twice in --drives (its frames would be "
+                         "imported twice)", os.fspath(root))
     tasks, labels, checks, calib, per_drive = [], [], [], None, {}
     samples = {}
     for dv in drives:
-        t, lab, calib_d = drive_tasks(root, dv, right=right, depth_maps=depth_maps)
+        t, lab, calib_d = drive_tasks(root, dv, right=right, depth_maps=depth_maps,
+                                      skip_bad=skip_bad)
         if calib is not None and not np.allclose(calib_d.P_rect_02, calib.P_rect_02):
             raise InputError(f"drive {dv} has a different camera calibration from {drives[0]}",
                              calib_d.source)
@@ -320,8 +355,7 @@ def import_kitti(root: str | os.PathLike, drives: Sequence[str], out: str | os.P
         tasks += t
         labels += lab
         per_drive[dv] = len(t)
-        idx = np.unique(np.linspace(0, len(t) - 1, min(5, len(t))).astype(int))
-        samples[dv] = [read_rgb(t[i].image) for i in idx]
+        samples[dv] = _sample_images([task.image for task in t], 5, skip_bad)
     for a, b in zip(drives[:-1], drives[1:]):
         diff = pose_difference(samples[a], samples[b])
         moved = (not diff["same_size"] or diff["mean_abs_diff"] > max_diff

@@ -9,8 +9,8 @@ import pytest
 from staticdepth.cli import main
 from staticdepth.dataset.h5 import SequenceReader
 from staticdepth.dataset.kitti import (KittiCalib, depth_from_lidar, drive_tasks, import_kitti,
-                                       load_frame, read_calib_file, read_depth_png,
-                                       read_timestamps, read_velodyne)
+                                       load_frame, pose_difference, read_calib_file,
+                                       read_depth_png, read_timestamps, read_velodyne)
 from staticdepth.errors import InputError
 
 DATE = "2011_09_26"
@@ -248,3 +248,66 @@ def test_right_view_and_rig(kitti_root, tmp_path):
         assert r.streams() == ["left", "right", "depth"]
         assert r.meta.rig.baseline_m == pytest.approx(0.5327, abs=1e-4)
         assert r.meta.rig.is_rectified()
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_skip_bad_passes_over_unreadable_sample_images(kitti_root, tmp_path, capsys):
+    """The pose check's sample images (and the image that gives the size) were read outside the
+    skip-bad handling: a truncated PNG stopped ``--skip-bad`` before anything was written."""
+    drives = ("2011_09_26_drive_0001", "2011_09_26_drive_0002")
+    root = _copy_tree(kitti_root, tmp_path / "raw", drives=drives)
+    bad = [root / DATE / f"{drives[0]}_sync" / "image_02" / "data" / "0000000000.png",
+           root / DATE / f"{drives[1]}_sync" / "image_02" / "data" / "0000000001.png"]
+    for p in bad:
+        raw = p.read_bytes()
+        p.unlink()
+        p.write_bytes(raw[:5000])  # head -c 5000: a truncated PNG
+    out = tmp_path / "K.h5"
+    argv = ["import-kitti", "--root", str(root), "--drives", *drives, "--out", str(out)]
+    assert main(argv) == 2
+    assert _one_error_line(capsys).endswith(f"{bad[0]}: corrupt or unreadable image")
+    assert not out.exists() and not os.path.exists(f"{out}.partial")
+    assert main(argv + ["--skip-bad"]) == 0
+    text = capsys.readouterr().out
+    assert "wrote 4 frames" in text and "skipped 2 bad frame(s)" in text
+    with SequenceReader(out) as r:
+        assert len(r) == 4 and r.width == 1242 and r.height == 375
+        assert [s["frame"] for s in r.meta.provenance["skipped"]] == [
+            f"{drives[0]}_sync/0000000000", f"{drives[1]}_sync/0000000001"]
+        good = root / DATE / f"{drives[0]}_sync" / "image_02" / "data" / "0000000001.png"
+        np.testing.assert_array_equal(r.left(0), cv2.imread(str(good))[..., ::-1])
+        chk = r.meta.provenance["pose_check"][0]
+    # the pose check compared the readable frames: 1, 2 of the first drive with 0, 2 of the second
+    src = kitti_root / DATE / f"{DRIVE}_sync" / "image_02" / "data"
+    img = [cv2.imread(str(src / f"{i:010d}.png"))[..., ::-1] for i in range(3)]
+    ref = pose_difference([img[1], img[2]], [img[0], img[2]])
+    assert chk["same_pose"] and chk["mean_abs_diff"] == pytest.approx(ref["mean_abs_diff"])
+    assert ref["mean_abs_diff"] > 1.0  # other samples would give another value
+
+
+def test_duplicate_drives_are_refused(kitti_root, tmp_path, capsys):
+    out = tmp_path / "dup.h5"
+    for second in (DRIVE, DRIVE + "_sync"):
+        assert main(["import-kitti", "--root", str(kitti_root), "--drives", DRIVE, second,
+                     "--out", str(out)]) == 2
+        assert _one_error_line(capsys).endswith(
+            f"{kitti_root}: drive {DRIVE} is listed twice in --drives (its frames would be "
+            "imported twice)")
+        assert not out.exists() and not os.path.exists(f"{out}.partial")
+
+
+def test_a_drive_name_without_a_date_names_the_root(kitti_root, tmp_path, capsys):
+    assert main(["import-kitti", "--root", str(kitti_root), "--drives", "foo",
+                 "--out", str(tmp_path / "f.h5")]) == 2
+    line = _one_error_line(capsys)
+    assert f"{kitti_root}: drive 'foo' does not start with its recording date" in line
+    assert "foo_sync/foo_sync" not in line
+    with pytest.raises(InputError, match="drive folder not found") as e:
+        import_kitti(kitti_root, ["2011_09_26_drive_0099"], tmp_path / "f.h5")
+    assert e.value.path == str(kitti_root / DATE / "2011_09_26_drive_0099_sync")
+
