@@ -14,8 +14,9 @@ A recipe is YAML::
 
 ``args`` become the command's options (``key: value`` -> ``--key value``, lists -> several values,
 ``true`` -> a bare flag, ``false``/null -> omitted, ``_`` -> positionals). A stage is skipped when
-its outputs exist and the state file records the same hash of its settings and of every earlier
-stage's; ``--force`` reruns everything.
+its outputs exist and the state file records the same hash of its settings and of the hash
+recorded for the stage before it (so of every earlier stage's, as their outputs were made);
+``--force`` reruns everything.
 """
 from __future__ import annotations
 
@@ -33,6 +34,7 @@ from staticdepth.fileio import atomic_write_json
 RECIPE_KEYS = {"name", "out_dir", "vars", "stages", "description", "paper"}
 STAGE_KEYS = {"command", "args", "outputs", "description"}
 STATE_FILE = "recipe_state.json"
+PLACEHOLDER = r"\{([A-Za-z_][A-Za-z0-9_]*)\}"
 
 
 def _subst(value: Any, env: Mapping[str, str], where: str) -> Any:
@@ -42,7 +44,7 @@ def _subst(value: Any, env: Mapping[str, str], where: str) -> Any:
             if k not in env:
                 raise InputError(f"{where}: unknown placeholder {{{k}}} (known: {sorted(env)})")
             return str(env[k])
-        return re.sub(r"\{([A-Za-z_][A-Za-z0-9_]*)\}", rep, value)
+        return re.sub(PLACEHOLDER, rep, value)
     if isinstance(value, list):
         return [_subst(v, env, where) for v in value]
     if isinstance(value, dict):
@@ -95,6 +97,14 @@ def load_recipe(path: str | os.PathLike, variables: Mapping[str, str] | None = N
     if not isinstance(r["stages"], dict) or not r["stages"]:
         raise InputError("'stages' must be a non-empty mapping", src)
     env = {"name": str(r["name"]), "data": os.environ.get("STATICDEPTH_DATA", "../shared/data")}
+    # a variable is one the recipe declares or uses as a placeholder
+    used = set(re.findall(PLACEHOLDER, json.dumps([r.get("vars"), r.get("out_dir"),
+                                                   r["stages"]], default=str)))
+    declared = set(r.get("vars") or {}) | used | {"data"}
+    unknown = sorted(set(variables or {}) - declared)
+    if unknown:          # a misspelt --var changed nothing, silently
+        raise InputError(f"unknown variable(s) {unknown}; the recipe's: "
+                         f"{', '.join(sorted(declared))}", src)
     for k, v in {**(r.get("vars") or {}), **dict(variables or {})}.items():
         env[k] = str(v)
     for k in list(env):  # vars may refer to each other and to {name}, {data}
@@ -154,10 +164,17 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
         os.makedirs(out_dir, exist_ok=True)
     state_path = os.path.join(out_dir, STATE_FILE)
     state = _read_state(state_path)
-    chain = ""
+    unknown = sorted(set(only or ()) - set(recipe["stages"]))
+    if unknown:
+        raise InputError(f"--only: no stage(s) {unknown}; the recipe's: "
+                         f"{', '.join(recipe['stages'])}", recipe["path"])
+    prev = ""
     status: dict[str, str] = {}
     for name, st in recipe["stages"].items():
-        chain = config_hash({"prev": chain, "command": st["command"], "args": st["args"]})
+        # a stage's hash chains the hash recorded for the stage before it (what its outputs were
+        # made with), so a stage whose inputs were remade since - or were made with other
+        # settings when it ran under --only - runs again
+        chain = config_hash({"prev": prev, "command": st["command"], "args": st["args"]})
         argv = argv_from_args(st["command"], st["args"])
         done = (state.get(name) == chain and st["outputs"]
                 and all(os.path.exists(p) for p in st["outputs"]))
@@ -165,12 +182,14 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
             status[name] = "skipped"
             log(f"[{recipe['name']}] {name}: up to date, skipped" if done else
                 f"[{recipe['name']}] {name}: not selected, skipped")
+            prev = state.get(name, "not run")
             continue
         if any(os.path.exists(p) for p in st["outputs"]) and _accepts(argv, "--overwrite"):
             argv.append("--overwrite")   # a stage that runs again replaces its own outputs
         log(f"[{recipe['name']}] {name}: staticdepth {' '.join(argv)}")
         if dry_run:
             status[name] = "dry-run"
+            prev = chain                # as if it ran: the stages after it would run too
             continue
         t0, c0 = time.perf_counter(), time.process_time()
         rc = cli_main(argv, recipe=recipe["path"])
@@ -180,7 +199,7 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
         missing = [p for p in st["outputs"] if not os.path.exists(p)]
         if missing:
             raise InputError(f"stage {name!r} did not produce {missing}", recipe["path"])
-        state[name] = chain
+        state[name] = prev = chain
         atomic_write_json(state_path, state)
         status[name] = "ran"
         log(f"[{recipe['name']}] {name}: done in {time.perf_counter() - t0:.1f} s "

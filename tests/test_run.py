@@ -88,3 +88,51 @@ def test_shipped_recipes_parse_against_the_real_cli(recipe):
             from staticdepth.adapt import config_from_args
 
             config_from_args(args)
+
+
+CHAIN = """
+name: T
+out_dir: "{base}/out"
+vars: {protocol: metric}
+stages:
+  first:
+    command: metrics
+    args: {pred: "{base}/pred.npy", gt: "{base}/gt.npy", protocol: "{protocol}",
+           json: "{out_dir}/a.json"}
+    outputs: ["{out_dir}/a.json"]
+  second:
+    command: metrics
+    args: {pred: "{base}/pred.npy", gt: "{base}/gt.npy", protocol: "{protocol}",
+           json: "{out_dir}/b.json"}
+    outputs: ["{out_dir}/b.json"]
+"""
+
+
+def test_a_stage_reruns_when_the_stage_before_it_was_remade(tmp_path, capsys):
+    # `demo --quick`, then `run --only adapt` with the full settings, then a full run: the full
+    # run remade the earlier stages but took adapt for up to date (its inputs were the quick ones)
+    gt = np.random.default_rng(0).uniform(1, 30, (2, 8, 8))
+    np.save(tmp_path / "gt.npy", gt)
+    np.save(tmp_path / "pred.npy", gt * 2)
+    rp = tmp_path / "r.yaml"
+    rp.write_text(CHAIN)
+    quick = load_recipe(rp, {"base": str(tmp_path), "protocol": "median"})
+    full = load_recipe(rp, {"base": str(tmp_path)})
+    log = [].append
+    assert run_recipe(quick, log=log) == {"first": "ran", "second": "ran"}
+    assert run_recipe(full, only=["second"], log=log) == {"first": "skipped", "second": "ran"}
+    assert run_recipe(full, log=log) == {"first": "ran", "second": "ran"}   # was: skipped
+    assert run_recipe(full, log=log) == {"first": "skipped", "second": "skipped"}
+    # a dry run shows the stages after a changed one as running too
+    assert run_recipe(quick, dry_run=True, log=log) == {"first": "dry-run", "second": "dry-run"}
+
+
+def test_unknown_stages_and_variables_are_refused(tmp_path, capsys):
+    rp = tmp_path / "r.yaml"
+    rp.write_text(CHAIN)
+    base = ["run", str(rp), "--var", f"base={tmp_path}"]
+    assert main([*base, "--only", "frist"]) == 2
+    assert "--only: no stage(s) ['frist']; the recipe's: first, second" in capsys.readouterr().err
+    assert main([*base, "--var", "protocl=median"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown variable(s) ['protocl']" in err and "protocol" in err and "base" in err
