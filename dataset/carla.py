@@ -28,7 +28,8 @@ import numpy as np
 from staticdepth.dataset import schema
 from staticdepth.dataset.h5 import SequenceMeta
 from staticdepth.dataset.pack import (AuxStream, LoadedFrame, list_frames, match_streams,
-                                      read_image, read_left_right, write_frames)
+                                      name_from_output, read_image, read_left_right,
+                                      write_frames)
 from staticdepth.errors import InputError
 from staticdepth.geometry.camera import Camera, Mounting, StereoRig, read_json
 
@@ -253,7 +254,7 @@ def import_carla(folder: str | os.PathLike, out: str | os.PathLike, *, name: str
                          os.path.join(os.fspath(folder), "sensor.json"))
     rig = StereoRig.rectified(sensor.camera, sensor.baseline_m) if has_right else None
     meta = SequenceMeta(
-        name=name or os.path.basename(os.path.normpath(os.fspath(folder))), camera=sensor.camera,
+        name=name or name_from_output(out), camera=sensor.camera,
         gt_kind="synthetic", source=f"CARLA export: {os.fspath(folder)}", adapt_frames=adapt_frames,
         rig=rig, mounting=sensor.mounting,
         provenance={"dataset": "CARLA", "sensor": dict(sensor.raw),

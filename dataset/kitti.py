@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 
 from staticdepth.dataset.h5 import SequenceMeta
-from staticdepth.dataset.pack import (LoadedFrame, list_frames, match_streams, read_image,
-                                      read_left_right, read_rgb)
+from staticdepth.dataset.pack import (LoadedFrame, list_frames, match_streams, name_from_output,
+                                      read_image, read_left_right, read_rgb)
 from staticdepth.errors import InputError
 from staticdepth.geometry.camera import Camera, StereoRig
 
@@ -368,7 +368,7 @@ def import_kitti(root: str | os.PathLike, drives: Sequence[str], out: str | os.P
     if any(t.size != (w, h) for t in tasks):
         raise InputError("drives have different image sizes", root)
     meta = SequenceMeta(
-        name=name or "+".join(drives), camera=calib.camera(w, h),
+        name=name or name_from_output(out), camera=calib.camera(w, h),
         gt_kind="lidar", source=f"KITTI raw: {', '.join(drives)}", adapt_frames=adapt_frames,
         rig=calib.rig(w, h) if right else None, camera_height_m=camera_height_m,
         provenance={"dataset": "KITTI raw", "root": os.fspath(root), "drives": list(drives),

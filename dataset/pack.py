@@ -78,6 +78,11 @@ def match_streams(streams: Mapping[str, Sequence[str]], where: str) -> list[str]
     return common
 
 
+def name_from_output(out: str | os.PathLike) -> str:
+    """A sequence's name when none is given: the output file's stem (``out/K1.h5`` -> ``K1``)."""
+    return os.path.splitext(os.path.basename(os.fspath(out)))[0]
+
+
 # -- the writing loop ---------------------------------------------------------------------------
 @dataclass
 class LoadedFrame:
@@ -143,6 +148,9 @@ def write_frames(out: str | os.PathLike, meta: SequenceMeta, streams: Sequence[s
         raise ValueError("labels and tasks differ in length")
     if not tasks:
         raise InputError("no frames to write", out)
+    if meta.adapt_frames > len(tasks):  # before writing; the writer checks the frames written
+        raise InputError(f"--adapt-frames must be within 0..{len(tasks)} (the input's frames), "
+                         f"got {meta.adapt_frames}")
     executor = executor or SerialExecutor()
     w = SequenceWriter(out, meta, streams, resume=resume, overwrite=overwrite,
                        aux={a.name: a.dtype for a in aux}, restart=restart,

@@ -242,3 +242,18 @@ def test_import_of_the_synthetic_generators_carla_export(tmp_path):
                 b = truth[int(a["instance_id"])]
                 for k in ("class_id", "foot_u", "foot_v", "top_v"):
                     assert a[k] == b[k], (k, a[k], b[k])
+
+
+def test_default_name_is_the_outputs_stem_and_adapt_frames_is_checked_first(tmp_path, capsys):
+    src = _export(tmp_path / "carla", n=4)
+    out = tmp_path / "C1.h5"
+    assert main(["import-carla", str(src), "--adapt-frames", "5", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith(
+        "--adapt-frames must be within 0..4 (the input's frames), got 5")
+    assert not out.exists() and not (tmp_path / "C1.h5.partial").exists()
+    assert main(["import-carla", str(src), "--out", str(out)]) == 0
+    assert main(["import-carla", str(src), "--name", "site 3", "--out", str(tmp_path / "C2.h5")]
+                ) == 0
+    with SequenceReader(out) as a, SequenceReader(tmp_path / "C2.h5") as b:
+        assert (a.meta.name, b.meta.name) == ("C1", "site 3")

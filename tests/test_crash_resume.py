@@ -70,13 +70,14 @@ def writer_args(kind: str, inputs, out) -> tuple[list[str], int]:
         return ["stereo", "--recording", str(rec), "--rig", str(rec / "rig.json"), "--name", "s",
                 "--max-disparity", "32", "--out", str(out)], 24
     if kind == "import-carla":
-        return ["import-carla", str(inputs["carla"]), "--adapt-frames", "3", "--out", str(out)], 24
+        return ["import-carla", str(inputs["carla"]), "--adapt-frames", "3", "--name", "c",
+                "--out", str(out)], 24
     if kind == "import-kitti":
         if inputs["kitti"] is None:
             pytest.skip("KITTI sample not found (set STATICDEPTH_DATA)")
         drives = [f"{KITTI_DATE}_drive_{k:04d}" for k in range(4)]
         return ["import-kitti", "--root", str(inputs["kitti"]), "--drives", *drives,
-                "--out", str(out)], 12
+                "--name", "k", "--out", str(out)], 12
     raise ValueError(kind)
 
 

@@ -311,3 +311,22 @@ def test_a_drive_name_without_a_date_names_the_root(kitti_root, tmp_path, capsys
         import_kitti(kitti_root, ["2011_09_26_drive_0099"], tmp_path / "f.h5")
     assert e.value.path == str(kitti_root / DATE / "2011_09_26_drive_0099_sync")
 
+
+def test_adapt_frames_beyond_the_input_is_refused_before_writing(kitti_root, tmp_path, capsys):
+    out = tmp_path / "x.h5"
+    argv = ["import-kitti", "--root", str(kitti_root), "--drives", DRIVE, "--out", str(out)]
+    assert main(argv + ["--adapt-frames", "5"]) == 2
+    assert _one_error_line(capsys).endswith(
+        "--adapt-frames must be within 0..3 (the input's frames), got 5")
+    assert sorted(os.listdir(tmp_path)) == []  # no partial, nothing to resume or restart
+    assert main(argv + ["--adapt-frames", "3"]) == 0
+    with SequenceReader(out) as r:
+        assert r.split("adapt") == range(3) and len(r.split("eval")) == 0
+
+
+def test_default_name_is_the_outputs_stem(kitti_root, tmp_path):
+    assert main(["import-kitti", "--root", str(kitti_root), "--drives", DRIVE,
+                 "--out", str(tmp_path / "t1.h5")]) == 0
+    with SequenceReader(tmp_path / "t1.h5") as r:
+        assert r.meta.name == "t1"
+        assert r.meta.provenance["drives"] == [DRIVE]
