@@ -73,13 +73,6 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
         if conf.finetune.epochs > 0:
             history = finetune.run(conf, ws, model, h["finetune"], layers)
             predict.run(conf, ws, model, h["ft"], name="ft", keep_inverse=False)
-            if save_model:
-                from staticdepth.models.tiny import save_builtin
-
-                model.to("cpu")
-                # plain values only: load_builtin refuses pickled objects (sets)
-                save_builtin(save_model, model, info={
-                    "adapted_on": seq_path, "config": _jsonable(dataclasses.asdict(conf))})
         else:
             predict.copy_base(conf, ws, h["ft"])
         lap("finetune")
@@ -116,6 +109,15 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
                "anchor_depth_m": float(anchor_depth(K, plane.normal, Hc, u_a, v_a)),
                "anchor_depth_parallel_m": float(anchor_depth_parallel(K, Hc, v_a)),
                "planes": {"agents": {"normal": np.asarray(plane.normal).tolist(), "d": float(Hc)}}}
+    if save_model and conf.finetune.epochs > 0:
+        # at the end, just before the summary: a run interrupted earlier leaves no model file
+        # that its resume would have to be told to overwrite
+        from staticdepth.models.tiny import save_builtin
+
+        model.to("cpu")
+        # plain values only: load_builtin refuses pickled objects (sets)
+        save_builtin(save_model, model, info={
+            "adapted_on": seq_path, "config": _jsonable(dataclasses.asdict(conf))})
     atomic_write_json(summary_path, _jsonable(summary), indent=1)
     summary["summary_path"] = summary_path
     return summary

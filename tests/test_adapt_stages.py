@@ -220,6 +220,35 @@ def test_a_late_setting_reruns_only_the_stages_after_it(tmp_path, clip, tiny, on
     assert s3["stage_frames"]["align"] == 40 and s3["stage_frames"]["pseudo_labels"] == 24
 
 
+def test_an_interrupted_run_leaves_no_saved_model_and_resumes(tmp_path, clip, tiny, one_thread,
+                                                              monkeypatch, capsys):
+    # --save-model was written right after fine-tuning: a run interrupted in align left the
+    # file, and its resume was refused ("exists already; pass --overwrite")
+    from staticdepth.adaptation import align
+    from staticdepth.models.tiny import load_builtin
+
+    seq, model = str(tmp_path / "s.h5"), tmp_path / "ft.pt"
+    shutil.copy(clip, seq)
+    argv = ["adapt", seq, "--model", f"builtin:{tiny}", *FAST, "--epochs", "1",
+            "--set", "align.min_ground_r2=0", "--save-model", str(model)]
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:
+        m.setattr(align, "run", interrupted)
+        assert main(argv) == 130
+    assert not model.exists() and not os.path.exists(tmp_path / "s.adapt.json")
+    capsys.readouterr()
+    assert main(argv) == 0, capsys.readouterr().err
+    s = _summary(seq)
+    assert {"finetune", "ft", "base"} <= set(s["skipped_stages"])     # resumed, not redone
+    tuned, first = load_builtin(str(model)), load_builtin(tiny)
+    moved = [not torch.equal(a, b) for a, b in zip(tuned.net.state_dict().values(),
+                                                    first.net.state_dict().values())]
+    assert any(moved)                          # the fine-tuned weights, not the initial ones
+
+
 def test_dotted_settings_and_fail_fast(tmp_path, clip, tiny, capsys):
     seq = str(tmp_path / "s.h5")
     shutil.copy(clip, seq)
