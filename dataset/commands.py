@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 
 from staticdepth.errors import InputError
 
@@ -124,10 +125,17 @@ def _check_camera_height(value: float | None) -> None:
         raise InputError(f"--camera-height must be a positive number of metres, got {value:g}")
 
 
+def _check_name(name: str | None) -> None:
+    """Before any work: a sequence name is one line of printable text (reports, the card)."""
+    if name is not None and not name.isprintable():
+        raise InputError(f"--name must be one line of printable text, got {name!r}")
+
+
 def _import_kitti(args: argparse.Namespace) -> int:
     from staticdepth.dataset.kitti import import_kitti
 
     _check_camera_height(args.camera_height)
+    _check_name(args.name)
     return _write_with_executor(args, import_kitti, args.root, args.drives, args.out,
                                 name=args.name, adapt_frames=args.adapt_frames, right=args.right,
                                 depth_maps=args.depth_maps, camera_height_m=args.camera_height)
@@ -136,6 +144,7 @@ def _import_kitti(args: argparse.Namespace) -> int:
 def _import_carla(args: argparse.Namespace) -> int:
     from staticdepth.dataset.carla import import_carla
 
+    _check_name(args.name)
     return _write_with_executor(args, import_carla, args.dir, args.out, name=args.name,
                                 adapt_frames=args.adapt_frames, legacy_tags=args.legacy_tags)
 
@@ -145,6 +154,7 @@ def _pack(args: argparse.Namespace) -> int:
     from staticdepth.dataset.pack import pack_recording
 
     _check_camera_height(args.camera_height)
+    _check_name(args.name)
     return _write_with_executor(args, pack_recording, args.recording, args.rig, args.out,
                                 camera_height_m=args.camera_height,
                                 adapt_frames=args.adapt_frames, matcher=args.matcher,
@@ -153,14 +163,17 @@ def _pack(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from staticdepth.dataset.export import export_kitti
+    from staticdepth.dataset.export import beyond_range_note, export_kitti
 
     info = export_kitti(args.file, args.out, overwrite=args.overwrite)
     print(f"exported {info['frames']} frames to {info['path']}")
+    if info["depth_beyond_range_px"]:
+        print(f"warning: {info['path']}: {beyond_range_note(info['depth_beyond_range_px'])}")
     return 0
 
 
 def _publish(args: argparse.Namespace) -> int:
+    from staticdepth.dataset.export import beyond_range_note
     from staticdepth.dataset.publish import publish
 
     if args.out in args.files:
@@ -169,4 +182,6 @@ def _publish(args: argparse.Namespace) -> int:
                    citation=args.citation, export=not args.no_export, overwrite=args.overwrite)
     print(f"published {len(info['sequences'])} sequence(s), {info['files']} files, "
           f"to {info['path']}")
+    for rel, pixels in info["depth_beyond_range_px"].items():
+        print(f"warning: {os.path.join(info['path'], rel)}: {beyond_range_note(pixels)}")
     return 0

@@ -3,12 +3,14 @@
 Layout written (one file per frame, in frame order, numbered ``0000000000``):
 ``image_02/data/*.png`` (left, RGB PNG), ``image_03/data/*.png`` (right, when stored),
 ``proj_depth/groundtruth/image_02/*.png`` (uint16 = round(depth * 256), 0 = unknown, as KITTI's
-depth benchmark), ``instances/*.png`` (uint16 instance ids, when stored), ``timestamps.txt``
-(seconds, one per line), ``calib_cam_to_cam.txt`` (``S_rect_02``, ``P_rect_02``, ``R_rect_00`` and,
-with a rig, ``P_rect_03``), ``calib.json`` (camera, rig, mounting, camera height) and
-``splits/{adapt,eval}.txt`` (frame numbers) and ``.staticdepth-export.json`` (marks the folder as
-ours). The folder appears atomically (built beside it, then renamed); ``--overwrite`` replaces only
-a folder holding that marker, and only once the new export is complete.
+depth benchmark; depth beyond 255.996 m becomes 0 too, counted in ``calib.json``
+``depth_beyond_range_px``), ``instances/*.png`` (uint16 instance ids, when stored),
+``timestamps.txt`` (seconds, one per line), ``calib_cam_to_cam.txt`` (``S_rect_02``,
+``P_rect_02``, ``R_rect_00`` and, with a rig, ``P_rect_03``), ``calib.json`` (camera, rig,
+mounting, camera height) and ``splits/{adapt,eval}.txt`` (frame numbers) and
+``.staticdepth-export.json`` (marks the folder as ours). The folder appears atomically (built
+beside it, then renamed); ``--overwrite`` replaces only a folder holding that marker, and only
+once the new export is complete.
 """
 from __future__ import annotations
 
@@ -40,6 +42,12 @@ def kitti_png_from_depth(depth: np.ndarray) -> tuple[np.ndarray, int]:
     far = code > 65535
     code[far] = 0
     return code.astype(np.uint16), int(np.count_nonzero(far))
+
+
+def beyond_range_note(pixels: int) -> str:
+    """What the export lost, in words (``pixels`` from :func:`kitti_png_from_depth`)."""
+    return (f"{pixels} depth pixel(s) beyond {MAX_DEPTH_M:.3f} m (the limit of KITTI's uint16 "
+            f"PNG, depth x {DEPTH_SCALE:g}) are stored as 0 (unknown)")
 
 
 MARKER = ".staticdepth-export.json"  # written into every export: what --overwrite may replace
@@ -145,7 +153,8 @@ def _export(seq, out: str, overwrite: bool) -> dict[str, Any]:
                      "mounting": None if m.mounting is None else m.mounting.to_dict(),
                      "camera_height_m": m.camera_height_m, "depth_png_scale": DEPTH_SCALE,
                      "frames": len(r), "adapt_frames": m.adapt_frames, "gt_kind": m.gt_kind,
-                     "source_file": os.path.basename(os.fspath(seq))}
+                     "source_file": os.path.basename(os.fspath(seq)),
+                     "depth_beyond_range_px": far_total}
             with open(os.path.join(tmp, "calib.json"), "w") as f:
                 json.dump(calib, f, indent=2)
             os.makedirs(os.path.join(tmp, "splits"))

@@ -2,13 +2,16 @@
 
 Layout: ``sequences/<name>.h5``, ``kitti/<name>/...`` (see :mod:`staticdepth.dataset.export`),
 ``README.md`` (the dataset card), ``dataset_card.json`` (the same facts, machine-readable) and
-``MANIFEST.sha256`` (``sha256sum`` format: ``<hex>  <relative path>``, every other file listed).
+``MANIFEST.sha256`` (``sha256sum`` format: ``<hex>  <relative path>``, every other file listed
+but lock files, ``<path>.lock`` beside ``<path>``, which the writers leave and a release needs not).
 :func:`verify_release` (used by ``staticdepth verify DIR``) re-hashes every file, reports files that
-are missing or not listed, and re-checks every sequence's frame checksums.
+are missing or not listed, and re-checks every sequence's frame checksums. Names in the Markdown
+card are one line each and escaped (HTML, table bars), as in the Markdown reports.
 """
 from __future__ import annotations
 
 import hashlib
+import html
 import json
 import os
 import shutil
@@ -18,10 +21,11 @@ from typing import Any, Sequence
 import numpy as np
 
 from staticdepth import __version__
-from staticdepth.dataset.export import export_kitti, replace_dir
+from staticdepth.dataset.export import beyond_range_note, export_kitti, replace_dir
 from staticdepth.dataset.h5 import SequenceReader
 from staticdepth.errors import InputError
 from staticdepth.progress import progress
+from staticdepth.tables import Table
 
 MANIFEST = "MANIFEST.sha256"
 CARD_JSON = "dataset_card.json"
@@ -36,11 +40,17 @@ def sha256_file(path: str | os.PathLike, block: int = 1 << 20) -> str:
     return h.hexdigest()
 
 
-def _files(root: str) -> list[str]:
+def _is_lock(root: str, rel: str) -> bool:
+    """``rel`` is a lock file (``fileio.exclusive_lock``'s ``<path>.lock`` beside ``<path>``)."""
+    return rel.endswith(".lock") and os.path.lexists(os.path.join(root, rel[:-len(".lock")]))
+
+
+def _files(root: str, locks: bool = False) -> list[str]:
+    """Every file under ``root`` (lock files only with ``locks``), as sorted relative paths."""
     out = []
     for d, _, names in os.walk(root):
         out += [os.path.relpath(os.path.join(d, n), root).replace(os.sep, "/") for n in names]
-    return sorted(out)
+    return sorted(rel for rel in out if locks or not _is_lock(root, rel))
 
 
 def sequence_card(reader: SequenceReader) -> dict[str, Any]:
@@ -79,29 +89,46 @@ def sequence_card(reader: SequenceReader) -> dict[str, Any]:
     }
 
 
+def _one_line(text: Any) -> str:
+    """Text from a data file as one line (line breaks and runs of white space become a space)."""
+    return " ".join(str(text).split())
+
+
+def _md_text(text: Any) -> str:
+    """One line of Markdown text outside a table: HTML escaped (Markdown viewers render it)."""
+    return html.escape(_one_line(text))
+
+
 def card_markdown(card: dict[str, Any]) -> str:
-    lines = [f"# {card['title']}", "", f"Released {card['created']} with staticdepth "
-             f"{card['toolkit_version']}.", "", f"**Licence:** {card['licence']}", "",
-             "| sequence | frames | size | adapt / eval | camera height (m) | baseline (m) | "
-             "ground truth | density | depth range (m) |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    rows = []
     for s in card["sequences"]:
         st = s["statistics"] or {}
         rng = (f"{st['depth_min_m']:.2f} - {st['depth_max_m']:.2f}"
                if st.get("depth_min_m") is not None else "-")
-        lines.append(
-            f"| {s['name']} | {s['frames']} | {s['width']}x{s['height']} | "
-            f"{s['splits']['adapt'][1]} / {s['frames'] - s['splits']['adapt'][1]} | "
-            f"{s['camera_height_m'] if s['camera_height_m'] is not None else '-'} | "
-            f"{'-' if s['rig'] is None else round(s['rig']['baseline_m'], 4)} | "
-            f"{s['ground_truth']['kind']} | "
-            f"{'-' if not st else format(st['density_mean'], '.3f')} | {rng} |")
+        rows.append([
+            _one_line(s["name"]), str(s["frames"]), f"{s['width']}x{s['height']}",
+            f"{s['splits']['adapt'][1]} / {s['frames'] - s['splits']['adapt'][1]}",
+            str(s["camera_height_m"]) if s["camera_height_m"] is not None else "-",
+            "-" if s["rig"] is None else str(round(s["rig"]["baseline_m"], 4)),
+            _one_line(s["ground_truth"]["kind"]),
+            "-" if not st else format(st["density_mean"], ".3f"), rng])
+    # the Markdown reports' table: cells escaped (HTML, the cell bar)
+    table = Table("Summary", ["sequence", "frames", "size", "adapt / eval", "camera height (m)",
+                              "baseline (m)", "ground truth", "density", "depth range (m)"], rows)
+    lines = [f"# {_md_text(card['title'])}", "", f"Released {card['created']} with staticdepth "
+             f"{card['toolkit_version']}.", "", f"**Licence:** {_md_text(card['licence'])}", "",
+             table.markdown()]
     lines += ["", "Splits: the first N frames of each sequence are the adaptation split, the rest "
               "the evaluation split. Depth is in metres; in the KITTI-style export it is stored "
-              "as uint16 PNG = depth x 256, 0 = unknown.", "",
-              "## Sequences", ""]
+              "as uint16 PNG = depth x 256, 0 = unknown."]
     for s in card["sequences"]:
-        lines += [f"### {s['name']}", "", "```json", json.dumps(s, indent=2), "```", ""]
+        if s.get("export_depth_beyond_range_px"):
+            lines += ["", f"In the export of {_md_text(s['name'])}, "
+                          f"{beyond_range_note(s['export_depth_beyond_range_px'])}."]
+    lines += ["", "## Sequences", ""]
+    for s in card["sequences"]:
+        lines += [f"### {_md_text(s['name'])}", "", "```json", json.dumps(s, indent=2), "```",
+                  ""]
     lines += ["## Files", "",
               "- `sequences/*.h5`: sequence files (read with `staticdepth inspect`)",
               "- `sequences/*.h5.pred/*.h5`: predictions stored beside each sequence",
@@ -160,8 +187,11 @@ def _publish(files, stems, out, title, licence, citation, export, overwrite) -> 
                                                                         stem + ".h5"))]
             if export:
                 os.makedirs(os.path.join(tmp, "kitti"), exist_ok=True)
-                export_kitti(os.path.join(tmp, "sequences", stem + ".h5"),
-                             os.path.join(tmp, "kitti", stem))
+                info = export_kitti(os.path.join(tmp, "sequences", stem + ".h5"),
+                                    os.path.join(tmp, "kitti", stem))
+                cards[-1]["export_depth_beyond_range_px"] = info["depth_beyond_range_px"]
+        for rel in sorted(set(_files(tmp, locks=True)) - set(_files(tmp))):
+            os.remove(os.path.join(tmp, rel))  # the export's lock files: not part of a release
         card = {"title": title or "staticdepth release: " + ", ".join(c["name"] for c in cards),
                 "created": time.strftime("%Y-%m-%d"), "licence": licence, "citation": citation,
                 "toolkit_version": __version__, "sequences": cards,
@@ -182,7 +212,10 @@ def _publish(files, stems, out, title, licence, citation, export, overwrite) -> 
     finally:
         if os.path.exists(tmp):
             shutil.rmtree(tmp)
-    return {"path": out, "sequences": [c["name"] for c in cards], "files": len(listed) + 1}
+    return {"path": out, "sequences": [c["name"] for c in cards], "files": len(listed) + 1,
+            "depth_beyond_range_px": {f"kitti/{stem}": c["export_depth_beyond_range_px"]
+                                      for stem, c in zip(stems, cards)
+                                      if c.get("export_depth_beyond_range_px")}}
 
 
 def _copy_predictions(seq: str | os.PathLike, dst_seq: str) -> list[str]:
@@ -216,6 +249,7 @@ def verify_release(folder: str | os.PathLike) -> list[str]:
                 problems.append(f"{MANIFEST} line {k}: malformed")
                 continue
             listed[rel] = digest
+    listed = {rel: d for rel, d in listed.items() if not _is_lock(folder, rel)}
     present = set(_files(folder)) - {MANIFEST}
     for rel in sorted(set(listed) - present):
         problems.append(f"{rel}: listed in the manifest but missing")

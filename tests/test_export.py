@@ -151,3 +151,37 @@ def test_inspect_summary_and_thumbnail_sheet(tmp_path, capsys):
                                     interpolation=cv2.INTER_NEAREST))
     assert main(["inspect", str(tmp_path / "none.h5")]) == 2
     assert "none.h5: file not found" in capsys.readouterr().err
+
+
+def make_far_sequence(path, name="far"):
+    """Two frames whose depth reaches beyond the KITTI PNG's 255.996 m at 3 + 2 known pixels."""
+    meta = SequenceMeta(name=name, camera=CAM, gt_kind="synthetic", source="test", adapt_frames=1)
+    depth = np.full((2, 32, 64), 20.0, np.float32)
+    depth[0, 0, :3] = [300.0, 256.0, 1e4]  # beyond: stored as 0
+    depth[0, 1, 0] = 255.99  # within: 65533
+    depth[1, 5, 5:7] = 4000.0
+    depth[1, 6, 6] = np.nan
+    with SequenceWriter(path, meta, ("left", "depth")) as w:
+        for i in range(2):
+            w.append(timestamp=float(i), left=np.zeros((32, 64, 3), np.uint8), depth=depth[i])
+    return depth
+
+
+def test_export_warns_about_depth_beyond_the_png_range(tmp_path, capsys):
+    depth = make_far_sequence(tmp_path / "F.h5")
+    out = tmp_path / "F_kitti"
+    assert main(["export", str(tmp_path / "F.h5"), "--out", str(out)]) == 0
+    assert capsys.readouterr().out.splitlines() == [
+        f"exported 2 frames to {out}",
+        f"warning: {out}: 5 depth pixel(s) beyond 255.996 m (the limit of KITTI's uint16 PNG, "
+        "depth x 256) are stored as 0 (unknown)"]
+    assert json.loads((out / "calib.json").read_text())["depth_beyond_range_px"] == 5
+    png = cv2.imread(str(out / "proj_depth/groundtruth/image_02/0000000000.png"),
+                     cv2.IMREAD_ANYDEPTH)
+    assert png[0, :3].tolist() == [0, 0, 0] and png[1, 0] == 65533 and png[2, 0] == 20 * 256
+    assert np.count_nonzero(png == 0) == 3 and np.isfinite(depth[0]).all()
+    # a sequence within range: no warning, and the count says 0
+    make_sequence(tmp_path / "S.h5")
+    assert main(["export", str(tmp_path / "S.h5"), "--out", str(tmp_path / "S_kitti")]) == 0
+    assert "warning" not in capsys.readouterr().out
+    assert json.loads((tmp_path / "S_kitti/calib.json").read_text())["depth_beyond_range_px"] == 0

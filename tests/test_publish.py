@@ -102,3 +102,60 @@ def test_publish_bad_input(tmp_path):
         publish([tmp_path / "bad.h5"], tmp_path / "rel")
     assert not (tmp_path / "rel").exists()
     assert not [n for n in os.listdir(tmp_path) if "partial" in n]
+
+
+def test_lock_files_are_not_shipped_listed_or_required(release):
+    out, _ = release
+    every = [os.path.relpath(os.path.join(d, n), out) for d, _, ns in os.walk(out) for n in ns]
+    assert not [p for p in every if p.endswith(".lock")]  # the export's kitti/A.lock was
+    manifest = (out / "MANIFEST.sha256").read_text()
+    assert ".lock" not in manifest
+    # a lock file that appears later (a writer locking a file of the release) is not "extra" ...
+    (out / "sequences/A.h5.lock").write_text("")
+    (out / "kitti/B.lock").write_text("12345")
+    assert verify_release(out) == []
+    # ... and one listed by an older release is not required
+    empty = "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"
+    (out / "MANIFEST.sha256").write_text(manifest + f"{empty}  kitti/A.lock\n")
+    assert verify_release(out) == []
+    # a file that merely ends in .lock (nothing beside it of that name) is still checked
+    (out / "notes.lock").write_text("x")
+    assert verify_release(out) == ["notes.lock: not in the manifest"]
+
+
+def test_card_escapes_names_and_notes_depth_beyond_the_export_range(tmp_path, capsys):
+    from test_export import make_far_sequence
+
+    name = "evil|<b>x</b>\n# injected"  # a name from an older file (the importers refuse it now)
+    make_far_sequence(tmp_path / "E.h5", name=name)
+    out = tmp_path / "rel"
+    assert main(["publish", str(tmp_path / "E.h5"), "--out", str(out),
+                 "--title", "<script>x</script>"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1] == (
+        f"warning: {out}/kitti/E: 5 depth pixel(s) beyond 255.996 m (the limit of KITTI's uint16 "
+        "PNG, depth x 256) are stored as 0 (unknown)")
+    md = (out / "README.md").read_text()
+    lines = md.splitlines()
+    safe = "evil|&lt;b&gt;x&lt;/b&gt; # injected"
+    assert [l for l in lines if l.startswith("#")] == [
+        "# &lt;script&gt;x&lt;/script&gt;", "## Sequences", f"### {safe}", "## Files",
+        "## Citation"]
+    rows = [l for l in lines if l.startswith("| ")]
+    assert rows[1] == ("| evil\\|&lt;b&gt;x&lt;/b&gt; # injected | 2 | 64x32 | 1 / 1 | - | - | "
+                       "synthetic | 1.000 | 20.00 - 10000.00 |")
+    assert "<b>" not in md.split("## Sequences")[0] and "<script>" not in md
+    assert (f"In the export of {safe}, 5 depth pixel(s) beyond 255.996 m (the limit of KITTI's "
+            "uint16 PNG, depth x 256) are stored as 0 (unknown).") in lines
+    card = json.loads((out / "dataset_card.json").read_text())
+    assert card["sequences"][0]["name"] == name  # the JSON keeps the name as it is
+    assert card["sequences"][0]["export_depth_beyond_range_px"] == 5
+
+
+@pytest.mark.parametrize("argv", [["import-kitti", "--root", "R", "--drives", "x"],
+                                  ["import-carla", "C"], ["pack", "--recording", "P"]])
+def test_importers_refuse_a_name_of_more_than_one_line(argv, tmp_path, capsys):
+    assert main(argv + ["--name", "evil\n# injected", "--out", str(tmp_path / "x.h5")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith(
+        "error: --name must be one line of printable text, got 'evil\\n# injected'")
+    assert os.listdir(tmp_path) == []
