@@ -65,12 +65,20 @@ def image_files(folder: str) -> list[str]:
     return files
 
 
+#: A video file whose frames end more than this share short of its header's count is reported
+#: (containers' counts are estimates, a frame or two off; a truncated file stops far short).
+SHORT_SHARE = 0.02
+
+
 def iter_frames(source: str, *, every: int = 1, max_frames: int | None = None,
-                fps: float | None = None, skip: int = 0) -> Iterator[VideoFrame]:
+                fps: float | None = None, skip: int = 0,
+                ended: dict | None = None) -> Iterator[VideoFrame]:
     """Yield every ``every``-th frame of a video file, a camera/stream URL or an image folder, at
     most ``max_frames`` of them, one at a time. ``fps`` sets the frame rate of a folder (default
     10) or overrides a video's. The first ``skip`` of those frames are passed over undecoded
-    (they count towards ``max_frames``)."""
+    (they count towards ``max_frames``). When a video file's frames end, ``ended`` (a dict, if
+    given) gets ``read`` (frames decoded) and ``header`` (the container's frame count, 0 when
+    unknown), so that a caller can tell a truncated file from a complete one."""
     import cv2
 
     from staticdepth.dataset.pack import read_rgb
@@ -112,6 +120,8 @@ def iter_frames(source: str, *, every: int = 1, max_frames: int | None = None,
             if not ok:
                 if i < 0:
                     raise InputError("no frame could be read", source)
+                if ended is not None and not url:
+                    ended.update(read=i + 1, header=int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0))
                 return
             i += 1
             if i % every:
@@ -253,7 +263,8 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
     if resume and is_url(source):
         raise InputError("a camera/stream URL cannot be resumed (its frames are live, not the "
                          "ones already written): --restart starts over", source)
-    frames = iter_frames(source, every=every, max_frames=max_frames, fps=fps)
+    ended: dict = {}
+    frames = iter_frames(source, every=every, max_frames=max_frames, fps=fps, ended=ended)
     first = next(frames)
     h0, w0 = first.rgb.shape[:2]
     size = (w0, h0) if width is None else (int(width), int(round(h0 * width / w0)))
@@ -271,7 +282,7 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
             if done:                   # resumed: read on after the frames the partial holds
                 frames.close()
                 frames = iter_frames(source, every=every, max_frames=max_frames, fps=fps,
-                                     skip=done)
+                                     skip=done, ended=ended)
             else:
                 frames = _chain(first, frames)
             total = None if max_frames is None else max_frames - done
@@ -286,13 +297,26 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
             n = len(w)
             k = n if adapt_frames is None else min(adapt_frames, n)
             w.set_attr("adapt_frames", int(k))
+            short = short_read(ended)
+            if short:
+                w.set_attr("input_ended_early", short)      # kept in the file, for inspect
             path = w.close()
         except BaseException:
             w.abort()
             raise
     return {"path": path, "frames": n, "size": size, "intrinsics": how, "adapt_frames": k,
             "adapt_clipped": adapt_frames is not None and adapt_frames > n, "fx": cam.fx,
-            "resumed_from": done}
+            "resumed_from": done, "ended_early": short}
+
+
+def short_read(ended: dict) -> str | None:
+    """The line for a video file whose frames ended well before its header's count (a
+    truncated or damaged file), else None."""
+    read, header = ended.get("read", 0), ended.get("header", 0)
+    if header <= 0 or read >= header * (1 - SHORT_SHARE):
+        return None
+    return (f"the video's frames end at {read} of the {header} its header lists (a truncated or "
+            "damaged file?); the frames before are imported")
 
 
 def _identity(source: str, every: int, max_frames: int | None, width: int | None,
@@ -356,6 +380,8 @@ def _run(args) -> int:
     if rep["resumed_from"]:
         print(f"resumed after the {rep['resumed_from']} frames of the interrupted import")
     note = " (clipped to the frames read)" if rep["adapt_clipped"] else ""
+    if rep["ended_early"]:
+        print(f"warning: {args.source}: {rep['ended_early']}")
     print(f"wrote {rep['frames']} frames of {rep['size'][0]}x{rep['size'][1]} to {rep['path']}; "
           f"adaptation split: the first {rep['adapt_frames']}{note}")
     return 0

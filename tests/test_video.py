@@ -161,3 +161,31 @@ def test_video_import_resumes_after_an_interruption(tmp_path, monkeypatch, capsy
     assert main(["import-video", "rtsp://127.0.0.1:9/x", "--out", str(tmp_path / "u.h5"),
                  "--resume"]) == 2
     assert "URL cannot be resumed" in capsys.readouterr().err
+
+
+def test_a_truncated_video_is_reported(tmp_path, capsys):
+    # a file cut short imported its first frames as if they were the whole video
+    src, cut = tmp_path / "v.avi", tmp_path / "cut.avi"
+    # FFV1 through FFmpeg (OpenCV's own MJPG reader cannot open a cut file at all)
+    vw = cv2.VideoWriter(str(src), cv2.VideoWriter_fourcc(*"FFV1"), 5.0, (160, 120))
+    assert vw.isOpened()
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        vw.write(rng.integers(0, 255, (120, 160, 3), dtype=np.uint8))
+    vw.release()
+    for name, data in (("whole", src.read_bytes()), ("cut", src.read_bytes()[:src.stat().st_size
+                                                                            // 2])):
+        cut.write_bytes(data)
+        out = tmp_path / f"{name}.h5"
+        capsys.readouterr()
+        assert main(["import-video", str(cut), "--out", str(out)]) == 0
+        printed = capsys.readouterr().out
+        with SequenceReader(out) as r:
+            n, note = len(r), r.attrs.get("input_ended_early")
+        if name == "whole":
+            assert n == 10 and note is None and "warning" not in printed
+        else:
+            assert 1 <= n < 10
+            want = f"the video's frames end at {n} of the 10 its header lists"
+            assert f"warning: {cut}: {want}" in printed and want in note
+    assert main(["verify", str(tmp_path / "cut.h5")]) == 0      # what was read is intact
