@@ -183,11 +183,15 @@ class SequenceWriter:
         except (OSError, KeyError, ValueError) as e:
             raise InputError(f"cannot resume: the partial file is damaged ({e}); --restart "
                              "starts over", self.partial) from None
-        if (stored != self.streams or stored_aux != sorted(self.aux)
-                or int(f.attrs["width"]) != self.meta.camera.width):
+        if stored != self.streams or stored_aux != sorted(self.aux):
             raise InputError(f"cannot resume: the partial file has streams {stored} and aux "
                              f"{stored_aux}, not {self.streams} and {sorted(self.aux)}",
                              self.partial)
+        size = (int(f.attrs["width"]), int(f.attrs["height"]))
+        if size != (self.meta.camera.width, self.meta.camera.height):
+            raise InputError(f"cannot resume: the partial file's frames are {size[0]}x{size[1]}, "
+                             f"these are {self.meta.camera.width}x{self.meta.camera.height} "
+                             "(another --width or input?); --restart starts over", self.partial)
         diff = rs.differences(f, self._fingerprint, self._inputs, labels)
         if diff:
             raise rs.refuse(self.partial, diff)

@@ -155,6 +155,9 @@ def test_video_import_resumes_after_an_interruption(tmp_path, monkeypatch, capsy
     with pytest.raises(KeyboardInterrupt):
         import_video(str(src), str(tmp_path / "w.h5"))
     monkeypatch.setattr(video, "_to_rgb", real)
+    # another --width: refused naming both sizes (it named two identical stream lists)
+    with pytest.raises(InputError, match="frames are 64x48, these are 32x24"):
+        import_video(str(src), str(tmp_path / "w.h5"), resume=True, width=32)
     _video(src, n=13)
     with pytest.raises(InputError, match="source_file"):
         import_video(str(src), str(tmp_path / "w.h5"), resume=True)
