@@ -46,6 +46,9 @@ def register(sub) -> None:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="stereo setting override")
     p.add_argument("--no-right", action="store_true", help="do not store the right image")
     p.add_argument("--name", default=None, help="sequence name (default: the recording's folder)")
+    p.add_argument("--skip-rectification-check", action="store_true",
+                   help="do not check that matched features of the first (rectified) pair lie on "
+                        "the same rows (nor that the views look swapped)")
     _writer_options(p)
     p.set_defaults(func=_pack)
 
@@ -159,7 +162,8 @@ def _pack(args: argparse.Namespace) -> int:
                                 camera_height_m=args.camera_height,
                                 adapt_frames=args.adapt_frames, matcher=args.matcher,
                                 model=args.model, overrides=parse_overrides(args.set),
-                                store_right=not args.no_right, name=args.name)
+                                store_right=not args.no_right, name=args.name,
+                                check_rectification=not args.skip_rectification_check)
 
 
 def _export(args: argparse.Namespace) -> int:

@@ -291,7 +291,9 @@ def _rectified_mounting(rig, camera_height_m: float | None):
 
 def check_rig_rectifies(pipe, tasks: Sequence[StereoTask], rig_name: str, skip_bad: bool) -> None:
     """Before any work, as ``stereo`` does: the rig must rectify the first readable pair (rows of
-    matched features agree), else its depth would be garbage."""
+    matched features agree) and the views must not look swapped (most matched features of
+    negative disparity, ``stereo``'s warning), else its depth would be garbage."""
+    from staticdepth.stereo.diagnose import stereo_warnings
     from staticdepth.stereo.rectify import check_rectified
 
     for t in tasks[:10]:
@@ -303,7 +305,13 @@ def check_rig_rectifies(pipe, tasks: Sequence[StereoTask], rig_name: str, skip_b
                 continue
             raise
         rl, rr = pipe.rectifier.rectify(left, right)
-        check_rectified(rl, rr, source=f"{rig_name} (after rectifying {t.left})")
+        check = check_rectified(rl, rr, source=f"{rig_name} (after rectifying {t.left})")
+        # No disparity range is given (inf): of stereo's warnings only the swapped views remain.
+        # Its hint names stereo's options, so pack's own replaces it.
+        for message in stereo_warnings(check, num_disparities=np.inf):
+            finding = message.split("; ")[0]
+            raise InputError(f"{finding}; exchange the recording's left and right images, or "
+                             "pass --skip-rectification-check", t.left)
         return
 
 
@@ -312,11 +320,13 @@ def pack_recording(recording: str | os.PathLike, rig_path: str | os.PathLike | N
                    adapt_frames: int = 0, matcher: str = "sgbm", model: str | None = None,
                    overrides: Mapping[str, Any] | None = None, store_right: bool = True,
                    name: str | None = None, skip_bad: bool = False, resume: bool = False,
-                   overwrite: bool = False, executor=None, restart: bool = False) -> WriteReport:
+                   overwrite: bool = False, executor=None, restart: bool = False,
+                   check_rectification: bool = True) -> WriteReport:
     """Stereo depth for every pair of a recording, written as one sequence file (see module doc).
 
     Stored images are the rectified pair, the camera is the rectified left camera, and depth is
-    NaN where the stereo consistency check failed or beyond ``max_depth_m``.
+    NaN where the stereo consistency check failed or beyond ``max_depth_m``. The first pair is
+    checked first (:func:`check_rig_rectifies`) unless ``check_rectification`` is False.
     """
     from staticdepth.geometry.camera import StereoRig
     from staticdepth.stereo.pipeline import StereoConfig, StereoPipeline
@@ -338,8 +348,9 @@ def pack_recording(recording: str | os.PathLike, rig_path: str | os.PathLike | N
         values["options"] = options
     config = StereoConfig.from_dict(values, source="--set")
     pipe = StereoPipeline(rig, config)  # validates the settings once, before any work
-    check_rig_rectifies(pipe, tasks, os.fspath(rig_path) if rig_path else
-                        f"{os.fspath(recording)} (its rig)", skip_bad)
+    if check_rectification:
+        check_rig_rectifies(pipe, tasks, os.fspath(rig_path) if rig_path else
+                            f"{os.fspath(recording)} (its rig)", skip_bad)
     if camera_height_m is not None and not camera_height_m > 0:
         raise InputError(f"--camera-height must be positive, got {camera_height_m}")
     tasks = [StereoTask(t.left, t.right, float(i) if t.timestamp is None else t.timestamp)

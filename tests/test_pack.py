@@ -216,3 +216,59 @@ def test_mounting_of_a_calibrated_rig_is_kept_in_the_rectified_frame(plain_recor
     with SequenceReader(tmp_path / "M.h5") as r:
         np.testing.assert_allclose(r.meta.mounting.normal, n, atol=1e-12)
         assert r.meta.camera_height_m == 5.0
+
+
+@pytest.fixture(scope="module")
+def swapped_recording(tmp_path_factory):
+    """Two 320x160 frames of the demo scene with the left and right views exchanged."""
+    from staticdepth.dataset.synth import SyntheticScene, preset
+
+    d = tmp_path_factory.mktemp("swapped")
+    scene = SyntheticScene(preset("demo", width=320, height=160, seed=1))
+    for sub in ("left", "right"):
+        (d / sub).mkdir()
+    for i in range(2):
+        fr = scene.render(i)
+        cv2.imwrite(str(d / "left" / f"{i:04d}.png"), fr["right"][..., ::-1])
+        cv2.imwrite(str(d / "right" / f"{i:04d}.png"), fr["left"][..., ::-1])
+    scene.rig.save(d / "rig.json")
+    return d, scene
+
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_pack_refuses_swapped_views(swapped_recording, tmp_path, capsys):
+    rec, _ = swapped_recording
+    argv = ["pack", "--recording", str(rec), "--rig", str(rec / "rig.json"),
+            "--set", "num_disparities=32", "--out", str(tmp_path / "S.h5")]
+    assert main(argv) == 2
+    assert _one_error_line(capsys).endswith(
+        f"{rec}/left/0000.png: the views look swapped: 100% of the matched features have a "
+        "negative disparity (the right image matches better as the left); exchange the "
+        "recording's left and right images, or pass --skip-rectification-check")
+    assert not (tmp_path / "S.h5").exists() and not (tmp_path / "S.h5.partial").exists()
+    assert main(argv + ["--skip-rectification-check"]) == 0  # the way out the message names
+    with SequenceReader(tmp_path / "S.h5") as r:
+        assert len(r) == 2
+
+
+def test_pack_accepts_the_skip_rectification_check_its_error_suggests(swapped_recording,
+                                                                       tmp_path, capsys):
+    rec, scene = swapped_recording
+    cam = scene.rig.left
+    tilted = StereoRig(cam, cam, cv2.Rodrigues(np.array([0.04, 0.0, 0.0]))[0],
+                       [-scene.rig.baseline_m, 0, 0])  # rows 7 px apart after rectifying
+    tilted.save(tmp_path / "tilted.json")
+    argv = ["pack", "--recording", str(rec), "--rig", str(tmp_path / "tilted.json"),
+            "--set", "num_disparities=32", "--out", str(tmp_path / "T.h5")]
+    assert main(argv) == 2
+    line = _one_error_line(capsys)
+    assert "images are not rectified: matched features are 7.0 px apart vertically" in line
+    assert line.endswith("or pass --skip-rectification-check")
+    assert not (tmp_path / "T.h5").exists()
+    assert main(argv + ["--skip-rectification-check"]) == 0
+    assert "wrote 2 frames" in capsys.readouterr().out
