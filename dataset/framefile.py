@@ -337,13 +337,23 @@ class FrameFile:
             self._f.close()
             raise
         self._rows: np.ndarray | None = None
+        self._crc: np.ndarray | None = None
         self._ds = self._f[self.key]
 
     def __len__(self) -> int:
         return len(self._ds)
 
     def __getitem__(self, i: int) -> np.ndarray:
-        return self._ds[i]
+        """Frame ``i``, checked against its stored checksum (a damaged frame is an
+        InputError naming the file, never used)."""
+        a = self._ds[i]
+        if self._crc is None:
+            self._crc = self._f["crc32"][:] if "crc32" in self._f else np.zeros(0, np.uint32)
+        j = int(i) % len(self._ds) if len(self._ds) else 0
+        if j < len(self._crc) and frame_checksum(a) != int(self._crc[j]):
+            raise InputError(f"frame {j} does not match its checksum, the file is damaged; "
+                             "check the sequence with 'staticdepth verify'", self.path)
+        return a
 
     @property
     def attrs(self) -> dict[str, Any]:

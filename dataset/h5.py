@@ -197,6 +197,7 @@ class SequenceReader:
             if f[f"pred/{name}/depth"].shape != (n, h, w):
                 raise InputError(f"prediction {name!r} has shape {f[f'pred/{name}/depth'].shape}", p)
         self.n_frames, self.width, self.height = n, w, h
+        self._crc: dict[str, np.ndarray | None] = {}
 
     # -- access ---------------------------------------------------------------------------------
     def __len__(self) -> int:
@@ -244,14 +245,28 @@ class SequenceReader:
         return i % self.n_frames
 
     def _read_frame(self, key: str, i: int) -> np.ndarray:
-        """``key[i]``; a corrupt chunk (h5py's OSError) is an InputError naming file and frame."""
+        """``key[i]``, checked against its stored checksum; a corrupt chunk (h5py's OSError) or
+        a frame whose bytes changed is an InputError naming file and frame (every command reads
+        through here: a damaged frame never reaches evaluation, training or an export)."""
         i = self._index(i)
         try:
-            return self._f[key][i]
+            a = self._f[key][i]
         except OSError as e:
             raise InputError(f"{key} frame {i} is unreadable, the file is damaged "
                              f"({str(e).strip() or type(e).__name__}); check it with "
                              "'staticdepth verify'", self.path) from None
+        crc = self._checksums(key)
+        if crc is not None and i < len(crc) and _frame_checksum(a) != int(crc[i]):
+            raise InputError(f"{key} frame {i} does not match its checksum, the file is damaged; "
+                             "check it with 'staticdepth verify'", self.path)
+        return a
+
+    def _checksums(self, key: str) -> np.ndarray | None:
+        """The stored per-frame checksums of ``key`` (read once), None for a file without."""
+        if key not in self._crc:
+            name = f"crc32/{key}"
+            self._crc[key] = self._f[name][:] if name in self._f else None
+        return self._crc[key]
 
     def read(self, stream: str, i: int) -> np.ndarray:
         if stream not in self._f:

@@ -184,7 +184,7 @@ def verify_predictions(seq_path: str | os.PathLike) -> list[str]:
                     continue
                 for i in range(shape[0]):
                     try:
-                        ok = frame_checksum(ff[i]) == int(crc[i])
+                        ok = frame_checksum(ff._ds[i]) == int(crc[i])   # unchecked read
                     except (OSError, ValueError) as e:
                         bad.append(f"{tag}[{i}]: unreadable ({e})")
                         continue

@@ -86,11 +86,12 @@ def test_resume_with_other_inputs_or_settings_is_refused(recording, tmp_path, mo
     _interrupted_pack(recording, out, monkeypatch)
     partial = str(out) + ".partial"
     before = open(partial, "rb").read()
-    # another recording (same frame names and sizes, other images)
+    # another recording (same frame names and sizes, other images): the mirrored scene, its
+    # mirrored right view as the left (mirrored views alone would look swapped to pack)
     other = tmp_path / "other"
-    for sub in ("left", "right"):
+    for sub, src in (("left", "right"), ("right", "left")):
         (other / sub).mkdir(parents=True)
-        for p in sorted((recording / sub).iterdir()):
+        for p in sorted((recording / src).iterdir()):
             img = cv2.imread(str(p))
             cv2.imwrite(str(other / sub / p.name), np.ascontiguousarray(img[:, ::-1]))
     (other / "rig.json").write_text((recording / "rig.json").read_text())
@@ -312,6 +313,33 @@ def test_verify_detects_tampering_of_every_dataset(tmp_path, capsys, dataset):
     out = capsys.readouterr().out
     named = "pred/base" if dataset == "pred/base/depth" else dataset
     assert named in out and "checksum mismatch" in out
+
+
+@pytest.mark.parametrize("what", ["depth", "left", "prediction"])
+def test_commands_refuse_a_frame_that_does_not_match_its_checksum(tmp_path, capsys, what):
+    # only verify and publish checked: evaluate, export and inspect --sheet used damaged
+    # frames that still decoded (bytes changed inside a chunk)
+    from staticdepth.dataset.h5 import add_prediction
+
+    p = tmp_path / "s.h5"
+    assert main(synth_args(p, 3)) == 0
+    with SequenceReader(p) as r:
+        n, shape = len(r), (r.height, r.width)
+    add_prediction(p, "base", [np.full(shape, i + 1.0, np.float32) for i in range(n)])
+    target, key = ((f"{p}.pred/base.h5", "depth") if what == "prediction" else (p, what))
+    with h5py.File(target, "a") as f:
+        a = f[key][n - 1]
+        a.flat[5] = a.flat[5] + (0.5 if a.dtype.kind == "f" else 1)
+        f[key][n - 1] = a
+    runs = {"depth": [["evaluate", str(p)]], "prediction": [["evaluate", str(p)]],
+            "left": [["export", str(p), "--out", str(tmp_path / "x")],
+                     ["inspect", str(p), "--sheet", str(tmp_path / "s.png")]]}[what]
+    for argv in runs:
+        capsys.readouterr()
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"frame {n - 1} does not match its checksum" in err, err
+    assert not (tmp_path / "x").exists() and not (tmp_path / "s.png").exists()
 
 
 def test_legacy_dataset_without_checksum_is_not_covered(tmp_path, capsys):
