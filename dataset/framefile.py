@@ -17,21 +17,17 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import zlib
 from typing import Any, Mapping
 
 import h5py
 import numpy as np
 
 from staticdepth.dataset import resume as rs
+from staticdepth.dataset.integrity import checksum as frame_checksum  # the one CRC-32 of a frame
 from staticdepth.errors import InputError
 from staticdepth.fileio import exclusive_lock, fsync_file, os_error, remove_stale_temporaries
 
 PARTIAL = ".partial"
-
-
-def frame_checksum(a: np.ndarray) -> int:
-    return zlib.crc32(np.ascontiguousarray(a).view(np.uint8).data) & 0xFFFFFFFF
 
 
 def _compression(kind: str) -> dict[str, Any]:
