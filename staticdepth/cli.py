@@ -18,6 +18,7 @@ and exits 2, without a traceback. The rule that tells bad input from a bug:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import sys
@@ -335,6 +336,12 @@ def main(argv: Sequence[str] | None = None, *, recipe: str | None = None) -> int
             return int(args.func(args) or 0)
     except InputError as e:
         return _error(args.command, str(e))
+    except BrokenPipeError:
+        # `inspect ... | head`: the reader left. No error line; the status of a process that
+        # SIGPIPE stopped (128 + 13), since whatever followed the print did not run
+        with contextlib.suppress(OSError):
+            sys.stdout = open(os.devnull, "w")    # noqa: SIM115 (the interpreter flushes it)
+        return 141
     except OSError as e:
         return _error(args.command, _os_problem(e))
     except KeyboardInterrupt:

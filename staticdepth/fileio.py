@@ -265,7 +265,8 @@ def exclusive_lock(path: str | os.PathLike, *, what: str = "writing") -> Iterato
     try:
         fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
     except OSError as e:
-        raise os_error(e, lock) from None
+        # the user named the output, not its lock: a missing folder is the output's problem
+        raise os_error(e, path if e.errno == errno.ENOENT else lock) from None
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -45,6 +45,24 @@ def test_input_and_environment_errors_are_one_line(monkeypatch, capsys, exc, lin
     assert line in err and "Traceback" not in err
 
 
+def test_a_closed_pipe_is_no_error_line(monkeypatch, capsys):
+    # `staticdepth inspect seq.h5 --sheet s.png | head -2` printed "error: Broken pipe"
+    monkeypatch.setattr(staticdepth.evaluate, "_metrics_cmd", _raising(BrokenPipeError(
+        errno.EPIPE, "Broken pipe")))
+    assert main(ARGV) == 141                    # as a process SIGPIPE stopped: 128 + 13
+    assert capsys.readouterr().err == ""
+
+
+def test_a_missing_output_folder_names_the_output_not_its_lock(tmp_path):
+    from staticdepth.errors import InputError
+    from staticdepth.fileio import exclusive_lock
+
+    out = tmp_path / "nodir" / "x.h5"
+    with pytest.raises(InputError) as e, exclusive_lock(out):
+        pass
+    assert str(e.value) == f"{out}: no such file or folder"
+
+
 @pytest.mark.parametrize("exc", [TypeError("bad operand"), IndexError("list index"),
                                  AssertionError("invariant"), ZeroDivisionError()])
 def test_bugs_keep_their_traceback(monkeypatch, exc):
