@@ -5,6 +5,7 @@ import argparse
 import math
 import os
 
+from staticdepth.dataset import schema
 from staticdepth.errors import InputError
 
 
@@ -128,17 +129,11 @@ def _check_camera_height(value: float | None) -> None:
         raise InputError(f"--camera-height must be a positive number of metres, got {value:g}")
 
 
-def _check_name(name: str | None) -> None:
-    """Before any work: a sequence name is one line of printable text (reports, the card)."""
-    if name is not None and not name.isprintable():
-        raise InputError(f"--name must be one line of printable text, got {name!r}")
-
-
 def _import_kitti(args: argparse.Namespace) -> int:
     from staticdepth.dataset.kitti import import_kitti
 
     _check_camera_height(args.camera_height)
-    _check_name(args.name)
+    schema.check_name(args.name)
     return _write_with_executor(args, import_kitti, args.root, args.drives, args.out,
                                 name=args.name, adapt_frames=args.adapt_frames, right=args.right,
                                 depth_maps=args.depth_maps, camera_height_m=args.camera_height)
@@ -147,7 +142,7 @@ def _import_kitti(args: argparse.Namespace) -> int:
 def _import_carla(args: argparse.Namespace) -> int:
     from staticdepth.dataset.carla import import_carla
 
-    _check_name(args.name)
+    schema.check_name(args.name)
     return _write_with_executor(args, import_carla, args.dir, args.out, name=args.name,
                                 adapt_frames=args.adapt_frames, legacy_tags=args.legacy_tags)
 
@@ -157,7 +152,7 @@ def _pack(args: argparse.Namespace) -> int:
     from staticdepth.dataset.pack import pack_recording
 
     _check_camera_height(args.camera_height)
-    _check_name(args.name)
+    schema.check_name(args.name)
     return _write_with_executor(args, pack_recording, args.recording, args.rig, args.out,
                                 camera_height_m=args.camera_height,
                                 adapt_frames=args.adapt_frames, matcher=args.matcher,

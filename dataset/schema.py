@@ -69,3 +69,12 @@ def empty_agents(n: int = 0) -> np.ndarray:
     a["foot_u"] = a["foot_v"] = a["top_v"] = -1
     a["score"] = 1.0
     return a
+
+
+def check_name(name: str | None) -> None:
+    """Before any work: a sequence name is one line of printable text (the reports and the
+    dataset card print it; a line break in it broke their tables)."""
+    from staticdepth.errors import InputError
+
+    if name is not None and not str(name).isprintable():
+        raise InputError(f"--name must be one line of printable text, got {name!r}")

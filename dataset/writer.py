@@ -91,6 +91,7 @@ class SequenceWriter:
         self.meta = meta
         self.streams = tuple(streams)
         self.aux = {k: np.dtype(v) for k, v in (aux or {}).items()}  # extra maps: aux/<name>
+        schema.check_name(meta.name)        # every writer: import-video, stereo, synth, ...
         unknown = set(self.streams) - set(schema.FRAME_STREAMS)
         if unknown or "left" not in self.streams:
             raise InputError(f"streams must include 'left' and be among {schema.FRAME_STREAMS}, "

@@ -126,8 +126,15 @@ def test_lock_files_are_not_shipped_listed_or_required(release):
 def test_card_escapes_names_and_notes_depth_beyond_the_export_range(tmp_path, capsys):
     from test_export import make_far_sequence
 
-    name = "evil|<b>x</b>\n# injected"  # a name from an older file (the importers refuse it now)
-    make_far_sequence(tmp_path / "E.h5", name=name)
+    import h5py
+
+    from staticdepth.dataset.integrity import ATTRS_CRC, attrs_checksum
+
+    name = "evil|<b>x</b>\n# injected"  # a name from an older file (the writers refuse it now)
+    make_far_sequence(tmp_path / "E.h5")
+    with h5py.File(tmp_path / "E.h5", "a") as f:       # as an older version wrote it
+        f.attrs["name"] = name
+        f.attrs[ATTRS_CRC] = attrs_checksum(f.attrs)
     out = tmp_path / "rel"
     assert main(["publish", str(tmp_path / "E.h5"), "--out", str(out),
                  "--title", "<script>x</script>"]) == 0

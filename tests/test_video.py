@@ -192,3 +192,13 @@ def test_a_truncated_video_is_reported(tmp_path, capsys):
             want = f"the video's frames end at {n} of the 10 its header lists"
             assert f"warning: {cut}: {want}" in printed and want in note
     assert main(["verify", str(tmp_path / "cut.h5")]) == 0      # what was read is intact
+
+
+def test_every_writer_refuses_a_name_of_more_than_one_line(tmp_path, capsys):
+    # the importers checked --name; import-video and stereo wrote it into the file and the card
+    src = tmp_path / "v.avi"
+    _video(src, n=3)
+    assert main(["import-video", str(src), "--out", str(tmp_path / "v.h5"), "--name",
+                 "a\n# b"]) == 2
+    assert "--name must be one line of printable text, got 'a\\n# b'" in capsys.readouterr().err
+    assert not any(p.name.startswith("v.h5") for p in tmp_path.iterdir())
