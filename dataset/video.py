@@ -254,6 +254,9 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
     from staticdepth.fileio import exclusive_lock
     from staticdepth.progress import progress
 
+    from staticdepth.dataset.schema import check_name
+
+    check_name(name)
     if adapt_frames is not None and adapt_frames < 0:
         raise InputError(f"--adapt-frames must be >= 0, got {adapt_frames}")
     if width is not None and width < 16:
