@@ -86,6 +86,28 @@ def prediction_names(seq_path: str | os.PathLike) -> list[str]:
                                                                           "*.h5")))
 
 
+def remove_stale(seq_path: str | os.PathLike) -> list[str]:
+    """Delete the sidecar predictions that belong to another sequence than ``seq_path`` now
+    holds (a sequence replaced with ``--overwrite``: the reader refuses them and ``verify``
+    would fail the new file for them); those of identical content stay. Returns their names."""
+    names = prediction_names(seq_path)
+    if not names:
+        return []
+    sid = sequence_id_of(seq_path)
+    stale = []
+    for name in names:
+        path = prediction_path(seq_path, name)
+        try:
+            with h5py.File(path, "r") as f:
+                other = f.attrs.get("sequence_id")
+        except OSError:
+            continue                      # unreadable: verify names it; never deleted here
+        if other is not None and str(other) != sid:
+            os.remove(path)
+            stale.append(name)
+    return stale
+
+
 def prediction_writer(seq_path: str | os.PathLike, name: str, *, n: int, height: int, width: int,
                       identity: str, attrs: Mapping[str, Any] | None = None,
                       config_hash: str = "", chunk: int = 1, rewrite: bool = False

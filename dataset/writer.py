@@ -98,7 +98,9 @@ class SequenceWriter:
                              f"got {self.streams}")
         if os.path.lexists(self.path) and not overwrite:
             raise InputError("output exists (use --overwrite to replace it)", self.path)
-        if os.path.lexists(self.path):
+        self._warn = warn
+        self._replaced = os.path.lexists(self.path)
+        if self._replaced:
             check_replaceable_sequence(self.path)
         parent = os.path.dirname(os.path.abspath(self.path))
         if not os.path.isdir(parent):
@@ -407,6 +409,13 @@ class SequenceWriter:
             _fsync_path(self.partial)
             os.replace(self.partial, self.path)
             _fsync_path(self.path)
+            if self._replaced:
+                from staticdepth.dataset.predictions import remove_stale
+
+                stale = remove_stale(self.path)
+                if stale:
+                    self._warn(f"removed the predictions of the sequence this file replaced "
+                               f"(another sequence's, unreadable with it): {', '.join(stale)}")
         except (OSError, RuntimeError) as e:
             self.n = max(self.n, 1)
             self._fail(e)

@@ -8,9 +8,9 @@ import pytest
 
 from staticdepth.cli import main
 from staticdepth.dataset.h5 import SequenceReader, add_prediction
-from staticdepth.dataset.predictions import (clean_store, prediction_path, prediction_writer,
-                                             remove_prediction, verify_predictions,
-                                             write_prediction)
+from staticdepth.dataset.predictions import (clean_store, prediction_names, prediction_path,
+                                             prediction_writer, remove_prediction,
+                                             verify_predictions, write_prediction)
 from staticdepth.errors import InputError
 from test_h5 import _write
 
@@ -128,3 +128,21 @@ def test_verify_finds_a_changed_frame_and_publish_ships_predictions(tmp_path, ca
     assert "pred/base[2]: checksum mismatch" in capsys.readouterr().out
     with pytest.raises(InputError, match="prediction fails verification"):
         publish([p], tmp_path / "rel2", export=False)
+
+
+def test_overwriting_a_sequence_removes_only_predictions_it_cannot_read(tmp_path, capsys):
+    # `synth --overwrite` left the replaced sequence's predictions beside the new file, which
+    # verify then failed; a re-render of identical content keeps its predictions (they still fit)
+    seq = tmp_path / "s.h5"
+    args = ["synth", "--preset", "c1", "--frames", "3", "--adapt-frames", "1", "--set",
+            "width=96", "--set", "height=48", "--out", str(seq)]
+    assert main(args) == 0
+    add_prediction(seq, "base", [np.ones((48, 96), np.float32)] * 3)
+    assert main([*args, "--overwrite"]) == 0                      # the same content
+    assert "removed the predictions" not in capsys.readouterr().out
+    assert prediction_names(seq) == ["base"] and main(["verify", str(seq)]) == 0
+    capsys.readouterr()
+    assert main([*args, "--overwrite", "--seed", "3"]) == 0        # another sequence
+    assert ("removed the predictions of the sequence this file replaced (another sequence's, "
+            "unreadable with it): base") in capsys.readouterr().out
+    assert prediction_names(seq) == [] and main(["verify", str(seq)]) == 0
