@@ -36,6 +36,7 @@ from staticdepth.errors import InputError
 CLASS_NAMES = {v: k for k, v in COCO.items()}
 PERSON = COCO["person"]
 METRIC_PREDICTIONS = ("ft-align-metric", "align-metric")
+MAX_PERSON_RADIUS_M = 1.0            # --person-radius: wider than any person's half-width
 
 POS_DTYPE = np.dtype([("frame", np.int32), ("time_s", np.float64), ("track", np.int32),
                       ("class_id", np.int16), ("score", np.float32), ("u", np.float32),
@@ -363,6 +364,11 @@ def _run(args) -> int:
                     overwrite=args.overwrite)
     if not args.close_m > 0:
         raise InputError(f"--close-m must be positive, got {args.close_m}")
+    if not 0 <= args.person_radius <= MAX_PERSON_RADIUS_M:
+        raise InputError(f"--person-radius must be a body radius from 0 to "
+                         f"{MAX_PERSON_RADIUS_M:g} m, got {args.person_radius:g}")
+    if args.annotate_frames < 1:
+        raise InputError(f"--annotate-frames must be at least 1, got {args.annotate_frames}")
     n, h, src = load_plane(args.summary, args.plane, args.camera_height, args.sequence)
     detector, model = args.detector, args.detector_model
     if detector is None and not args.plane:

@@ -291,3 +291,33 @@ def test_riders_on_a_synthetic_scene(tmp_path):
         lateral.append(abs((P - T) @ side / np.linalg.norm(side)))
     assert np.median(rel) <= 0.02 and np.median(lateral) <= 0.05, (np.median(rel),
                                                                     np.median(lateral))
+
+
+
+@pytest.mark.parametrize("extra, msg", [
+    (["--annotate", "a.gif", "--annotate-frames", "0"],
+     "--annotate-frames must be at least 1, got 0"),
+    (["--person-radius", "-1"], "--person-radius must be a body radius from 0 to 1 m, got -1"),
+    (["--person-radius", "50"], "--person-radius must be a body radius from 0 to 1 m, got 50")])
+def test_locate_refuses_bad_options_before_writing(tmp_path, capsys, monkeypatch, extra, msg):
+    """--annotate-frames 0 (crashed in pick_frames after the CSV was written), a body radius out
+    of range (-1 and 50 m ran) are refused in one line, exit 2, before any output; a radius of 0
+    is taken."""
+    from staticdepth.dataset.h5 import add_prediction
+
+    monkeypatch.chdir(tmp_path)
+    scene = UprightScene(n_people=3, seed=5, bench=True)
+    seq = str(tmp_path / "bench.h5")
+    scene.write(seq, frames=2)
+    depth = [scene.render(i)["depth"].astype(np.float32) for i in range(2)]
+    add_prediction(seq, "base", [d / 7.0 for d in depth], {"metric": False})
+    add_prediction(seq, "ft-align-metric", depth, {"metric": True})
+    out = tmp_path / "p.csv"
+    base = ["locate", seq, "--plane", str(_plane_json(tmp_path, scene)), "--camera-height",
+            str(scene.height_m), "--out", str(out)]
+    assert main(base + extra) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and msg in err[0], err
+    assert not out.exists() and not (tmp_path / "a.gif").exists()
+    assert main(base + ["--depth", "ft-align-metric", "--person-radius", "0"]) == 0
+    assert "depth" in {r["source"] for r in csv.DictReader(out.open())}   # the bench's feet
