@@ -93,6 +93,19 @@ def load_plane(summary_path: str | None, plane_path: str | None, camera_height: 
     return n, (float(camera_height) if camera_height is not None else h), f"summary {path}"
 
 
+def metric_predictions(reader) -> list[str]:
+    """The sequence's predictions in metres, as evaluate's metric protocol takes them (named
+    ``*-metric``, the stereo baseline, attribute ``metric``); not confidence maps."""
+    from staticdepth.evaluate import default_protocol
+
+    out = []
+    for name in reader.predictions():
+        attrs = reader.prediction_attrs(name)
+        if attrs.get("kind") != "confidence" and default_protocol(name, attrs) == "metric":
+            out.append(name)
+    return out
+
+
 def _instances_and_rows(reader, detector: str | None, detector_model: str | None,
                         detector_mask: str):
     """Yield (frame, instance map, rows or None) from the sequence's instances or a detector."""
@@ -134,6 +147,11 @@ def locate(seq_path: str, normal, camera_height_m: float, conf: LocateConfig = L
             if depth_pred not in r.predictions():
                 raise InputError(f"no prediction {depth_pred!r} in the sequence (has: "
                                  f"{', '.join(r.predictions()) or 'none'})", seq_path)
+            metric = metric_predictions(r)
+            if depth_pred not in metric:
+                raise InputError(f"prediction {depth_pred!r} is not metric depth (metric "
+                                 f"ones: {', '.join(metric) or 'none'}; named *-metric or "
+                                 f"with the attribute metric)", seq_path)
             pred = depth_pred
         static = _static_map(r, pred) if pred is not None else None
         frames = _instances_and_rows(r, detector, detector_model, detector_mask)

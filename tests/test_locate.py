@@ -298,11 +298,12 @@ def test_riders_on_a_synthetic_scene(tmp_path):
     (["--annotate", "a.gif", "--annotate-frames", "0"],
      "--annotate-frames must be at least 1, got 0"),
     (["--person-radius", "-1"], "--person-radius must be a body radius from 0 to 1 m, got -1"),
-    (["--person-radius", "50"], "--person-radius must be a body radius from 0 to 1 m, got 50")])
+    (["--person-radius", "50"], "--person-radius must be a body radius from 0 to 1 m, got 50"),
+    (["--depth", "base"], "prediction 'base' is not metric depth (metric ones: ft-align-metric;")])
 def test_locate_refuses_bad_options_before_writing(tmp_path, capsys, monkeypatch, extra, msg):
     """--annotate-frames 0 (crashed in pick_frames after the CSV was written), a body radius out
-    of range (-1 and 50 m ran) are refused in one line, exit 2, before any output; a radius of 0
-    is taken."""
+    of range (-1 and 50 m ran) and a relative --depth map (base, used as metres) are refused in
+    one line, exit 2, before any output; the metric map and a radius of 0 are taken."""
     from staticdepth.dataset.h5 import add_prediction
 
     monkeypatch.chdir(tmp_path)
