@@ -98,9 +98,11 @@ def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
                 write_image(os.path.join(out_dir, f"{n:06d}.png"), q.astype(np.uint16))
             else:
                 if writer is None:
-                    tmp_ctx = atomic_path(os.path.join(out_dir, "depth.mp4"), "mp4")
+                    # the temporary ends in .mp4 (OpenCV picks the container by it) and is the
+                    # one atomic_path removes when the run stops early
+                    tmp_ctx = atomic_path(os.path.join(out_dir, "depth.mp4"), "part.mp4")
                     tmp = tmp_ctx.__enter__()
-                    writer = cv2.VideoWriter(tmp + ".mp4", cv2.VideoWriter_fourcc(*"mp4v"), 10.0,
+                    writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), 10.0,
                                              (depth.shape[1], depth.shape[0]))
                     fin = np.log(depth[np.isfinite(depth) & (depth > 0)])
                     rng = np.percentile(fin, [2, 98]) if len(fin) else (0.0, 1.0)
@@ -111,10 +113,11 @@ def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
             n += 1
         if writer is not None:
             writer.release()
-            os.replace(tmp + ".mp4", tmp)
             tmp_ctx.__exit__(None, None, None)
     except BaseException as e:
         if tmp_ctx is not None:
+            if writer is not None:
+                writer.release()
             tmp_ctx.__exit__(type(e), e, e.__traceback__)
         raise
     if n == 0:

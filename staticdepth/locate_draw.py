@@ -171,7 +171,7 @@ def write_annotated(path: str, seq_path: str, pos: np.ndarray, pairs: list, k: i
             frames.append(img)
     if not frames:
         raise InputError("no agent was located: nothing to annotate", seq_path)
-    with atomic_path(path, "anno") as tmp:
+    with atomic_path(path, "anno" + ext) as tmp:     # OpenCV picks the container by the suffix
         if ext == ".gif":
             ims = [Image.fromarray(f) for f in frames]
             with open(tmp, "wb") as fh:
@@ -179,13 +179,12 @@ def write_annotated(path: str, seq_path: str, pos: np.ndarray, pairs: list, k: i
                             duration=int(1000 / fps), loop=0)
         else:
             h, w = frames[0].shape[:2]
-            vw = cv2.VideoWriter(tmp + ".mp4", cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+            vw = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
             if not vw.isOpened():
                 raise InputError("OpenCV cannot write MP4 here", path)
             for f in frames:
                 vw.write(np.ascontiguousarray(f[..., ::-1]))
             vw.release()
-            os.replace(tmp + ".mp4", tmp)
     cols = min(3, len(frames))
     rows = -(-len(frames) // cols)
     h, w = frames[0].shape[:2]

@@ -250,6 +250,33 @@ def test_predict_formats(deployment, capsys):
     assert "relative" in capsys.readouterr().out
 
 
+
+def test_predict_mp4_interrupted_leaves_nothing(deployment, tmp_path, monkeypatch):
+    """Ctrl-C while the MP4 is being written (after 2 frames) leaves no temporary beside it: the
+    writer wrote ``<tmp>.mp4`` where atomic_path removes ``<tmp>``, and the next run into the
+    folder was refused (it held files); now the folder is empty and the next run writes."""
+    import staticdepth.deploy_predict as dp
+
+    d, seq, summary = deployment
+    frames = dp._frames
+
+    def interrupted(*args, **kwargs):
+        for k, img in enumerate(frames(*args, **kwargs)):
+            if k == 2:
+                raise KeyboardInterrupt
+            yield img
+
+    monkeypatch.setattr(dp, "_frames", interrupted)
+    spec = f"builtin:{d / 'm.pt'}"
+    with pytest.raises(KeyboardInterrupt):
+        dp.predict(spec, str(seq), str(tmp_path / "o"), "mp4", log=lambda s: None,
+                   device="cpu")
+    assert list((tmp_path / "o").iterdir()) == []
+    monkeypatch.setattr(dp, "_frames", frames)
+    assert main(["predict", "--model", spec, "--input", str(seq), "--out", str(tmp_path / "o"),
+                 "--format", "mp4", "--max-frames", "2", "--device", "cpu"]) == 0
+    assert [p.name for p in (tmp_path / "o").iterdir()] == ["depth.mp4"]
+
 def test_export_bad_inputs(deployment, tmp_path):
     d, seq, summary = deployment
     bad = tmp_path / "bad.json"
