@@ -2,7 +2,10 @@
 
 Inference only. The input is one (1, 3, h, w) float32 tensor of normalised RGB; a static input
 shape in the file fixes (h, w), a dynamic one uses :class:`~staticdepth.models.base.Resize`. The
-output (1, h', w') or (1, 1, h', w') relative inverse depth is resized to the image bilinearly.
+output (1, h', w'), (1, 1, h', w') or (h', w') relative inverse depth is resized to the image
+bilinearly. An output that is not one such map is refused (:func:`check_depth_output`): h' and w'
+within 1/32 to 2x of the input's h and w, at the input's aspect within 2x (a detector's (1, N, 85)
+boxes are not a map): from the file's shapes when they are fixed, else on the first image.
 """
 from __future__ import annotations
 
@@ -14,6 +17,22 @@ import numpy as np
 
 from staticdepth.errors import InputError
 from staticdepth.models.base import IMAGENET_MEAN, IMAGENET_STD, DepthModel, Resize, check_image
+
+
+def check_depth_output(shape: Sequence, input_hw: Sequence, path: str) -> None:
+    """Refuse an output ``shape`` that is not one depth map for an input of ``input_hw``; a dim
+    that is not an int (dynamic in the file) passes."""
+    fixed = [isinstance(n, int) for n in shape]
+    lead = {2: 0, 3: 1, 4: 2}.get(len(shape))
+    ok = lead is not None and all(n == 1 for n, f in zip(shape[:lead], fixed) if f)
+    if ok and all(fixed[lead:]) and all(isinstance(n, int) for n in input_hw):
+        sy, sx = shape[lead] / input_hw[0], shape[lead + 1] / input_hw[1]
+        ok = 1 / 32 <= min(sy, sx) and max(sy, sx) <= 2 and max(sy / sx, sx / sy) <= 2
+    if not ok:
+        dims = " x ".join(str(n) for n in input_hw)
+        raise InputError(f"the output {tuple(shape)} is not one depth map for the {dims} input "
+                         f"((1, h, w), (1, 1, h, w) or (h, w) near its size): not a depth model",
+                         path)
 
 
 class OnnxDepthModel(DepthModel):
@@ -32,6 +51,8 @@ class OnnxDepthModel(DepthModel):
         self.input_name = inputs[0].name
         h, w = inputs[0].shape[2:]
         self.static_size = (h, w) if isinstance(h, int) and isinstance(w, int) else None
+        outputs = self.session.get_outputs()
+        check_depth_output(outputs[0].shape, (h, w), self.path)
         self.resize = resize or Resize(384, 384, keep_aspect_ratio=True, multiple=32)
         self.mean = np.asarray(mean, dtype=np.float32)
         self.std = np.asarray(std, dtype=np.float32)
@@ -52,12 +73,10 @@ class OnnxDepthModel(DepthModel):
 
     def predict(self, image: np.ndarray) -> np.ndarray:
         H, W = np.asarray(image).shape[:2]
-        out = self.session.run(None, {self.input_name: self.preprocess(image)})[0]
-        out = np.asarray(out, dtype=np.float32)
-        while out.ndim > 2:
-            if out.shape[0] != 1:
-                raise InputError(f"unexpected output shape {out.shape}", self.path)
-            out = out[0]
+        x = self.preprocess(image)
+        out = np.asarray(self.session.run(None, {self.input_name: x})[0], dtype=np.float32)
+        check_depth_output(out.shape, x.shape[2:], self.path)
+        out = out.reshape(out.shape[-2:])
         if out.shape != (H, W):
             out = cv2.resize(out, (W, H), interpolation=cv2.INTER_LINEAR)
         return out.astype(np.float32)
