@@ -3,7 +3,8 @@
 Figures (:mod:`staticdepth.report_figures`, in the pipeline's order): colourised depth per stage
 with colour bars in metres, error maps per stage (the paper's Fig. 6), the ground planes
 (predicted, from agents, true) drawn on the image (Fig. 3), and the agents' recent tracks. A
-sequence without ground truth gets its figures without metrics.
+sequence without ground truth gets its figures without metrics: its metric predictions in metres
+over one shared range, the relative ones over their own range, labelled relative.
 The HTML embeds every picture as a data URI, so it opens offline in any browser.
 """
 from __future__ import annotations
@@ -64,7 +65,12 @@ def sequence_figures(path: str | os.PathLike, summary: Mapping[str, Any] | None 
             figs.append(("2. ground-truth depth (colours: inverse depth, near = red)",
                          rf.depth_panel(gt, "ground truth", rng)))
         k = len(figs) + 1
-        for name in rf.pipeline_sorted(r.predictions()):
+        names = rf.pipeline_sorted(r.predictions())
+        metric = {n: default_protocol(n, r.prediction_attrs(n)) == "metric" for n in names}
+        if not has_gt:          # one range for the metric panels, as the ground truth's would be
+            rng = rf.depth_range(np.concatenate(
+                [np.ravel(r.prediction(n, i)) for n in names if metric[n]] or [np.zeros(0)]))
+        for name in names:
             pred = r.prediction(name, i).astype(np.float64)
             if has_gt:
                 prot = default_protocol(name)
@@ -73,10 +79,12 @@ def sequence_figures(path: str | os.PathLike, summary: Mapping[str, Any] | None 
                              rf.depth_panel(scaled, f"{name} ({prot})", rng)))
                 figs.append((f"{k}. {name}: relative error |pred - gt| / gt",
                              rf.error_panel(error_map(scaled, gt), f"{name}: relative error")))
+            elif metric[name]:
+                figs.append((f"{k}. {name}: depth (metric, metres; the metric panels share one "
+                             f"colour range; no ground truth)", rf.depth_panel(pred, name, rng)))
             else:
-                metric = bool(r.prediction_attrs(name).get("metric", False))
-                figs.append((f"{k}. {name}: depth ({'metric' if metric else 'relative'}; no "
-                             f"ground truth)", rf.depth_panel(pred, name, None)))
+                figs.append((f"{k}. {name}: depth (relative: its own colour range; no ground "
+                             f"truth)", rf.depth_panel(pred, name, None)))
             k += 1
         planes = rf.summary_planes(summary)
         agents = r.agents()
@@ -89,9 +97,8 @@ def sequence_figures(path: str | os.PathLike, summary: Mapping[str, Any] | None 
         if r.meta.mounting is not None:
             planes = {"true": (r.meta.mounting.normal, r.meta.mounting.height_m), **planes}
         if planes:
-            figs.append((f"{k}. ground planes: iso-depth lines in metres (green true, orange "
-                         "from the agents, magenta the base prediction's plane, its orientation "
-                         "only: scaled to the agents' height)",
+            drawn = ", ".join(rf.PLANE_CAPTIONS.get(p, p) for p in planes)
+            figs.append((f"{k}. ground planes: iso-depth lines in metres ({drawn})",
                          rf.label(rf.draw_planes(img, r.camera.K, planes), "ground planes")))
             k += 1
         if len(agents):

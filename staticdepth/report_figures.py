@@ -4,7 +4,9 @@ Order: the input frame; ground-truth depth; each prediction in the order the met
 (base -> ft -> align -> ft-align -> metric -> stereo baseline), depth then relative error; the
 ground planes (true, from the agents, and the plane of the base prediction) as iso-depth lines
 labelled in metres; the agents' recent tracks. Depth colours follow inverse depth (turbo, near =
-red) over one range per sequence (the ground truth's 2nd-98th percentile), so panels compare.
+red) over one range per sequence (the ground truth's 2nd-98th percentile; without ground truth,
+the metric predictions' together), so panels compare; a relative prediction's panel has its own
+range and a bar labelled relative.
 """
 from __future__ import annotations
 
@@ -18,6 +20,9 @@ from staticdepth.dataset.inspect import colorize_depth
 PIPELINE_ORDER = ("base", "ft", "align", "ft-align", "align-metric", "ft-align-metric",
                   "stereo-baseline")
 PLANE_COLOURS = {"true": (40, 220, 40), "agents": (255, 160, 0), "predicted": (230, 40, 230)}
+PLANE_CAPTIONS = {"true": "green true", "agents": "orange from the agents",
+                  "predicted": "magenta the base prediction's plane, its orientation only: "
+                               "scaled to the agents' height"}
 NICE_M = (0.5, 1, 2, 3, 5, 7, 10, 15, 20, 30, 50, 70, 100, 150, 200, 300)
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 

@@ -79,3 +79,43 @@ def test_table2_errors_in_metres():
     t = table2({"C1": {"gt_m": 10.0, "parallel_m": 7.0, "ours_m": 10.5}})
     assert t.rows[0] == ["C1", 10.0, 7.0, 3.0, 10.5, 0.5]
     assert "C1" in t.text() and t.csv().splitlines()[1] == "C1,10.0,7.0,3.0,10.5,0.5"
+
+
+def test_report_without_ground_truth_labels_what_it_draws(tmp_path):
+    """A camera without ground truth (import-video, adapt): the metric panels read in metres over
+    one shared range (they each had their own, labelled "relative"), the relative ones keep their
+    own range and that label, and the planes' caption names only the planes drawn (it named a
+    green true plane the sequence does not have)."""
+    from staticdepth import report_figures as rf
+    from staticdepth.report import sequence_figures
+
+    cam = Camera.from_fov(80, 40, 90)
+    mnt = Mounting.from_pitch_roll(5.0, 45.0)
+    depth = plane_depth_map(cam.K, mnt.normal, mnt.height_m, 80, 40)
+    depth = np.where(np.isfinite(depth), depth, 60.0).astype(np.float32)
+    ag = schema.empty_agents(1)
+    ag["instance_id"], ag["class_id"], ag["track_id"], ag["foot_u"], ag["foot_v"] = 1, 0, 7, 40, 30
+    p = tmp_path / "site.h5"
+    with SequenceWriter(p, SequenceMeta(name="site", camera=cam, adapt_frames=2),
+                        streams=("left",)) as w:
+        for i in range(4):
+            w.append(left=np.full((40, 80, 3), 60 * i, np.uint8), agents=ag)
+    preds = {"base": 1.0 / depth, "align": depth / 5.0, "align-metric": depth,
+             "ft-align-metric": 2.0 * depth}
+    for name, pred in preds.items():
+        add_prediction(p, name, [pred] * 4, {"metric": name.endswith("-metric")})
+    figs = dict((c.split(". ", 1)[1].split(":")[0], (c, img))
+                for c, img in sequence_figures(p, {"planes": {"agents": {
+                    "normal": mnt.normal.tolist(), "d": mnt.height_m}}}))
+    shared = rf.depth_range(np.concatenate([depth.ravel(), 2.0 * depth.ravel()]))
+    for name in ("align-metric", "ft-align-metric"):
+        caption, img = figs[name]
+        assert "metric, metres" in caption
+        np.testing.assert_array_equal(img, rf.depth_panel(preds[name], name, shared))
+    assert np.any(figs["align-metric"][1] != figs["ft-align-metric"][1])  # 2x farther: colours
+    for name in ("base", "align"):
+        caption, img = figs[name]
+        assert "relative" in caption
+        np.testing.assert_array_equal(img, rf.depth_panel(preds[name], name, None))
+    caption = figs["ground planes"][0]
+    assert "orange from the agents" in caption and "green" not in caption, caption
