@@ -46,5 +46,5 @@ def test_report_without_ground_truth_shows_predictions_without_metrics(tmp_path,
     assert main(["report", f"site={seq}", "--out", str(out)]) == 0
     html = (out / "report_site.html").read_text()
     assert "no ground truth: the predictions are shown without metrics" in html
-    assert "base: depth (relative; no ground truth)" in html
+    assert "base: depth (relative: its own colour range; no ground truth)" in html
     assert "Table 1" not in html and not (out / "tables_1.csv").exists()

@@ -43,17 +43,10 @@ def one_error_line(capsys) -> str:
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
-    from staticdepth.dataset.synth import SyntheticScene, preset
+    from test_pack import render_recording
 
     d = tmp_path_factory.mktemp("rec")
-    scene = SyntheticScene(preset("demo", width=192, height=96, seed=1))
-    for sub in ("left", "right"):
-        (d / sub).mkdir()
-    for i in range(6):
-        fr = scene.render(i)
-        cv2.imwrite(str(d / "left" / f"{i:04d}.png"), fr["left"][..., ::-1])
-        cv2.imwrite(str(d / "right" / f"{i:04d}.png"), fr["right"][..., ::-1])
-    scene.rig.save(d / "rig.json")
+    render_recording(d, 6, 192, 96)
     return d
 
 

@@ -218,21 +218,28 @@ def test_mounting_of_a_calibrated_rig_is_kept_in_the_rectified_frame(plain_recor
         assert r.meta.camera_height_m == 5.0
 
 
+def render_recording(d, frames: int, width: int, height: int, swap: bool = False):
+    """A ``left/``, ``right/``, ``rig.json`` recording of the demo scene (seed 1) in folder
+    ``d``; ``swap`` exchanges the views. Returns the scene."""
+    from staticdepth.dataset.synth import SyntheticScene, preset
+
+    scene = SyntheticScene(preset("demo", width=width, height=height, seed=1))
+    views = ("right", "left") if swap else ("left", "right")
+    for sub in ("left", "right"):
+        (d / sub).mkdir()
+    for i in range(frames):
+        fr = scene.render(i)
+        for sub, view in zip(("left", "right"), views):
+            cv2.imwrite(str(d / sub / f"{i:04d}.png"), fr[view][..., ::-1])
+    scene.rig.save(d / "rig.json")
+    return scene
+
+
 @pytest.fixture(scope="module")
 def swapped_recording(tmp_path_factory):
     """Two 320x160 frames of the demo scene with the left and right views exchanged."""
-    from staticdepth.dataset.synth import SyntheticScene, preset
-
     d = tmp_path_factory.mktemp("swapped")
-    scene = SyntheticScene(preset("demo", width=320, height=160, seed=1))
-    for sub in ("left", "right"):
-        (d / sub).mkdir()
-    for i in range(2):
-        fr = scene.render(i)
-        cv2.imwrite(str(d / "left" / f"{i:04d}.png"), fr["right"][..., ::-1])
-        cv2.imwrite(str(d / "right" / f"{i:04d}.png"), fr["left"][..., ::-1])
-    scene.rig.save(d / "rig.json")
-    return d, scene
+    return d, render_recording(d, 2, 320, 160, swap=True)
 
 
 def _one_error_line(capsys) -> str:
