@@ -38,6 +38,7 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
     from staticdepth.adaptation.config import AdaptConfig, model_identity, stage_hashes
     from staticdepth.fileio import atomic_write_json
     from staticdepth.geometry.scale import anchor_depth, anchor_depth_parallel, anchor_pixel
+    from staticdepth.geometry.agent_plane_gate import plane_gate
 
     conf = conf if conf is not None else AdaptConfig()
     seq_path = os.fspath(seq_path)
@@ -93,6 +94,9 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
                "config_hash": h["scale"], "stage_hashes": h, "frames": ws.n,
                "adapt_frames": len(ws.adapt_split), "size": [W, H],
                "pseudo_label_agent_pixels": n_agent_px, "plane": plane.to_dict(),
+               # the gate's verdict, kept: the stage's warning is printed only when it runs
+               "plane_gate": (plane_gate(plane).to_dict() if np.isfinite(plane.normal_std_deg)
+                              else None),
                # how well each network sees the agents' ground; outputs that took the plane alone
                "align_ground_r2": align_info["ground_r2"],
                "align_plane_only": align_info["plane_only"],
@@ -264,6 +268,10 @@ def run(args) -> int:
     print(f"plane: pitch {summary['plane']['pitch_deg']:.2f}{pm(sp)} deg, roll "
           f"{summary['plane']['roll_deg']:.2f}{pm(sr)} deg; camera height "
           f"{summary['camera_height_m']:.2f}{pm(sd)} m ({summary['camera_height_source']})")
+    gate = summary.get("plane_gate")
+    if gate and not gate["ok"]:     # also on a rerun that skipped the ground_plane stage
+        print(f"warning: {gate['message']}; adapt went on with it (alignment and metric scale "
+              "inherit its error)")
     if summary.get("metric_note"):
         print(summary["metric_note"])
     print(f"predictions written to {seq}.pred/: {', '.join(summary['predictions'])}")

@@ -249,6 +249,24 @@ def test_an_interrupted_run_leaves_no_saved_model_and_resumes(tmp_path, clip, ti
     assert any(moved)                          # the fine-tuned weights, not the initial ones
 
 
+def test_the_plane_gate_is_kept_in_the_summary_and_said_on_every_run(tmp_path, clip, tiny,
+                                                                     one_thread, capsys):
+    # the gate's warning was printed only by the ground_plane stage: a rerun that skipped the
+    # stage, and the summary, said nothing of a plane too uncertain for alignment
+    seq = str(tmp_path / "s.h5")
+    shutil.copy(clip, seq)
+    argv = ["adapt", seq, "--model", f"builtin:{tiny}", *FAST, "--set", "plane.bootstrap=5",
+            "--epochs", "1", "--set", "align.min_ground_r2=0"]
+    for run in range(2):
+        capsys.readouterr()
+        assert main(argv + (["--overwrite"] if run else [])) == 0
+        out = capsys.readouterr().out
+        gate = _summary(seq)["plane_gate"]
+        assert gate["ok"] is False and gate["normal_std_deg"] > gate["max_normal_std_deg"]
+        assert f"warning: {gate['message']}; adapt went on with it" in out
+    assert "ground_plane" in _summary(seq)["skipped_stages"]
+
+
 def test_dotted_settings_and_fail_fast(tmp_path, clip, tiny, capsys):
     seq = str(tmp_path / "s.h5")
     shutil.copy(clip, seq)
