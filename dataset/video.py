@@ -309,6 +309,7 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
             raise
     return {"path": path, "frames": n, "size": size, "intrinsics": how, "adapt_frames": k,
             "adapt_clipped": adapt_frames is not None and adapt_frames > n, "fx": cam.fx,
+            "upscaled": size[0] / w0 if size[0] > w0 else None,
             "resumed_from": done, "ended_early": short}
 
 
@@ -385,6 +386,9 @@ def _run(args) -> int:
     note = " (clipped to the frames read)" if rep["adapt_clipped"] else ""
     if rep["ended_early"]:
         print(f"warning: {args.source}: {rep['ended_early']}")
+    if rep["upscaled"]:
+        print(f"warning: --width {rep['size'][0]} enlarges the {args.source} frames "
+              f"{rep['upscaled']:.1f}x: interpolated pixels add no detail, only size and time")
     print(f"wrote {rep['frames']} frames of {rep['size'][0]}x{rep['size'][1]} to {rep['path']}; "
           f"adaptation split: the first {rep['adapt_frames']}{note}")
     return 0

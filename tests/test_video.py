@@ -202,3 +202,12 @@ def test_every_writer_refuses_a_name_of_more_than_one_line(tmp_path, capsys):
                  "a\n# b"]) == 2
     assert "--name must be one line of printable text, got 'a\\n# b'" in capsys.readouterr().err
     assert not any(p.name.startswith("v.h5") for p in tmp_path.iterdir())
+
+
+def test_a_width_beyond_the_frames_is_said_to_enlarge_them(tmp_path, capsys):
+    src = tmp_path / "v.avi"
+    _video(src, n=2)                                          # 64x48
+    assert main(["import-video", str(src), "--out", str(tmp_path / "a.h5"), "--width", "160"]) == 0
+    assert f"warning: --width 160 enlarges the {src} frames 2.5x" in capsys.readouterr().out
+    assert main(["import-video", str(src), "--out", str(tmp_path / "b.h5"), "--width", "32"]) == 0
+    assert "enlarges" not in capsys.readouterr().out
