@@ -385,6 +385,8 @@ def register(sub) -> None:
 def _run_export(args) -> int:
     from staticdepth.cli import refuse_existing
 
+    if not args.out.lower().endswith(".onnx"):
+        raise InputError("export-model writes an ONNX graph: name the file .onnx", args.out)
     refuse_existing(args.out, overwrite=args.overwrite)
     info = export_model(args.model, args.summary, args.sequence, args.out,
                         ground_mask_png=args.ground_mask, check_frames=args.check_frames,

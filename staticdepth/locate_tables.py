@@ -1,7 +1,7 @@
 """The tables ``staticdepth locate`` writes: positions and pairwise distances, as CSV or Parquet.
 
 The format follows the path's extension: ``.parquet`` writes Parquet (needs ``pyarrow``, the
-optional extra ``staticdepth[parquet]``), anything else CSV. Both hold the same columns in the
+optional extra ``staticdepth[parquet]``), ``.csv`` CSV; any other extension is refused. Both hold the same columns in the
 same units; CSV rounds (metres to mm, pixels to 0.1 px), Parquet keeps full precision with native
 types (an unknown speed is null there, an empty cell in CSV).
 """
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import io
+import os
 from typing import Any
 
 import numpy as np
@@ -25,7 +26,10 @@ def is_parquet(path: str | None) -> bool:
 
 
 def check_table_path(path: str | None) -> None:
-    """Refuse a ``.parquet`` output up front when pyarrow is not installed (one line)."""
+    """Refuse up front a table path that is neither ``.csv`` nor ``.parquet`` (a ``.txt`` or
+    ``.json`` got CSV under that name), and a ``.parquet`` one when pyarrow is not installed."""
+    if path and os.path.splitext(path)[1].lower() not in (".csv", ".parquet"):
+        raise InputError("a table is written as .csv or .parquet: name the file so", path)
     if is_parquet(path):
         try:
             import pyarrow  # noqa: F401  (only whether it imports)

@@ -277,6 +277,7 @@ def test_predict_mp4_interrupted_leaves_nothing(deployment, tmp_path, monkeypatc
                  "--format", "mp4", "--max-frames", "2", "--device", "cpu"]) == 0
     assert [p.name for p in (tmp_path / "o").iterdir()] == ["depth.mp4"]
 
+
 def test_export_bad_inputs(deployment, tmp_path):
     d, seq, summary = deployment
     bad = tmp_path / "bad.json"
@@ -286,6 +287,9 @@ def test_export_bad_inputs(deployment, tmp_path):
     assert main(["export-model", "--model", "onnx:nothing.onnx", "--summary", str(summary),
                  "--sequence", str(seq), "--out", str(tmp_path / "x.onnx")]) == 2
     assert not (tmp_path / "x.onnx").exists()
+    assert main(["export-model", "--model", f"builtin:{d / 'm.pt'}", "--summary", str(summary),
+                 "--sequence", str(seq), "--out", str(tmp_path / "x.txt")]) == 2   # not .onnx
+    assert not (tmp_path / "x.txt").exists()
     assert main(["predict", "--model", f"builtin:{d / 'm.pt'}", "--summary", str(summary),
                  "--input", str(seq), "--out", str(tmp_path / "o")]) == 2   # no --sequence
 

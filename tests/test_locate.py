@@ -293,13 +293,14 @@ def test_riders_on_a_synthetic_scene(tmp_path):
                                                                     np.median(lateral))
 
 
-
 @pytest.mark.parametrize("extra, msg", [
     (["--annotate", "a.gif", "--annotate-frames", "0"],
      "--annotate-frames must be at least 1, got 0"),
     (["--person-radius", "-1"], "--person-radius must be a body radius from 0 to 1 m, got -1"),
     (["--person-radius", "50"], "--person-radius must be a body radius from 0 to 1 m, got 50"),
-    (["--depth", "base"], "prediction 'base' is not metric depth (metric ones: ft-align-metric;")])
+    (["--depth", "base"], "prediction 'base' is not metric depth (metric ones: ft-align-metric;"),
+    # a table path of another kind got CSV under its name
+    (["--pairs", "pairs.json"], "pairs.json: a table is written as .csv or .parquet")])
 def test_locate_refuses_bad_options_before_writing(tmp_path, capsys, monkeypatch, extra, msg):
     """--annotate-frames 0 (crashed in pick_frames after the CSV was written), a body radius out
     of range (-1 and 50 m ran) and a relative --depth map (base, used as metres) are refused in
