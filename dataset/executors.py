@@ -9,8 +9,10 @@ writer in the calling process, so the output is identical whichever executor com
 from __future__ import annotations
 
 import collections
+import contextlib
 import multiprocessing
 import os
+import signal
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Callable, Iterator, Sequence
@@ -24,6 +26,31 @@ def _apply(fn: Callable[[Any], Any], x: Any) -> Any:
     return fn(x)
 
 
+@contextlib.contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Block SIGINT in this thread while worker processes may start: a started process inherits
+    the mask (through ``exec``), so a Ctrl-C cannot reach a worker before :func:`init_worker`
+    ignores it; this process receives it on leaving (a blocked signal waits, it is not lost)."""
+    if not hasattr(signal, "pthread_sigmask"):  # Windows: no signal masks
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def init_worker(parent_pid: int) -> None:
+    """Worker initializer: ignore SIGINT (Ctrl-C reaches the whole process group; the parent
+    alone handles it, stops the pool and prints one line, so no worker prints a
+    ``KeyboardInterrupt`` traceback) and :func:`die_with_parent`."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # discards one pending since the worker's start
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    die_with_parent(parent_pid)
+
+
 def die_with_parent(parent_pid: int) -> None:
     """Worker initializer: end this worker when its parent dies (also by SIGKILL), so that a
     killed ``pack --workers N`` leaves no processes behind.
@@ -31,7 +58,6 @@ def die_with_parent(parent_pid: int) -> None:
     Linux: ``prctl(PR_SET_PDEATHSIG, SIGKILL)``; everywhere: a thread that exits the worker once
     its parent is gone (checked every 0.5 s).
     """
-    import signal
     import threading
     import time
 
@@ -68,7 +94,10 @@ class SerialExecutor:
 
 
 class ProcessExecutor:
-    """A pool of ``workers`` local processes (spawned, so no state leaks from the parent)."""
+    """A pool of ``workers`` local processes (spawned, so no state leaks from the parent).
+
+    Workers ignore SIGINT: on Ctrl-C the parent alone stops (its writer keeps the partial
+    resumable) and :meth:`close` lets the workers finish their current frame and exit."""
 
     name = "process"
 
@@ -83,20 +112,24 @@ class ProcessExecutor:
         if self._pool is None:
             self._pool = ProcessPoolExecutor(self.workers,
                                              mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=die_with_parent,
+                                             initializer=init_worker,
                                              initargs=(os.getpid(),))
         pending: collections.deque = collections.deque()
         it = iter(items)
         for x in it:
-            pending.append(self._pool.submit(fn, x))
+            pending.append(self._submit(fn, x))
             if len(pending) >= self.window:
                 break
         while pending:
             res = pending.popleft().result()
             for x in it:
-                pending.append(self._pool.submit(fn, x))
+                pending.append(self._submit(fn, x))
                 break
             yield res
+
+    def _submit(self, fn: Callable[[Any], Any], x: Any):
+        with _sigint_deferred():  # submit starts the workers (spawn starts them on demand)
+            return self._pool.submit(fn, x)
 
     def close(self) -> None:
         if self._pool is not None:
