@@ -239,17 +239,23 @@ def drive_tasks(root: str | os.PathLike, drive: str, *, right: bool = False,
     calib = KittiCalib.load(os.path.dirname(d))
     left_dir = os.path.join(d, "image_02", "data")
     streams = {left_dir: list_frames(left_dir)}
-    if depth_maps is None:
-        scan_dir = os.path.join(d, "velodyne_points", "data")
-        if not os.path.isdir(scan_dir) or not list_frames(scan_dir, ".bin"):
-            raise InputError("drive has no LiDAR scans (velodyne_points/data/*.bin)", d)
-        streams[scan_dir] = list_frames(scan_dir, ".bin")
     if right:
         right_dir = os.path.join(d, "image_03", "data")
         streams[right_dir] = list_frames(right_dir)
     stems = match_streams(streams, d)
     if not stems:
         raise InputError("drive has no frames", d)
+    if depth_maps is None:
+        # A frame without its scan is a bad frame (loading it names the file; skip_bad skips it);
+        # a scan without its image is not part of any frame.
+        scan_dir = os.path.join(d, "velodyne_points", "data")
+        scans = list_frames(scan_dir, ".bin") if os.path.isdir(scan_dir) else []
+        if not scans:
+            raise InputError("drive has no LiDAR scans (velodyne_points/data/*.bin)", d)
+        extra = sorted({os.path.splitext(n)[0] for n in scans} - set(stems))
+        if extra:
+            raise InputError(f"mismatched frame counts: {scan_dir} has {len(extra)} scan(s) "
+                             f"without an image (e.g. {extra[0]!r})", d)
     ts_all = read_timestamps(os.path.join(d, "image_02", "timestamps.txt"))
     all_stems = [os.path.splitext(n)[0] for n in list_frames(os.path.join(d, "image_02", "data"))]
     if len(ts_all) != len(all_stems):

@@ -330,3 +330,25 @@ def test_default_name_is_the_outputs_stem(kitti_root, tmp_path):
     with SequenceReader(tmp_path / "t1.h5") as r:
         assert r.meta.name == "t1"
         assert r.meta.provenance["drives"] == [DRIVE]
+
+
+def test_skip_bad_skips_a_frame_whose_scan_is_missing(kitti_root, tmp_path, capsys):
+    """A missing .bin gave "mismatched frame counts" even with --skip-bad (a truncated one was
+    skipped): now it is a bad frame like any other, named, or skipped and listed."""
+    root = _copy_tree(kitti_root, tmp_path / "raw")
+    scan = root / DATE / f"{DRIVE}_sync" / "velodyne_points" / "data" / "0000000001.bin"
+    scan.unlink()
+    out = tmp_path / "K.h5"
+    argv = ["import-kitti", "--root", str(root), "--drives", DRIVE, "--out", str(out)]
+    assert main(argv) == 2
+    assert _one_error_line(capsys) == f"staticdepth import-kitti: error: {scan}: file not found"
+    assert not out.exists()
+    assert main(argv + ["--skip-bad", "--resume"]) == 0
+    text = capsys.readouterr().out
+    assert "wrote 2 frames" in text and "skipped 1 bad frame(s):" in text
+    assert f"skipped {DRIVE}_sync/0000000001: {scan}: file not found" in text
+    with SequenceReader(out) as r:
+        assert len(r) == 2
+        assert [s["frame"] for s in r.meta.provenance["skipped"]] == [f"{DRIVE}_sync/0000000001"]
+        t = drive_tasks(kitti_root, DRIVE)[0][2]
+        np.testing.assert_array_equal(r.depth(1), load_frame(t).arrays["depth"])
