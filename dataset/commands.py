@@ -62,7 +62,9 @@ def register(sub) -> None:
     p.add_argument("--name", default=None, help="sequence name (default: the output's stem)")
     p.add_argument("--right", action="store_true", help="also import image_03 as the right view")
     p.add_argument("--depth-maps", default=None,
-                   help="root of the official depth-completion maps (used instead of the scans)")
+                   help="root of the official depth-completion maps (used instead of the scans; "
+                        "a drive's first and last 5 frames, which they leave out, are imported "
+                        "with unknown depth and counted; a map missing elsewhere is a bad frame)")
     p.add_argument("--camera-height", type=float, default=1.65,
                    help="camera height over the road (m; KITTI's camera 2)")
     _writer_options(p)

@@ -8,7 +8,10 @@ Depth (METHOD.md section 8): ``P = P_rect_02 . R_rect_00 (4x4) . [R|T]_cam0_from
 with x_velo > 0 (and a positive camera depth); ``u, v = round(.) - 1``; in bounds; nearest point per
 pixel; NaN = unknown. The official depth-completion maps (uint16 PNG / 256, 0 = unknown) replace the
 projection when given (``depth_maps``: a root holding
-``**/<drive>_sync/proj_depth/groundtruth/image_02``).
+``**/<drive>_sync/proj_depth/groundtruth/image_02``). Those maps leave out the first and last
+``DEPTH_MAP_END_FRAMES`` frames of every drive: such frames are imported with unknown depth, counted
+and listed (``frames_without_depth_map``); a map missing elsewhere is a bad frame, like a missing
+scan (an error naming the file; ``skip_bad`` skips and lists the frame).
 """
 from __future__ import annotations
 
@@ -28,6 +31,7 @@ from staticdepth.errors import InputError
 from staticdepth.geometry.camera import Camera, StereoRig
 
 KITTI_CAMERA_HEIGHT_M = 1.65
+DEPTH_MAP_END_FRAMES = 5  # the official depth-completion maps omit this many at each drive end
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -191,7 +195,10 @@ def read_timestamps(path: str | os.PathLike) -> np.ndarray:
 # -- drives and the importer ---------------------------------------------------------------------
 @dataclass(frozen=True)
 class KittiTask:
-    """Everything needed to load one frame (picklable; the loader is a pure function of it)."""
+    """Everything needed to load one frame (picklable; the loader is a pure function of it).
+
+    ``scan`` and ``depth_png`` both None: a frame at a drive's end that the depth-completion maps
+    leave out (depth unknown)."""
 
     image: str
     scan: str | None
@@ -263,13 +270,19 @@ def drive_tasks(root: str | os.PathLike, drive: str, *, right: bool = False,
                          os.path.join(d, "image_02", "timestamps.txt"))
     ts = dict(zip(all_stems, ts_all))
     dm = None if depth_maps is None else _depth_map_dir(depth_maps, d)
+    maps = set() if dm is None else {os.path.splitext(n)[0] for n in list_frames(dm)}
+    pos = {s: k for k, s in enumerate(all_stems)}
+    end = DEPTH_MAP_END_FRAMES
+    no_map = {s for s in stems if dm is not None and s not in maps
+              and not end <= pos[s] < len(all_stems) - end}
     # The image size comes from the first frame; every frame is checked against it when loaded.
     first = _sample_images([os.path.join(left_dir, s + ".png") for s in stems], 1, skip_bad)[0]
     size = (first.shape[1], first.shape[0])
     P = calib.img2_from_velo
     tasks = [KittiTask(image=os.path.join(d, "image_02", "data", s + ".png"),
                        scan=None if dm else os.path.join(d, "velodyne_points", "data", s + ".bin"),
-                       depth_png=None if dm is None else os.path.join(dm, s + ".png"),
+                       depth_png=None if dm is None or s in no_map else
+                       os.path.join(dm, s + ".png"),
                        right=os.path.join(d, "image_03", "data", s + ".png") if right else None,
                        timestamp=float(ts[s]), img2_from_velo=P, size=size) for s in stems]
     return tasks, [f"{os.path.basename(d)}/{s}" for s in stems], calib
@@ -300,15 +313,18 @@ def load_frame(task: KittiTask) -> LoadedFrame:
     w, h = task.size
     arrays = read_left_right(task.image, task.right, (w, h), "the drive's first is")
     if task.depth_png is not None:
-        if os.path.exists(task.depth_png):
-            depth = read_depth_png(task.depth_png)
-            if depth.shape != (h, w):
-                raise InputError(f"depth map is {depth.shape[1]}x{depth.shape[0]}, image {w}x{h}",
-                                 task.depth_png)
-        else:  # the official maps omit a few frames at each end of a drive: depth unknown there
-            depth = np.full((h, w), np.nan, np.float32)
-    else:
+        if not os.path.exists(task.depth_png):
+            raise InputError("depth-completion map not found (the official maps leave out only "
+                             f"the first and last {DEPTH_MAP_END_FRAMES} frames of a drive)",
+                             task.depth_png)
+        depth = read_depth_png(task.depth_png)
+        if depth.shape != (h, w):
+            raise InputError(f"depth map is {depth.shape[1]}x{depth.shape[0]}, image {w}x{h}",
+                             task.depth_png)
+    elif task.scan is not None:
         depth = depth_from_lidar(read_velodyne(task.scan), task.img2_from_velo, w, h)
+    else:  # a drive's end, which the depth-completion maps leave out: depth unknown
+        depth = np.full((h, w), np.nan, np.float32)
     arrays["depth"] = depth
     return LoadedFrame(arrays=arrays, timestamp=task.timestamp)
 
@@ -373,6 +389,11 @@ def import_kitti(root: str | os.PathLike, drives: Sequence[str], out: str | os.P
     w, h = tasks[0].size
     if any(t.size != (w, h) for t in tasks):
         raise InputError("drives have different image sizes", root)
+    no_map = [lab for t, lab in zip(tasks, labels) if depth_maps and t.depth_png is None]
+    if no_map:
+        warn(f"note: {len(no_map)} of {len(tasks)} frames have no depth-completion map (the "
+             f"official maps leave out the first and last {DEPTH_MAP_END_FRAMES} frames of each "
+             "drive): their depth is unknown (NaN); listed as frames_without_depth_map")
     meta = SequenceMeta(
         name=name or name_from_output(out), camera=calib.camera(w, h),
         gt_kind="lidar", source=f"KITTI raw: {', '.join(drives)}", adapt_frames=adapt_frames,
@@ -382,6 +403,8 @@ def import_kitti(root: str | os.PathLike, drives: Sequence[str], out: str | os.P
                     "ground_truth": "depth-completion maps" if depth_maps else
                     "LiDAR projected into camera 2 (nearest point per pixel)",
                     "depth_maps": depth_maps, "pose_check": checks,
+                    **({"frames_without_depth_map": {"count": len(no_map), "frames": no_map}}
+                       if depth_maps else {}),
                     "licence": "CC BY-NC-SA 3.0 (KITTI)"})
     streams = ("left", "right", "depth") if right else ("left", "depth")
     return write_frames(out, meta, streams, tasks, load_frame, labels=labels, skip_bad=skip_bad,

@@ -332,6 +332,68 @@ def test_default_name_is_the_outputs_stem(kitti_root, tmp_path):
         assert r.meta.provenance["drives"] == [DRIVE]
 
 
+def _long_drive(kitti_root, root, n):
+    """A drive of ``n`` frames (the sample's 3 in turn, symlinked) with ``n`` timestamps."""
+    src = kitti_root / DATE / f"{DRIVE}_sync"
+    d = root / DATE / f"{DRIVE}_sync"
+    os.makedirs(root / DATE)
+    for name in ("calib_cam_to_cam.txt", "calib_velo_to_cam.txt"):
+        os.symlink(kitti_root / DATE / name, root / DATE / name)
+    for sub, ext in (("image_02", ".png"), ("velodyne_points", ".bin")):
+        (d / sub / "data").mkdir(parents=True)
+        for i in range(n):
+            os.symlink(src / sub / "data" / f"{i % 3:010d}{ext}",
+                       d / sub / "data" / f"{i:010d}{ext}")
+    (d / "image_02" / "timestamps.txt").write_text(
+        "".join(f"2011-09-26 13:02:{20 + 0.1 * i:012.9f}\n" for i in range(n)))
+    return d
+
+
+def test_a_depth_map_missing_mid_drive_is_a_bad_frame_and_drive_ends_are_counted(
+        kitti_root, tmp_path, capsys):
+    """Frames without a map became all-NaN depth silently, mid-drive too. The official maps leave
+    out a drive's first and last 5 frames: those stay unknown, counted and listed; a map missing
+    elsewhere is refused naming it, or skipped and listed with --skip-bad."""
+    root = tmp_path / "raw"
+    _long_drive(kitti_root, root, 13)
+    gt = tmp_path / "depth" / "val" / f"{DRIVE}_sync" / "proj_depth" / "groundtruth" / "image_02"
+    gt.mkdir(parents=True)
+    for i in (5, 7):  # frames 5..7 have maps in the official layout; 6's is missing
+        m = np.zeros((375, 1242), np.uint16)
+        m[200, 100 + i] = 256 * i + 64  # i + 0.25 m
+        cv2.imwrite(str(gt / f"{i:010d}.png"), m)
+    out = tmp_path / "K.h5"
+    argv = ["import-kitti", "--root", str(root), "--drives", DRIVE, "--depth-maps",
+            str(tmp_path / "depth"), "--out", str(out)]
+    assert main(argv) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert err == [f"staticdepth import-kitti: error: {gt / '0000000006.png'}: depth-completion "
+                   "map not found (the official maps leave out only the first and last 5 frames "
+                   "of a drive)"]
+    note = ("note: 10 of 13 frames have no depth-completion map (the official maps leave out the "
+            "first and last 5 frames of each drive): their depth is unknown (NaN); listed as "
+            "frames_without_depth_map")
+    assert note in captured.out
+    assert not out.exists() and os.path.exists(f"{out}.partial")  # frames 0-5 kept to resume
+    assert main(argv + ["--skip-bad", "--resume"]) == 0
+    text = capsys.readouterr().out
+    assert note in text and "wrote 12 frames" in text and "(resumed after frame 6)" in text
+    assert f"skipped {DRIVE}_sync/0000000006: {gt / '0000000006.png'}: depth-completion" in text
+    with SequenceReader(out) as r:
+        assert len(r) == 12
+        prov = r.meta.provenance
+        assert [s["frame"] for s in prov["skipped"]] == [f"{DRIVE}_sync/0000000006"]
+        assert prov["frames_without_depth_map"] == {
+            "count": 10, "frames": [f"{DRIVE}_sync/{i:010d}" for i in (0, 1, 2, 3, 4, 8, 9, 10,
+                                                                          11, 12)]}
+        for k, i in ((5, 5), (6, 7)):  # written frames 5 and 6 are drive frames 5 and 7
+            d = r.depth(k)
+            assert d[200, 100 + i] == i + 0.25 and np.count_nonzero(np.isfinite(d)) == 1
+        for k in (0, 4, 7, 11):
+            assert not np.isfinite(r.depth(k)).any()
+
+
 def test_skip_bad_skips_a_frame_whose_scan_is_missing(kitti_root, tmp_path, capsys):
     """A missing .bin gave "mismatched frame counts" even with --skip-bad (a truncated one was
     skipped): now it is a bad frame like any other, named, or skipped and listed."""
