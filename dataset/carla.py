@@ -45,6 +45,7 @@ AGENT_TAGS_LEGACY = {4: schema.COCO["person"], 10: schema.COCO["car"]}  # before
 # Terrain in the older numbering.
 GROUND_TAGS = frozenset({1, 2, 10, 24, 25})
 GROUND_TAGS_LEGACY = frozenset({6, 7, 8, 14, 22})
+TAG_CHECK_FRAMES = 20  # instance images sampled to check that --legacy-tags fits the data
 
 
 # -- encodings (pure) ---------------------------------------------------------------------------
@@ -242,12 +243,37 @@ def carla_tasks(folder: str | os.PathLike, *, legacy_tags: bool = False
     return tasks, stems, sensor
 
 
+def legacy_tags_check(tasks: list[CarlaTask], n: int = TAG_CHECK_FRAMES) -> dict[str, int]:
+    """Agents that the pre-0.9.14 and the 0.9.14+ tag numberings find in up to ``n`` instance
+    images spread over the frames (unreadable ones are left to the import to report)."""
+    picks = np.unique(np.linspace(0, len(tasks) - 1, min(n, len(tasks))).astype(int))
+    out = {"sampled_frames": 0, "agents_legacy": 0, "agents_current": 0}
+    for i in picks:
+        try:
+            tags, ids = tags_ids_from_instance_rgb(_read_coded(tasks[i].instance, tasks[i].size))
+        except InputError:
+            continue
+        out["sampled_frames"] += 1
+        out["agents_legacy"] += len(agents_from_masks(tags, ids, AGENT_TAGS_LEGACY)[1])
+        out["agents_current"] += len(agents_from_masks(tags, ids, AGENT_TAGS)[1])
+    return out
+
+
 def import_carla(folder: str | os.PathLike, out: str | os.PathLike, *, name: str | None = None,
                  adapt_frames: int = 0, legacy_tags: bool = False, skip_bad: bool = False,
                  resume: bool = False, overwrite: bool = False, executor=None,
-                 restart: bool = False):
-    """Import a CARLA export folder into one sequence file; returns the write report."""
+                 restart: bool = False, warn=print):
+    """Import a CARLA export folder into one sequence file; returns the write report.
+
+    With ``legacy_tags``, ``warn`` receives one line when sampled frames hold agents in the
+    0.9.14+ numbering and none in the pre-0.9.14 one (data from a newer CARLA: 0 agents)."""
     tasks, labels, sensor = carla_tasks(folder, legacy_tags=legacy_tags)
+    tag_check = legacy_tags_check(tasks) if legacy_tags else None
+    if tag_check and tag_check["agents_legacy"] == 0 and tag_check["agents_current"]:
+        warn(f"warning: {os.fspath(folder)}: --legacy-tags (pre-0.9.14: Pedestrian 4, Vehicle "
+             f"10) finds no agents in {tag_check['sampled_frames']} sampled frames, the 0.9.14+ "
+             f"numbering finds {tag_check['agents_current']}: data from CARLA 0.9.14 or later "
+             "needs no --legacy-tags")
     has_right = tasks[0].right is not None
     if has_right and sensor.baseline_m is None:
         raise InputError("right/ exists but sensor.json has no baseline_m",
@@ -259,6 +285,7 @@ def import_carla(folder: str | os.PathLike, out: str | os.PathLike, *, name: str
         rig=rig, mounting=sensor.mounting,
         provenance={"dataset": "CARLA", "sensor": dict(sensor.raw),
                     "tag_numbering": "pre-0.9.14" if legacy_tags else "0.9.14+",
+                    **({"legacy_tags_check": tag_check} if tag_check else {}),
                     "ground_tags": sorted(GROUND_TAGS_LEGACY if legacy_tags else GROUND_TAGS),
                     "ground_mask": "aux/ground", "far_plane_m": f"{FAR_PLANE_M} -> NaN"})
     streams = (("left", "right", "depth", "instances") if has_right

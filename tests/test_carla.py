@@ -257,3 +257,26 @@ def test_default_name_is_the_outputs_stem_and_adapt_frames_is_checked_first(tmp_
                 ) == 0
     with SequenceReader(out) as a, SequenceReader(tmp_path / "C2.h5") as b:
         assert (a.meta.name, b.meta.name) == ("C1", "site 3")
+
+
+def test_legacy_tags_on_newer_data_warn_in_one_line(tmp_path, capsys):
+    """--legacy-tags on data from CARLA 0.9.14+ gave 0 agents without a word."""
+    src = _export(tmp_path / "C", n=4)  # 0.9.14+ numbering: 3 agents a frame
+    out = tmp_path / "C.h5"
+    assert main(["import-carla", str(src), "--legacy-tags", "--out", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [ln for ln in lines if ln.startswith("warning")] == [
+        f"warning: {src}: --legacy-tags (pre-0.9.14: Pedestrian 4, Vehicle 10) finds no agents "
+        "in 4 sampled frames, the 0.9.14+ numbering finds 12: data from CARLA 0.9.14 or later "
+        "needs no --legacy-tags"]
+    with SequenceReader(out) as r:
+        assert len(r.agents()) == 0
+        assert r.meta.provenance["legacy_tags_check"] == {
+            "sampled_frames": 4, "agents_legacy": 0, "agents_current": 12}
+    # legacy data read with --legacy-tags: its agents, no warning
+    old = _export(tmp_path / "L", n=3, legacy=True)
+    assert main(["import-carla", str(old), "--legacy-tags", "--out", str(tmp_path / "L.h5")]) == 0
+    assert "warning" not in capsys.readouterr().out
+    with SequenceReader(tmp_path / "L.h5") as r:
+        assert len(r.agents()) == 9
+        assert r.meta.provenance["legacy_tags_check"]["agents_legacy"] == 9
