@@ -293,7 +293,7 @@ def check_rig_rectifies(pipe, tasks: Sequence[StereoTask], rig_name: str, skip_b
     """Before any work, as ``stereo`` does: the rig must rectify the first readable pair (rows of
     matched features agree) and the views must not look swapped (most matched features of
     negative disparity, ``stereo``'s warning), else its depth would be garbage."""
-    from staticdepth.stereo.diagnose import stereo_warnings
+    from staticdepth.stereo.diagnose import swapped_views
     from staticdepth.stereo.rectify import check_rectified
 
     for t in tasks[:10]:
@@ -306,11 +306,9 @@ def check_rig_rectifies(pipe, tasks: Sequence[StereoTask], rig_name: str, skip_b
             raise
         rl, rr = pipe.rectifier.rectify(left, right)
         check = check_rectified(rl, rr, source=f"{rig_name} (after rectifying {t.left})")
-        # No disparity range is given (inf): of stereo's warnings only the swapped views remain.
-        # Its hint names stereo's options, so pack's own replaces it.
-        for message in stereo_warnings(check, num_disparities=np.inf):
-            finding = message.split("; ")[0]
-            raise InputError(f"{finding}; exchange the recording's left and right images, or "
+        swapped = swapped_views(check)
+        if swapped:
+            raise InputError(f"{swapped}; exchange the recording's left and right images, or "
                              "pass --skip-rectification-check", t.left)
         return
 

@@ -24,6 +24,19 @@ def suggested_range(disparity_px: float) -> int:
     return int(16 * np.ceil(1.1 * disparity_px / 16))
 
 
+def swapped_views(check: RectificationCheck | None) -> str | None:
+    """The finding (without a hint: the options to exchange are the caller's) when most matched
+    features have a negative disparity, else None."""
+    d = np.asarray(check.disparities if check is not None else [], np.float64)
+    if d.size < 20:
+        return None
+    negative = float(np.mean(d < -0.5))
+    if negative <= SWAPPED_FEATURES:
+        return None
+    return (f"the views look swapped: {100 * negative:.0f}% of the matched features have a "
+            "negative disparity (the right image matches better as the left)")
+
+
 def stereo_warnings(check: RectificationCheck | None, num_disparities: int,
                     disparity: np.ndarray | None = None) -> list[str]:
     """Warnings (one line each) for a pair matched with ``num_disparities`` px of range.
@@ -32,13 +45,10 @@ def stereo_warnings(check: RectificationCheck | None, num_disparities: int,
     """
     out: list[str] = []
     d = np.asarray(check.disparities if check is not None else [], np.float64)
+    swapped = swapped_views(check)
+    if swapped:
+        return [f"{swapped}; exchange --left and --right"]
     if d.size >= 20:
-        negative = float(np.mean(d < -0.5))
-        if negative > SWAPPED_FEATURES:
-            out.append(f"the views look swapped: {100 * negative:.0f}% of the matched features "
-                       f"have a negative disparity (the right image matches better as the left); "
-                       f"exchange --left and --right")
-            return out
         beyond = float(np.mean(d > num_disparities))
         if beyond > CLIPPED_FEATURES:
             need = suggested_range(float(np.percentile(d, 99.5)))
