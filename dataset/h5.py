@@ -184,8 +184,9 @@ class SequenceReader:
                 raise InputError(f"dataset {name!r} has dtype {f[name].dtype}", p)
         if "timestamps" not in f or f["timestamps"].shape != (n,):
             raise InputError("missing or wrong-length 'timestamps'", p)
-        if "agents" in f and size_problem(f["agents"]):
-            raise InputError(size_problem(f["agents"]), p)
+        too_big = size_problem(f["agents"]) if "agents" in f else None
+        if too_big:
+            raise InputError(too_big, p)
         if self.meta.adapt_frames > n:
             raise InputError(f"adapt_frames {self.meta.adapt_frames} > {n} frames", p)
         if (self.meta.camera.width, self.meta.camera.height) != (w, h):

@@ -127,7 +127,8 @@ def size_problem(ds: h5py.Dataset) -> str | None:
 def checksum_problems(f: h5py.File, limit: int = 100) -> list[str]:
     """Recompute the root attributes' and every dataset's stored checksums; a line per mismatch
     or uncovered part."""
-    bad: list[str] = [p for p in (attrs_problem(f),) if p]
+    attrs = attrs_problem(f)
+    bad: list[str] = [attrs] if attrs else []
     for name in _datasets(f):
         ds = f[name]
         crc_key = f"crc32/{name}"
@@ -146,8 +147,9 @@ def checksum_problems(f: h5py.File, limit: int = 100) -> list[str]:
                     if checksum(a) != int(stored[i]):
                         bad.append(f"{name}[{i}]: checksum mismatch")
             elif "crc32" in ds.attrs:
-                if size_problem(ds):
-                    bad.append(size_problem(ds))
+                too_big = size_problem(ds)
+                if too_big:
+                    bad.append(too_big)
                 elif checksum(ds[()]) != int(ds.attrs["crc32"]):
                     bad.append(f"{name}: checksum mismatch")
             else:
