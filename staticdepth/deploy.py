@@ -371,11 +371,16 @@ def register(sub) -> None:
     p.add_argument("--input", required=True, help="video, image folder, URL or SEQ.h5")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--format", default="png16", choices=("png16", "npy", "mp4"),
-                   help="png16: uint16 depth x256 (0 = unknown); npy: float32; mp4: colour map")
+                   help="png16: uint16 depth x scale (0 = unknown; the scale in the PNG's "
+                        "text chunk staticdepth.depth_scale: 256 for metres, 65535 / the "
+                        "frame's largest depth for relative depth); npy: float32; mp4: colour "
+                        "map with a colour bar at the source's frame rate / --every")
     p.add_argument("--summary", help="adapt summary (metric output for a model SPEC)")
     p.add_argument("--sequence", help="the adapted sequence (with --summary)")
-    p.add_argument("--every", type=int, default=1, help="keep every K-th frame")
-    p.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
+    p.add_argument("--every", type=int, default=1,
+                   help="keep every K-th frame (files are named by the source frame index)")
+    p.add_argument("--max-frames", type=int, default=None,
+                   help="stop after N kept frames (source frames 0, K, ..., (N-1)K)")
     add_device_argument(p)
     add_overwrite_argument(p, help="write into an output folder that holds files already "
                                    "(same-named frames are replaced; refused otherwise)")
@@ -407,6 +412,9 @@ def _run_predict(args) -> int:
     rep = predict(args.model, args.input, args.out, args.format, summary=args.summary,
                   sequence=args.sequence, every=args.every, max_frames=args.max_frames,
                   device=args.device)
-    print(f"{rep['frames']} frames of {rep['kind']} depth -> {rep['out']}: "
+    step = f", every {rep['every']}" if rep["every"] > 1 else ""
+    video = f" at {rep['video_fps']:.3g} frames/s" if rep.get("video_fps") else ""
+    print(f"{rep['frames']} frames (source frames {rep['first_index']}-{rep['last_index']}"
+          f"{step}) of {rep['kind']} depth -> {rep['out']}{video}: "
           f"{rep['fps_model']:.1f} frames/s (model), {rep['fps_total']:.1f} frames/s overall")
     return 0

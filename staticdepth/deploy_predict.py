@@ -4,9 +4,17 @@
 Metric with an exported model (:class:`staticdepth.deploy.MetricOnnx`) or with a model SPEC plus
 the adapt summary and sequence (:func:`staticdepth.deploy.metric_depth_reference`, the numpy
 pipeline); otherwise relative depth ``1/D``, said so.
+
+Outputs are named by the frame's index in the source (``--every 5``: ``000000``, ``000005``, ...).
+A 16-bit PNG holds ``depth * scale`` rounded (0 = unknown), the scale in its ``tEXt`` chunk
+``staticdepth.depth_scale`` (:func:`depth_from_png16`): 256 for metres (1/256 m steps up to
+256 m), for relative depth ``65535 / the frame's largest depth`` (the full 16-bit range). The MP4
+plays at the source's rate / ``every`` (:func:`source_fps`) with a colour bar under each frame.
 """
 from __future__ import annotations
 
+import io
+import math
 import os
 import time
 from typing import Any, Iterator
@@ -17,8 +25,17 @@ from staticdepth.deploy import (MetricOnnx, camera_frame, deployment_constants,
                                 metric_depth_reference)
 from staticdepth.errors import InputError
 
+#: Frame rate assumed for an image folder, a URL or a sequence file without timestamps.
+DEFAULT_FPS = 10.0
+#: PNG units per metre of a metric prediction (KITTI's convention).
+METRIC_PNG_SCALE = 256.0
+PNG_SCALE_KEY = "staticdepth.depth_scale"
+PNG_UNIT_KEY = "staticdepth.depth_unit"
 
-def _frames(source: str, every: int = 1, max_frames: int | None = None) -> Iterator[np.ndarray]:
+
+def _frames(source: str, every: int = 1, max_frames: int | None = None
+            ) -> Iterator[tuple[int, np.ndarray]]:
+    """(index in the source, RGB image) of every ``every``-th frame, at most ``max_frames``."""
     if source.endswith(".h5") and os.path.isfile(source):
         from staticdepth.dataset.h5 import SequenceReader
 
@@ -27,12 +44,94 @@ def _frames(source: str, every: int = 1, max_frames: int | None = None) -> Itera
             for k, i in enumerate(idx):
                 if max_frames is not None and k >= max_frames:
                     return
-                yield r.left(i)
+                yield i, r.left(i)
         return
     from staticdepth.dataset.video import iter_frames
 
     for fr in iter_frames(source, every=every, max_frames=max_frames):
-        yield fr.rgb
+        yield fr.index, fr.rgb
+
+
+def source_fps(source: str) -> tuple[float, bool]:
+    """(frames per second of ``source``, whether the source says so): a video file's own rate, a
+    sequence file's from its timestamps (median step); an image folder, a URL (not opened twice)
+    or a source without a usable rate: :data:`DEFAULT_FPS`, False."""
+    if os.path.isfile(source) and source.endswith(".h5"):
+        from staticdepth.dataset.h5 import SequenceReader
+
+        with SequenceReader(source) as r:
+            steps = np.diff(np.asarray(r.timestamps(), np.float64))
+        steps = steps[np.isfinite(steps) & (steps > 0)]
+        rate = 1.0 / float(np.median(steps)) if len(steps) else 0.0
+    elif os.path.isfile(source):
+        import cv2
+
+        cap = cv2.VideoCapture(source)
+        try:
+            rate = float(cap.get(cv2.CAP_PROP_FPS) or 0.0) if cap.isOpened() else 0.0
+        finally:
+            cap.release()
+    else:
+        rate = 0.0
+    if math.isfinite(rate) and 0 < rate <= 1000:
+        return rate, True
+    return DEFAULT_FPS, False
+
+
+def png16_from_depth(depth: np.ndarray, metric: bool) -> tuple[np.ndarray, float]:
+    """(uint16 image, scale) with ``depth ~= image / scale``, 0 = unknown (NaN, inf, <= 0).
+
+    Metric: scale 256 (clipped at 65535, i.e. 256 m). Relative: ``65535 / max depth`` of the
+    frame, so the largest depth is 65535 and the error is at most ``0.5 / scale`` everywhere. A
+    known pixel is at least 1, never read back as unknown."""
+    d = np.asarray(depth, np.float64)
+    ok = np.isfinite(d) & (d > 0)
+    if metric:
+        scale = METRIC_PNG_SCALE
+    else:
+        scale = 65535.0 / float(d[ok].max()) if ok.any() else 1.0
+    q = np.zeros(d.shape, np.uint16)
+    q[ok] = np.clip(np.round(d[ok] * scale), 1, 65535)
+    return q, scale
+
+
+def write_png16(path: str, q: np.ndarray, scale: float, unit: str) -> None:
+    """``q`` as a 16-bit PNG holding its scale and unit in ``tEXt`` chunks, written atomically."""
+    from PIL import Image, PngImagePlugin
+
+    from staticdepth.fileio import atomic_write_bytes
+
+    info = PngImagePlugin.PngInfo()
+    info.add_text(PNG_SCALE_KEY, repr(float(scale)))
+    info.add_text(PNG_UNIT_KEY, unit)
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(q, np.uint16)).save(buf, format="PNG", pnginfo=info)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def depth_from_png16(path: str) -> tuple[np.ndarray, str]:
+    """(float32 depth, unit 'm' | 'relative') of a ``predict --format png16`` file; unknown =
+    NaN. A PNG without the scale chunk is read as metres x256."""
+    from PIL import Image
+
+    with Image.open(path) as im:
+        q = np.asarray(im).astype(np.float64)
+        text = dict(getattr(im, "text", {}) or {})
+    try:
+        scale = float(text.get(PNG_SCALE_KEY, METRIC_PNG_SCALE))
+    except ValueError:
+        raise InputError(f"unreadable {PNG_SCALE_KEY} {text[PNG_SCALE_KEY]!r}", path) from None
+    if q.ndim != 2 or not scale > 0:
+        raise InputError("not a predict png16 depth file (one channel, positive scale)", path)
+    return np.where(q > 0, q / scale, np.nan).astype(np.float32), text.get(PNG_UNIT_KEY, "m")
+
+
+def mp4_frame(depth: np.ndarray, rng: tuple[float, float], bar: np.ndarray) -> np.ndarray:
+    """The depth in colour over ``rng`` (:func:`colorize_depth`: inverse depth, near = red,
+    unknown black) with ``bar`` under it (RGB uint8)."""
+    from staticdepth.dataset.inspect import colorize_depth
+
+    return np.concatenate([colorize_depth(depth, *rng), bar], axis=0)
 
 
 def make_predictor(model: str, summary: str | None, sequence: str | None,
@@ -69,48 +168,65 @@ def make_predictor(model: str, summary: str | None, sequence: str | None,
 def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
             summary: str | None = None, sequence: str | None = None, every: int = 1,
             max_frames: int | None = None, device: str = "auto", log=print) -> dict[str, Any]:
-    """Stream frames through a model into ``out_dir``; returns frames, fps and the kind."""
+    """Stream every ``every``-th frame of ``source`` (at most ``max_frames``) through a model into
+    ``out_dir``, files named by the frame's index in the source; returns frames, their first and
+    last source index, fps (model, overall; ``video_fps`` for mp4) and the kind."""
     import cv2
 
-    from staticdepth.fileio import atomic_path, atomic_write_bytes, write_image
+    from staticdepth.fileio import atomic_path, atomic_write_bytes
     from staticdepth.progress import progress
 
     if fmt not in ("png16", "npy", "mp4"):
         raise InputError(f"--format must be png16, npy or mp4, got {fmt!r}")
+    if every < 1:
+        raise InputError(f"--every must be >= 1, got {every}")
+    if max_frames is not None and max_frames < 1:
+        raise InputError(f"--max-frames must be >= 1, got {max_frames}")
     fn, kind, desc = make_predictor(model, summary, sequence, log=log, device=device)
     log(f"model: {desc}")
     os.makedirs(out_dir, exist_ok=True)
-    writer, tmp_ctx, rng = None, None, None
-    n, t_model, t0 = 0, 0.0, time.perf_counter()
+    unit = "m" if kind == "metric" else "relative"
+    writer, tmp_ctx, rng, bar, video_fps = None, None, None, None, None
+    n, first, last, t_model, t0 = 0, None, None, 0.0, time.perf_counter()
     try:
-        for img in progress(_frames(source, every, max_frames), desc="predict", unit="frame"):
+        for i, img in progress(_frames(source, every, max_frames), desc="predict", unit="frame"):
             t = time.perf_counter()
             depth = np.asarray(fn(img), dtype=np.float32)
             t_model += time.perf_counter() - t
             if fmt == "npy":
-                import io
-
                 buf = io.BytesIO()
                 np.save(buf, depth)
-                atomic_write_bytes(os.path.join(out_dir, f"{n:06d}.npy"), buf.getvalue())
+                atomic_write_bytes(os.path.join(out_dir, f"{i:06d}.npy"), buf.getvalue())
             elif fmt == "png16":
-                q = np.where(np.isfinite(depth), np.clip(np.round(depth * 256), 0, 65535), 0)
-                write_image(os.path.join(out_dir, f"{n:06d}.png"), q.astype(np.uint16))
+                q, scale = png16_from_depth(depth, kind == "metric")
+                write_png16(os.path.join(out_dir, f"{i:06d}.png"), q, scale, unit)
             else:
                 if writer is None:
+                    from staticdepth.report_figures import depth_colour_bar, depth_range
+
+                    rate, known = source_fps(source)
+                    video_fps = rate / every
+                    if not known:
+                        log(f"note: the input gives no frame rate; the video plays at "
+                            f"{DEFAULT_FPS:g} / {every} = {video_fps:g} frames/s")
+                    # one colour range for the whole video (the first frame's 2nd-98th
+                    # percentile), so that colours compare between frames
+                    rng = depth_range(depth) or (1.0, 2.0)
+                    bar = depth_colour_bar(depth.shape[1], *rng,
+                                           caption="depth m" if kind == "metric" else "relative")
                     # the temporary ends in .mp4 (OpenCV picks the container by it) and is the
                     # one atomic_path removes when the run stops early
                     tmp_ctx = atomic_path(os.path.join(out_dir, "depth.mp4"), "part.mp4")
                     tmp = tmp_ctx.__enter__()
-                    writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), 10.0,
-                                             (depth.shape[1], depth.shape[0]))
-                    fin = np.log(depth[np.isfinite(depth) & (depth > 0)])
-                    rng = np.percentile(fin, [2, 98]) if len(fin) else (0.0, 1.0)
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    x = (np.log(depth) - rng[0]) / max(rng[1] - rng[0], 1e-6)
-                g = (255 * (1 - np.clip(np.nan_to_num(x, nan=1.0), 0, 1))).astype(np.uint8)
-                writer.write(cv2.applyColorMap(g, cv2.COLORMAP_TURBO))
-            n += 1
+                    size = depth.shape
+                    writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), video_fps,
+                                             (depth.shape[1], depth.shape[0] + bar.shape[0]))
+                if depth.shape != size:
+                    raise InputError(f"frame {i}: depth {depth.shape[1]}x{depth.shape[0]}, the "
+                                     f"video's is {size[1]}x{size[0]}", source)
+                writer.write(np.ascontiguousarray(mp4_frame(depth, rng, bar)[..., ::-1]))
+            first = i if first is None else first
+            last, n = i, n + 1
         if writer is not None:
             writer.release()
             tmp_ctx.__exit__(None, None, None)
@@ -123,5 +239,6 @@ def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
     if n == 0:
         raise InputError("no frame was read", source)
     wall = time.perf_counter() - t0
-    return {"frames": n, "fps_model": n / t_model, "fps_total": n / wall, "kind": kind,
-            "out": out_dir}
+    return {"frames": n, "first_index": first, "last_index": last, "every": every,
+            "fps_model": n / t_model, "fps_total": n / wall, "kind": kind, "out": out_dir,
+            "video_fps": video_fps}
