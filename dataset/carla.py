@@ -8,6 +8,8 @@ blueprint attributes ``image_size_x``, ``image_size_y``, ``fov`` (degrees), opti
 ``sensor_tick`` (s) or ``fps`` (timestamp = frame number x period; else the frame number) and
 ``baseline_m``, and ``transform.location.{x,y,z}`` (m, ground at z = 0),
 ``transform.rotation.{pitch,yaw,roll}`` (degrees, Unreal: negative pitch looks down).
+The rgb images are the frames: a frame whose depth, instance or right image is missing is a bad
+frame (an error naming the file; ``skip_bad`` skips and lists the frame).
 
 Camera: f = W / (2 tan(fov/2)), principal point at the image centre. Mounting: height = location.z,
 ground normal from Unreal's rotation matrix, equal to
@@ -27,9 +29,8 @@ import numpy as np
 
 from staticdepth.dataset import schema
 from staticdepth.dataset.h5 import SequenceMeta
-from staticdepth.dataset.pack import (AuxStream, LoadedFrame, list_frames, match_streams,
-                                      name_from_output, read_image, read_left_right,
-                                      write_frames)
+from staticdepth.dataset.pack import (AuxStream, LoadedFrame, list_frames, name_from_output,
+                                      read_image, read_left_right, write_frames)
 from staticdepth.errors import InputError
 from staticdepth.geometry.camera import Camera, Mounting, StereoRig, read_json
 
@@ -224,19 +225,26 @@ def carla_tasks(folder: str | os.PathLike, *, legacy_tags: bool = False
     if not os.path.isdir(folder):
         raise InputError("folder not found", folder)
     sensor = CarlaSensor.load(os.path.join(folder, "sensor.json"))
-    has_right_dir = os.path.isdir(os.path.join(folder, "right"))
-    names = ["rgb", "depth", "instance"] + (["right"] if has_right_dir else [])
-    streams = {os.path.join(folder, n): list_frames(os.path.join(folder, n)) for n in names}
-    stems = match_streams(streams, folder)
+    has_right = os.path.isdir(os.path.join(folder, "right"))
+    stems = [os.path.splitext(n)[0] for n in list_frames(os.path.join(folder, "rgb"))]
     if not stems:
         raise InputError("no frames in rgb/", folder)
     bad = [s for s in stems if not s.isdigit()]
     if bad:
         raise InputError(f"frame names must be numbers (NNNNNN.png), got {bad[0]!r}", folder)
     stems.sort(key=int)
+    # The rgb images are the frames. A frame's depth, instance or right image missing makes it a
+    # bad frame (loading it names the file; skip_bad skips it); one without an rgb image is refused.
+    for sub in ("depth", "instance") + (("right",) if has_right else ()):
+        others = {os.path.splitext(n)[0] for n in list_frames(os.path.join(folder, sub))}
+        if not others:
+            raise InputError(f"no frames in {sub}/", folder)
+        extra = sorted(others - set(stems))
+        if extra:
+            raise InputError(f"mismatched frame counts: {sub}/ has {len(extra)} image(s) without "
+                             f"an rgb image (e.g. {extra[0]!r})", folder)
     ts = _timestamps(folder, stems, sensor.sensor_tick_s)
     size = sensor.camera.size
-    has_right = "right" in names
     tasks = [CarlaTask(*(os.path.join(folder, n, s + ".png") for n in ("rgb", "depth", "instance")),
                        right=os.path.join(folder, "right", s + ".png") if has_right else None,
                        timestamp=t, size=size, legacy_tags=legacy_tags) for s, t in zip(stems, ts)]

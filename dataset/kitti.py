@@ -11,7 +11,7 @@ projection when given (``depth_maps``: a root holding
 ``**/<drive>_sync/proj_depth/groundtruth/image_02``). Those maps leave out the first and last
 ``DEPTH_MAP_END_FRAMES`` frames of every drive: such frames are imported with unknown depth, counted
 and listed (``frames_without_depth_map``); a map missing elsewhere is a bad frame, like a missing
-scan (an error naming the file; ``skip_bad`` skips and lists the frame).
+scan or ``image_03`` image (an error naming the file; ``skip_bad`` skips and lists the frame).
 """
 from __future__ import annotations
 
@@ -25,8 +25,8 @@ import cv2
 import numpy as np
 
 from staticdepth.dataset.h5 import SequenceMeta
-from staticdepth.dataset.pack import (LoadedFrame, list_frames, match_streams, name_from_output,
-                                      read_image, read_left_right, read_rgb)
+from staticdepth.dataset.pack import (LoadedFrame, list_frames, name_from_output, read_image,
+                                      read_left_right, read_rgb)
 from staticdepth.errors import InputError
 from staticdepth.geometry.camera import Camera, StereoRig
 
@@ -245,36 +245,28 @@ def drive_tasks(root: str | os.PathLike, drive: str, *, right: bool = False,
     d = drive_dir(root, drive)
     calib = KittiCalib.load(os.path.dirname(d))
     left_dir = os.path.join(d, "image_02", "data")
-    streams = {left_dir: list_frames(left_dir)}
-    if right:
-        right_dir = os.path.join(d, "image_03", "data")
-        streams[right_dir] = list_frames(right_dir)
-    stems = match_streams(streams, d)
+    stems = [os.path.splitext(n)[0] for n in list_frames(left_dir)]
     if not stems:
         raise InputError("drive has no frames", d)
+    # The left images are the frames. A frame's right image or scan missing makes it a bad frame
+    # (loading it names the file; skip_bad skips it); one without a left image is refused.
+    if right:  # image_03/data must exist
+        _check_frame_files(d, os.path.join("image_03", "data"), ".png", "right image", stems,
+                           list_frames(os.path.join(d, "image_03", "data")))
     if depth_maps is None:
-        # A frame without its scan is a bad frame (loading it names the file; skip_bad skips it);
-        # a scan without its image is not part of any frame.
         scan_dir = os.path.join(d, "velodyne_points", "data")
-        scans = list_frames(scan_dir, ".bin") if os.path.isdir(scan_dir) else []
-        if not scans:
-            raise InputError("drive has no LiDAR scans (velodyne_points/data/*.bin)", d)
-        extra = sorted({os.path.splitext(n)[0] for n in scans} - set(stems))
-        if extra:
-            raise InputError(f"mismatched frame counts: {scan_dir} has {len(extra)} scan(s) "
-                             f"without an image (e.g. {extra[0]!r})", d)
-    ts_all = read_timestamps(os.path.join(d, "image_02", "timestamps.txt"))
-    all_stems = [os.path.splitext(n)[0] for n in list_frames(os.path.join(d, "image_02", "data"))]
-    if len(ts_all) != len(all_stems):
-        raise InputError(f"{len(ts_all)} timestamps for {len(all_stems)} images",
-                         os.path.join(d, "image_02", "timestamps.txt"))
-    ts = dict(zip(all_stems, ts_all))
+        _check_frame_files(d, os.path.join("velodyne_points", "data"), ".bin", "LiDAR scan", stems,
+                           list_frames(scan_dir, ".bin") if os.path.isdir(scan_dir) else [])
+    ts_path = os.path.join(d, "image_02", "timestamps.txt")
+    ts_all = read_timestamps(ts_path)
+    if len(ts_all) != len(stems):
+        raise InputError(f"{len(ts_all)} timestamps for {len(stems)} images", ts_path)
+    ts = dict(zip(stems, ts_all))
     dm = None if depth_maps is None else _depth_map_dir(depth_maps, d)
     maps = set() if dm is None else {os.path.splitext(n)[0] for n in list_frames(dm)}
-    pos = {s: k for k, s in enumerate(all_stems)}
     end = DEPTH_MAP_END_FRAMES
-    no_map = {s for s in stems if dm is not None and s not in maps
-              and not end <= pos[s] < len(all_stems) - end}
+    no_map = {s for k, s in enumerate(stems) if dm is not None and s not in maps
+              and not end <= k < len(stems) - end}
     # The image size comes from the first frame; every frame is checked against it when loaded.
     first = _sample_images([os.path.join(left_dir, s + ".png") for s in stems], 1, skip_bad)[0]
     size = (first.shape[1], first.shape[0])
@@ -286,6 +278,18 @@ def drive_tasks(root: str | os.PathLike, drive: str, *, right: bool = False,
                        right=os.path.join(d, "image_03", "data", s + ".png") if right else None,
                        timestamp=float(ts[s]), img2_from_velo=P, size=size) for s in stems]
     return tasks, [f"{os.path.basename(d)}/{s}" for s in stems], calib
+
+
+def _check_frame_files(drive: str, sub: str, ext: str, what: str, stems: Sequence[str],
+                       names: Sequence[str]) -> None:
+    """Refuse a per-frame stream (``names`` in ``drive/sub``) that is empty or holds a file
+    without a left image; a frame without its file is left to loading (a bad frame)."""
+    if not names:
+        raise InputError(f"drive has no {what}s ({sub}/*{ext})", drive)
+    extra = sorted({os.path.splitext(n)[0] for n in names} - set(stems))
+    if extra:
+        raise InputError(f"mismatched frame counts: {os.path.join(drive, sub)} has {len(extra)} "
+                         f"{what}(s) without a left image (e.g. {extra[0]!r})", drive)
 
 
 def _sample_images(paths: Sequence[str], n: int, skip_bad: bool) -> list[np.ndarray]:
