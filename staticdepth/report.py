@@ -45,6 +45,22 @@ def _png_uri(rgb: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(buf.tobytes()).decode()
 
 
+def prediction_protocols(reader) -> tuple[dict[str, str], str | None]:
+    """The depth predictions of an open sequence (confidence maps left out) with the protocol
+    ``evaluate`` gives each: its attribute ``metric`` where stored, else its name
+    (:func:`~staticdepth.evaluate.default_protocol`). The second value is a one-line note naming
+    the predictions whose protocol came from the name (None when every one stores it)."""
+    attrs = {n: reader.prediction_attrs(n) for n in reader.predictions()}
+    prot = {n: default_protocol(n, a) for n, a in attrs.items() if a.get("kind") != "confidence"}
+    guessed = [n for n in prot if "metric" not in attrs[n]]
+    if not guessed:
+        return prot, None
+    return prot, (f"note: {reader.path}: {len(guessed)} prediction(s) store no 'metric' "
+                  "attribute; protocol from the name (metric if it ends in -metric or starts "
+                  "with stereo-baseline, else median): "
+                  + ", ".join(f"{n} {prot[n]}" for n in guessed))
+
+
 def sequence_figures(path: str | os.PathLike, summary: Mapping[str, Any] | None = None,
                      frame: int | None = None) -> list[tuple[str, np.ndarray]]:
     """(caption, RGB panel) pairs for one evaluation frame, in the pipeline's order (see
@@ -65,15 +81,16 @@ def sequence_figures(path: str | os.PathLike, summary: Mapping[str, Any] | None 
             figs.append(("2. ground-truth depth (colours: inverse depth, near = red)",
                          rf.depth_panel(gt, "ground truth", rng)))
         k = len(figs) + 1
-        names = rf.pipeline_sorted(r.predictions())
-        metric = {n: default_protocol(n, r.prediction_attrs(n)) == "metric" for n in names}
+        protocol = prediction_protocols(r)[0]
+        names = rf.pipeline_sorted(list(protocol))
+        metric = {n: protocol[n] == "metric" for n in names}
         if not has_gt:          # one range for the metric panels, as the ground truth's would be
             rng = rf.depth_range(np.concatenate(
                 [np.ravel(r.prediction(n, i)) for n in names if metric[n]] or [np.zeros(0)]))
         for name in names:
             pred = r.prediction(name, i).astype(np.float64)
             if has_gt:
-                prot = default_protocol(name)
+                prot = protocol[name]
                 scaled, s = apply_protocol(pred, gt, prot, valid_mask(gt))
                 figs.append((f"{k}. {name}: depth ({prot} protocol, scale {s:.3g})",
                              rf.depth_panel(scaled, f"{name} ({prot})", rng)))
@@ -144,20 +161,28 @@ def anchor_row(path: str | os.PathLike, summary: Mapping[str, Any] | None) -> di
 
 
 def build_report(sequences: Mapping[str, str], out_dir: str | os.PathLike,
-                 summaries: Mapping[str, Mapping[str, Any]] | None = None) -> dict[str, Any]:
-    """Evaluate every sequence, write the tables (text, CSV, Markdown) and one HTML per scene."""
+                 summaries: Mapping[str, Mapping[str, Any]] | None = None, warn=print
+                 ) -> dict[str, Any]:
+    """Evaluate every sequence, write the tables (text, CSV, Markdown) and one HTML per scene.
+
+    ``warn`` receives a sequence's note when some of its predictions store no attribute ``metric``
+    (:func:`prediction_protocols`; the note is in its HTML too)."""
     os.makedirs(out_dir, exist_ok=True)
     summaries = summaries or {}
-    evals = {}
+    evals, notes_of = {}, {}
     protos = ("median", "metric")
     for scene, seq in sequences.items():
         from staticdepth.dataset.h5 import SequenceReader
 
         with SequenceReader(seq) as r:
-            names = r.predictions()
+            protocol, note = prediction_protocols(r)
+            names = list(protocol)
             has_gt = r.has("depth")
         if not names:
             raise InputError("no predictions to report (run adapt / baseline first)", seq)
+        if note:
+            warn(note)
+            notes_of[scene] = [note]
         if has_gt:
             evals[scene] = evaluate_sequence(seq, names, protocols=protos)["results"]
     anchors = {scene: anchor_row(seq, summaries.get(scene)) for scene, seq in sequences.items()
@@ -170,7 +195,7 @@ def build_report(sequences: Mapping[str, str], out_dir: str | os.PathLike,
     for scene, seq in sequences.items():
         figs = sequence_figures(seq, summaries.get(scene))
         p = os.path.join(out_dir, f"report_{_file_stem(scene)}.html")
-        notes = [f"sequence: {seq}"]
+        notes = [f"sequence: {seq}", *notes_of.get(scene, [])]
         notes += (metric_definitions() if scene in evals else
                   ["no ground truth: the predictions are shown without metrics"])
         write_html(p, f"staticdepth report: {scene}", tables if scene in evals else [], figs,
