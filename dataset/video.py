@@ -15,7 +15,7 @@ fps; for a URL the wall clock since the first frame.
 (:mod:`staticdepth.dataset.resume`): the settings fingerprint holds the source file's size and
 modification time and every setting that changes the frames; for an image folder each image is an
 input identity (its path, size and time). The frames already written are passed over without
-decoding (a video's are grabbed, not retrieved). A camera/stream URL cannot be resumed: its frames
+conversion (a video's are grabbed, which decodes them, not retrieved). A camera/stream URL cannot be resumed: its frames
 are live, not the ones the partial holds.
 """
 from __future__ import annotations
@@ -52,9 +52,13 @@ def _to_rgb(img: np.ndarray, where: str) -> np.ndarray:
         raise InputError("corrupt or unreadable frame", where)
     if img.dtype != np.uint8:
         raise InputError(f"expected 8-bit frames, got {img.dtype}", where)
+    import cv2
+
     if img.ndim == 2:
-        return np.repeat(img[..., None], 3, axis=2)
-    return np.ascontiguousarray(img[..., 2::-1])      # BGR(A) -> RGB
+        return cv2.cvtColor(img, cv2.COLOR_GRAY2RGB)
+    if img.ndim == 3 and img.shape[2] in (3, 4):    # BGR(A) -> RGB; 40x numpy's strided copy
+        return cv2.cvtColor(img, cv2.COLOR_BGR2RGB if img.shape[2] == 3 else cv2.COLOR_BGRA2RGB)
+    return np.ascontiguousarray(img[..., 2::-1])
 
 
 def image_files(folder: str) -> list[str]:
@@ -150,15 +154,18 @@ class VideoFrames(Sequence):
     """Frames ``start``, ``start + step``, ... of the video file at ``path`` (RGB uint8), at most
     ``max_frames`` (None: to the end), read one at a time by index, for ``observations`` and
     ``stereo`` on videos (detectors index their input: the median background samples up to 50
-    frames, then every frame is read in order). The length comes from one pass that grabs the
-    frames without converting them; reads grab forward through one open capture, converting only
-    the frames asked for, and reopen it from ``start`` only when an index goes back, so a long
-    video costs one frame of memory, not all of them. ``source_index(i)``: frame ``i``'s index
-    in the video."""
+    frames, then every frame is read in order). The length is the number of the video stream's
+    packets, counted by demuxing alone (FFmpeg's raw mode: no decoding; a backend without it
+    decodes to count), never the container's header count, which can be wrong. Reads grab
+    (decode) forward through one open capture, converting only the frames asked for, and reopen
+    it from ``start`` only when an index goes back (the last frame read is kept, so asking for
+    it again costs nothing): a long video costs one frame of memory, and a read in order one
+    decoding pass. ``source_index(i)``: frame ``i``'s index in the video."""
 
     def __init__(self, path: str, start: int = 0, step: int = 1, max_frames: int | None = None):
         self._cap = None         # the open capture, positioned at raw offset _next from start
         self._next = 0
+        self._last: tuple[int, np.ndarray] | None = None     # (raw offset, BGR) of the last read
         if start < 0 or step < 1 or (max_frames is not None and max_frames < 1):
             raise InputError(f"need start >= 0, step >= 1 and max_frames >= 1 (got {start}, "
                              f"{step}, {max_frames})")
@@ -176,13 +183,27 @@ class VideoFrames(Sequence):
         return cap
 
     def _count(self) -> int:
-        """Frames this view holds, by grabbing (demuxing and decoding, no colour conversion)
-        up to the last one it can use."""
+        """Frames this view holds: the packets up to the last frame it can use, read without
+        decoding (raw mode), or grabbed (decoded, not converted) where the backend has no raw
+        mode."""
+        import cv2
+
         limit = None if self.max_frames is None else (self.max_frames - 1) * self.step + 1
-        cap, raw = self._capture(), 0
+        cap = cv2.VideoCapture(self.path)
+        if not cap.isOpened():
+            raise InputError("cannot open video", self.path)
         try:
-            while (limit is None or raw < limit) and cap.grab():
-                raw += 1
+            if cap.set(cv2.CAP_PROP_FORMAT, -1):          # packets as they are: demuxing only
+                end = None if limit is None else self.start + limit
+                packets = 0
+                while (end is None or packets < end) and cap.grab():
+                    packets += 1
+                raw = max(0, packets - self.start)
+            else:
+                cap.release()
+                cap, raw = self._capture(), 0
+                while (limit is None or raw < limit) and cap.grab():
+                    raw += 1
         finally:
             cap.release()
         return (raw + self.step - 1) // self.step
@@ -200,19 +221,26 @@ class VideoFrames(Sequence):
         if not -self._n <= i < self._n:
             raise IndexError(i)
         want = (i % self._n) * self.step
+        where = f"{self.path} frame {self.source_index(i)}"
+        if self._last is not None and self._last[0] == want:
+            return _to_rgb(self._last[1], where)       # a fresh array, as a decoded one is
         if self._cap is None or want < self._next:
             self.close()
             self._cap, self._next = self._capture(), 0
         while self._next <= want:
             if not self._cap.grab():
                 self.close()
-                raise InputError(f"frame {self.source_index(i)} could not be read (the video "
-                                 "holds fewer frames than its first pass counted)", self.path)
+                raise InputError(f"frame {self.source_index(i)} could not be decoded (the video "
+                                 f"holds fewer frames than the {self._n} packets counted)",
+                                 self.path)
             self._next += 1
         ok, img = self._cap.retrieve()
-        return _to_rgb(img if ok else None, f"{self.path} frame {self.source_index(i)}")
+        rgb = _to_rgb(img if ok else None, where)
+        self._last = (want, img)
+        return rgb
 
     def close(self) -> None:
+        self._last = None
         if self._cap is not None:
             self._cap.release()
             self._cap = None
@@ -257,8 +285,9 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
     from staticdepth.dataset.schema import check_name
 
     check_name(name)
-    if adapt_frames is not None and adapt_frames < 0:
-        raise InputError(f"--adapt-frames must be >= 0, got {adapt_frames}")
+    if adapt_frames is not None and adapt_frames < 1:
+        raise InputError(f"--adapt-frames must be >= 1 (the first frames, which adapt learns "
+                         f"from; leave it out for all of them), got {adapt_frames}")
     if width is not None and width < 16:
         raise InputError(f"--width must be >= 16, got {width}")
     if resume and restart:
@@ -358,7 +387,8 @@ def register(sub) -> None:
     p.add_argument("--every", type=int, default=1, help="keep every K-th frame")
     p.add_argument("--max-frames", type=int, default=None, help="stop after N kept frames")
     p.add_argument("--adapt-frames", type=int, default=None,
-                   help="the first N frames form the adaptation split (default: all)")
+                   help="the first N >= 1 frames form the adaptation split (default: all; "
+                        "clipped to the frames read)")
     p.add_argument("--width", type=int, default=None, help="resize frames to this width")
     p.add_argument("--fps", type=float, default=None,
                    help="frame rate of an image folder (default 10), or override a video's")

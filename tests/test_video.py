@@ -79,6 +79,20 @@ def test_bad_inputs(tmp_path):
     assert not (tmp_path / "x.h5").exists()
 
 
+def test_adapt_frames_zero_is_refused_before_anything_is_written(tmp_path, capsys):
+    """0 would leave adapt nothing to learn from (a video has no ground truth for an eval-only
+    file); the help says N >= 1 and leaving the option out means every frame."""
+    src, out = tmp_path / "v.avi", tmp_path / "x.h5"
+    _video(src, n=3)
+    assert main(["import-video", str(src), "--out", str(out), "--adapt-frames", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--adapt-frames must be >= 1" in err[0] and "got 0" in err[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.avi"]
+    assert main(["import-video", str(src), "--out", str(out), "--adapt-frames", "1"]) == 0
+    with SequenceReader(out) as r:
+        assert list(r.split("adapt")) == [0] and list(r.split("eval")) == [1, 2]
+
+
 def test_vtest_streamed(shared_data, tmp_path):
     video = shared_data / "video" / "vtest.avi"
     if not video.exists():
