@@ -5,7 +5,8 @@ Layout written (one file per frame, in frame order, numbered ``0000000000``):
 ``proj_depth/groundtruth/image_02/*.png`` (uint16 = round(depth * 256), 0 = unknown, as KITTI's
 depth benchmark; depth beyond 255.996 m becomes 0 too, counted in ``calib.json``
 ``depth_beyond_range_px``), ``instances/*.png`` (uint16 instance ids, when stored),
-``timestamps.txt`` (seconds, one per line), ``calib_cam_to_cam.txt`` (``S_rect_02``,
+``timestamps.txt`` (seconds, one per line, with the same number of decimals on every line: see
+:func:`timestamp_lines`), ``calib_cam_to_cam.txt`` (``S_rect_02``,
 ``P_rect_02``, ``R_rect_00`` and, with a rig, ``P_rect_03``), ``calib.json`` (camera, rig,
 mounting, camera height) and ``splits/{adapt,eval}.txt`` (frame numbers) and
 ``.staticdepth-export.json`` (marks the folder as ours). The folder appears atomically (built
@@ -48,6 +49,24 @@ def beyond_range_note(pixels: int) -> str:
     """What the export lost, in words (``pixels`` from :func:`kitti_png_from_depth`)."""
     return (f"{pixels} depth pixel(s) beyond {MAX_DEPTH_M:.3f} m (the limit of KITTI's uint16 "
             f"PNG, depth x {DEPTH_SCALE:g}) are stored as 0 (unknown)")
+
+
+def timestamp_decimals(times: np.ndarray) -> int:
+    """Decimals that every one of ``times`` (float64 seconds) holds: 9 (nanoseconds), fewer
+    where the largest time leaves float64 coarser steps (epoch seconds, as KITTI's, step 2.4e-7:
+    6, microseconds), so that no digit written is float noise."""
+    t = np.abs(np.asarray(times, np.float64))
+    t = t[np.isfinite(t)]
+    step = float(np.spacing(t.max())) if t.size else 0.0
+    return 9 if step == 0 else int(np.clip(np.floor(-np.log10(2 * step)), 0, 9))
+
+
+def timestamp_lines(times: np.ndarray) -> list[str]:
+    """``times`` as the lines of ``timestamps.txt``: fixed point, :func:`timestamp_decimals`
+    decimals on every line (KITTI's 13:02:25.964389445, stored as 1317042145.9643893 epoch
+    seconds, is ``1317042145.964389``, not ``.964389324``; 0.3 s at 10 fps is ``0.300000000``)."""
+    d = timestamp_decimals(times)
+    return [f"{float(t):.{d}f}\n" for t in times]
 
 
 MARKER = ".staticdepth-export.json"  # written into every export: what --overwrite may replace
@@ -143,8 +162,9 @@ def _export(seq, out: str, overwrite: bool) -> dict[str, Any]:
                         far_total += far
                     # inside the export's temporary folder, renamed (and synced) as a whole
                     write_image(os.path.join(tmp, dirs[s], name), a, fsync=False)
+            times = r.timestamps()
             with open(os.path.join(tmp, "timestamps.txt"), "w") as f:
-                f.writelines(f"{t:.9f}\n" for t in r.timestamps())
+                f.writelines(timestamp_lines(times))
             with open(os.path.join(tmp, "calib_cam_to_cam.txt"), "w") as f:
                 f.write(_calib_txt(r))
             m = r.meta
@@ -154,7 +174,8 @@ def _export(seq, out: str, overwrite: bool) -> dict[str, Any]:
                      "camera_height_m": m.camera_height_m, "depth_png_scale": DEPTH_SCALE,
                      "frames": len(r), "adapt_frames": m.adapt_frames, "gt_kind": m.gt_kind,
                      "source_file": os.path.basename(os.fspath(seq)),
-                     "depth_beyond_range_px": far_total}
+                     "depth_beyond_range_px": far_total,
+                     "timestamp_decimals": timestamp_decimals(times)}
             with open(os.path.join(tmp, "calib.json"), "w") as f:
                 json.dump(calib, f, indent=2)
             os.makedirs(os.path.join(tmp, "splits"))
