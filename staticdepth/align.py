@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from staticdepth.errors import InputError
+from staticdepth.fileio import read_npy
 from staticdepth.geometry import load_camera
 from staticdepth.geometry.camera import read_json
 from staticdepth.geometry.scale import scale_from_anchor, temporal_scale
@@ -44,7 +45,7 @@ def load_mask(path: str | os.PathLike, what: str = "ground", allow_empty: bool =
     is empty unless ``allow_empty``. ``what`` names the mask in messages."""
     path = os.fspath(path)
     if path.endswith(".npy"):
-        m = _load_npy(path)
+        m = read_npy(path)
     else:
         from staticdepth.fileio import read_image
 
@@ -89,15 +90,6 @@ def parse_polygon(text: str) -> np.ndarray:
         raise InputError("a ground polygon is a list of u,v pairs (\"u1,v1 u2,v2 ...\" or a "
                          f"JSON/TXT file of them), got {text[:60]!r}", source)
     return P
-
-
-def _load_npy(path: str) -> np.ndarray:
-    try:
-        return np.load(path, allow_pickle=False)
-    except FileNotFoundError:
-        raise InputError("file not found", path) from None
-    except (OSError, ValueError) as e:
-        raise InputError(f"not a readable .npy array: {e}", path) from None
 
 
 def save_npy_atomic(path: str | os.PathLike, array: np.ndarray) -> None:
@@ -381,7 +373,7 @@ def _align_files(args, plane: AgentPlane, height, masks: _Masks):
         inputs, outputs = [src], [Path(args.out)]
 
     def load(i: Path) -> np.ndarray:
-        pred = check_prediction(_load_npy(os.fspath(i)), i)  # real, no +-inf (NaN = unknown)
+        pred = check_prediction(read_npy(os.fspath(i)), i)  # real, no +-inf (NaN = unknown)
         if pred.ndim != 2:
             raise InputError(f"a prediction must be a 2-D (H, W) map, got shape {pred.shape}", i)
         return pred

@@ -13,6 +13,7 @@ import numpy as np
 
 from staticdepth.dataset import schema
 from staticdepth.errors import InputError
+from staticdepth.fileio import read_npy
 from staticdepth.metrics import (METRIC_KEYS, PROTOCOLS, apply_protocol, average,
                                  check_depth_range, check_prediction, depth_metrics, evaluate,
                                  valid_mask)
@@ -173,12 +174,7 @@ def load_maps(path: str | os.PathLike) -> list[np.ndarray]:
         for f in files:
             out.extend(load_maps(os.path.join(path, f)))
         return out
-    if not os.path.exists(path):
-        raise InputError("file not found", path)
-    try:
-        a = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as e:
-        raise InputError(f"not a readable .npy file ({e})", path) from None
+    a = read_npy(path)
     if a.dtype.kind == "c":  # no silent cast to real numbers
         raise InputError(f"the array holds complex numbers ({a.dtype}): depth is real", path)
     if a.dtype.kind not in "fiub":

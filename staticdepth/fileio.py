@@ -149,6 +149,28 @@ def read_image(path: str | os.PathLike, *, flags: int | None = None):
     return img
 
 
+def read_npy(path: str | os.PathLike):
+    """The one ``.npy`` reader: the array in the file, never a pickle. A missing, empty,
+    truncated, pickled or otherwise unreadable file is an :class:`InputError` naming it."""
+    import numpy as np
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError("is a folder, not a .npy file" if os.path.isdir(path)
+                         else "file not found", path)
+    try:
+        return np.load(path, allow_pickle=False)
+    except OSError as e:
+        if e.errno is not None:
+            raise os_error(e, path) from None
+        raise InputError(f"not a readable .npy file ({e})", path) from None
+    except (ValueError, EOFError) as e:
+        if "allow_pickle" in str(e):
+            raise InputError("not a readable .npy file (it holds pickled Python objects, which "
+                             "are never loaded: save a numeric array)", path) from None
+        raise InputError(f"not a readable .npy file ({e or 'empty file'})", path) from None
+
+
 def read_rgb(path: str | os.PathLike):
     """An 8-bit image as RGB (H, W, 3) uint8: grey is repeated to 3 channels, alpha is dropped.
 

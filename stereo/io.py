@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from staticdepth.errors import InputError
-from staticdepth.fileio import read_image, read_rgb  # noqa: F401  (the toolkit's one reader)
+from staticdepth.fileio import read_image, read_npy, read_rgb  # noqa: F401  (the toolkit's one reader)
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
 VIDEO_EXTS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v")
@@ -141,7 +141,10 @@ def read_disparity(path: str | os.PathLike) -> np.ndarray:
         d[q == 0] = np.nan
         return d
     elif ext == ".npy":
-        d = np.load(path).astype(np.float32)
+        d = read_npy(path)
+        if d.ndim != 2 or d.dtype.kind not in "fiu":
+            raise InputError(f"expected an H x W numeric disparity array, got {d.dtype} "
+                             f"{d.shape}", path)
     else:
         raise InputError("disparity file must end in .pfm, .png or .npy", path)
     d = d.astype(np.float32)
