@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import os
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -233,23 +234,30 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
 
     check_writable(args.out)
     refuse_existing(args.out, overwrite=args.overwrite)
+    for opt, v, positive in (("--radius", args.radius, False), ("--agent-height",
+                             args.agent_height, True), ("--camera-height", args.camera_height,
+                             True), ("--column-weight", args.column_weight, False)):
+        if v is not None and not (math.isfinite(v) and (v > 0 if positive else v >= 0)):
+            raise InputError(f"{opt} must be a finite number {'> 0' if positive else '>= 0'}, "
+                             f"got {v}")
+    if not args.max_normal_std > 0:
+        raise InputError(f"--max-normal-std must be > 0 degrees (inf: never refuse), got "
+                         f"{args.max_normal_std}")
+    if args.bootstrap is not None and args.bootstrap < 0:
+        raise InputError(f"--bootstrap must be >= 0 (0 = no uncertainty), got {args.bootstrap}")
+    conf = PRESETS[args.model]
+    changes = {k: v for k, v in (("radius_m", args.radius), ("bootstrap", args.bootstrap),
+                                 ("column_weight", args.column_weight),
+                                 ("agent_height_m", args.agent_height)) if v is not None}
+    if args.classes is not None:
+        changes["classes"] = class_set(args.classes)
+    conf = replace(conf, **changes)     # the options checked before any file is read
     camera = load_camera(args.intrinsics)
     obs, size = read_observations_csv(args.observations)
     if size is not None:        # the intrinsics scaled to the observations' images, or refused
         camera = camera.fitted_to(*size, what=f"the images of {os.fspath(args.observations)}",
                                   source=args.intrinsics)
     check_in_image(obs, camera, args.observations, args.intrinsics)
-    conf = PRESETS[args.model]
-    if args.radius is not None:
-        conf = replace(conf, radius_m=args.radius)
-    if args.bootstrap is not None:
-        conf = replace(conf, bootstrap=args.bootstrap)
-    if args.column_weight is not None:
-        conf = replace(conf, column_weight=args.column_weight)
-    if args.agent_height is not None:
-        conf = replace(conf, agent_height_m=args.agent_height)
-    if args.classes is not None:
-        conf = replace(conf, classes=class_set(args.classes))
     print(f"fitting the {conf.model} ground plane to {len(obs)} observations of "
           f"{len(np.unique(obs['track']))} tracks ({conf.bootstrap} bootstrap resamples)",
           flush=True)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import math
 import os
 
 import numpy as np
@@ -136,9 +137,9 @@ def register(sub) -> None:
     p.add_argument("--detector-model", help="detector weights (yolox: an ONNX file)")
     p.add_argument("--split", choices=SPLITS, default="adapt",
                    help="sequence frames to use (the paper fits the plane on the adapt split)")
-    p.add_argument("--start", type=int, default=0, help="video: first frame")
-    p.add_argument("--max-frames", type=int, default=300, help="video: most frames to read")
-    p.add_argument("--step", type=int, default=1, help="video: use every N-th frame")
+    p.add_argument("--start", type=int, help="video: first frame (default 0)")
+    p.add_argument("--max-frames", type=int, help="video: most frames to read (default 300)")
+    p.add_argument("--step", type=int, help="video: use every N-th frame (default 1)")
     p.add_argument("--model", choices=("exact", "paper", "affine"), default="exact",
                    help="the ground-plane model the tracks are filtered for (paper/affine drop "
                         "straight walkers)")
@@ -158,14 +159,25 @@ def run(args: argparse.Namespace) -> int:
     from staticdepth.stereo.io import is_video
 
     refuse_existing(args.out, args.camera_out, overwrite=args.overwrite)
+    if args.min_height_px is not None and not (math.isfinite(args.min_height_px)
+                                               and args.min_height_px >= 0):
+        raise InputError(f"--min-height-px must be a number of pixels >= 0, got "
+                         f"{args.min_height_px}")
+    video_only = [o for o, v in (("--start", args.start), ("--max-frames", args.max_frames),
+                                 ("--step", args.step)) if v is not None]
     common = {"detector_model": args.detector_model, "model": args.model,
               "min_height_px": args.min_height_px}
     if is_video(args.input):
         if args.camera_out:
             raise InputError("--camera-out needs a sequence file (a video has no intrinsics)")
-        obs, info = from_video(args.input, detector=args.detector or "motion", start=args.start,
-                               max_frames=args.max_frames, step=args.step, **common)
+        obs, info = from_video(args.input, detector=args.detector or "motion",
+                               start=0 if args.start is None else args.start,
+                               max_frames=300 if args.max_frames is None else args.max_frames,
+                               step=1 if args.step is None else args.step, **common)
     elif os.path.isfile(args.input):
+        if video_only:
+            raise InputError(f"{', '.join(video_only)}: for a video only (a sequence's frames "
+                             f"are chosen with --split)", args.input)
         obs, info = from_sequence(args.input, detector=args.detector, split=args.split, **common)
         if args.camera_out:
             cam = {k: info[k] for k in ("width", "height", "fx", "fy", "cx", "cy")}

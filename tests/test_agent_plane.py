@@ -267,6 +267,17 @@ def test_config_and_prior_errors():
         camera_height_from_prior(plane, 1.7)
     with pytest.raises(InputError, match="agent height must be positive"):
         camera_height_from_prior(plane, 0.0)
+    for bad in (float("nan"), float("inf")):      # were taken: a NaN or infinite camera height
+        with pytest.raises(InputError, match="agent height must be positive and finite"):
+            camera_height_from_prior(plane, bad)
+        with pytest.raises(InputError, match="agent height finite"):
+            AgentPlaneConfig(agent_height_m=bad)
+        with pytest.raises(InputError, match="radius"):
+            AgentPlaneConfig(radius_m=bad)
+    with pytest.raises(InputError, match="less than the agent height"):
+        AgentPlaneConfig(radius_m=2.0)
+    with pytest.raises(InputError, match="bootstrap must be a whole number"):
+        AgentPlaneConfig(bootstrap=-1)
     with pytest.raises(InputError, match="camera height must be positive"):
         plane.with_camera_height(-2.0, "given")
     with pytest.raises(InputError, match="missing the key 'normal'"):

@@ -57,7 +57,8 @@ def d(tmp_path_factory):
     p = {k: str(root / k) for k in ("seq.h5", "damaged.h5", "file", "folder", "one.png",
                                     "binary.yaml", "gt.npy", "nan.npy", "inf.npy", "complex.npy",
                                     "state.yaml", "cam.json", "plane.json", "pairs", "left.png",
-                                    "right.png", "folder.npy")}
+                                    "right.png", "folder.npy", "empty.npy", "cut.npy",
+                                    "pickled.npy", "obs.csv")}
     p["root"] = str(root)
     render_to_file(p["seq.h5"], preset_name="c1", n_frames=4, adapt_frames=2, seed=1,
                    overrides={"width": 64, "height": 32})
@@ -81,6 +82,11 @@ def d(tmp_path_factory):
         a[2, 3] = value
         np.save(p[name], a)
     np.save(p["complex.npy"], gt + 1j)
+    open(p["empty.npy"], "wb").close()
+    raw = open(p["gt.npy"], "rb").read()
+    open(p["cut.npy"], "wb").write(raw[: len(raw) // 2])
+    np.save(p["pickled.npy"], np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    open(p["obs.csv"], "w").write("frame,track,foot_u,foot_v,height_px\n")
     os.makedirs(root / "state")
     (root / "state" / "recipe_state.json").write_text('{"a": "12')
     open(p["state.yaml"], "w").write(
@@ -216,6 +222,33 @@ CASES = [
      "inf.npy: the prediction has 1 infinite pixel(s)"),
     ("nonsense-align-complex", lambda d: _align(d, "complex.npy"),
      "complex.npy: the prediction holds complex numbers"),
+    ("nonsense-align-empty-npy", lambda d: _align(d, "empty.npy"),
+     "empty.npy: not a readable .npy file"),
+    ("nonsense-align-cut-npy", lambda d: _align(d, "cut.npy"),
+     "cut.npy: not a readable .npy file"),
+    ("nonsense-metrics-pickled-npy", lambda d: ["metrics", "--pred", d["pickled.npy"], "--gt",
+                                                d["gt.npy"]],
+     "pickled.npy: not a readable .npy file (it holds pickled Python objects"),
+    ("nonsense-metrics-empty-gt", lambda d: ["metrics", "--pred", d["gt.npy"], "--gt",
+                                             d["empty.npy"]],
+     "empty.npy: not a readable .npy file"),
+    *[(f"nonsense-ground-plane{opt}-{v}", lambda d, opt=opt, v=v: [
+        "ground-plane", "--observations", d["obs.csv"], "--intrinsics", d["cam.json"], opt, v,
+        "--out", os.path.join(d["root"], "plane-out.json")], f"{opt} must be")
+      for opt, v in (("--agent-height", "nan"), ("--agent-height", "inf"), ("--radius", "nan"),
+                     ("--radius", "-0.1"), ("--camera-height", "inf"), ("--bootstrap", "-1"),
+                     ("--max-normal-std", "nan"), ("--column-weight", "inf"))],
+    ("nonsense-ground-plane-radius-over-height", lambda d: [
+        "ground-plane", "--observations", d["obs.csv"], "--intrinsics", d["cam.json"],
+        "--model", "exact", "--radius", "2", "--out", os.path.join(d["root"], "plane-out.json")],
+     "agent radius and head radius must be less than the agent height"),
+    *[(f"nonsense-observations-sequence{opt}", lambda d, opt=opt: [
+        "observations", d["seq.h5"], opt, "1", "--out", os.path.join(d["root"], "obs-out.csv")],
+       f"{opt}: for a video only")
+      for opt in ("--start", "--max-frames", "--step")],
+    ("nonsense-observations-min-height", lambda d: [
+        "observations", d["seq.h5"], "--min-height-px", "-1", "--out",
+        os.path.join(d["root"], "obs-out.csv")], "--min-height-px must be"),
     ("nonsense-capture-corrupt-frame", lambda d: ["capture", "--source", "replay", "--input",
                                                   d["pairs"], "--out",
                                                   os.path.join(d["root"], "rec")],

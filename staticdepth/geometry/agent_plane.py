@@ -67,6 +67,10 @@ UNCERTAINTY_PARTS = ("bootstrap_std_deg", "class_misfit_deg", "laplace_std_deg",
                      "pitch_roll_corr")
 
 
+def _finite_at_least(x, low: float) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and math.isfinite(x) and x >= low
+
+
 @dataclass(frozen=True)
 class AgentPlaneConfig:
     """How to fit the ground plane from agents; see :data:`PRESETS`."""
@@ -116,8 +120,19 @@ class AgentPlaneConfig:
                              f"{self.classes!r}")
         if self.model not in MODELS:
             raise InputError(f"unknown ground-plane model {self.model!r} (use {', '.join(MODELS)})")
-        if self.radius_m < 0 or self.head_radius_m < 0 or self.agent_height_m <= 0:
-            raise InputError("agent radius and head radius must be >= 0 and agent height > 0")
+        if not (_finite_at_least(self.radius_m, 0) and _finite_at_least(self.head_radius_m, 0)
+                and _finite_at_least(self.agent_height_m, 0) and self.agent_height_m > 0):
+            raise InputError(f"agent radius and head radius must be finite and >= 0 and agent "
+                             f"height finite and > 0 (got {self.radius_m}, "
+                             f"{self.head_radius_m}, {self.agent_height_m})")
+        if max(self.radius_m, self.head_radius_m) >= self.agent_height_m:
+            raise InputError(f"agent radius and head radius must be less than the agent height "
+                             f"({self.agent_height_m} m), got {self.radius_m} and "
+                             f"{self.head_radius_m}")
+        if isinstance(self.bootstrap, bool) or not (isinstance(self.bootstrap, (int, np.integer))
+                                                    and self.bootstrap >= 0):
+            raise InputError(f"bootstrap must be a whole number >= 0 (0 = no uncertainty), "
+                             f"got {self.bootstrap}")
         if not 0 < self.max_pitch_deg < 90:
             raise InputError(f"max_pitch_deg must be in (0, 90), got {self.max_pitch_deg}")
         if self.relative_noise is not None and not self.relative_noise >= 0:
@@ -411,8 +426,9 @@ def _without_group(K, observations, obs, conf: AgentPlaneConfig, gs: tuple[int, 
 def camera_height_from_prior(plane: AgentPlane, agent_height_m: float = 1.7) -> float:
     """Camera height d = H_prior / s_j, median over the inlier person tracks (all inlier tracks
     when no class is known). Raises when no such track exists."""
-    if not agent_height_m > 0:
-        raise InputError(f"agent height must be positive, got {agent_height_m}")
+    if not (_finite_at_least(agent_height_m, 0) and agent_height_m > 0):
+        raise InputError(f"agent height must be positive and finite (metres), got "
+                         f"{agent_height_m}")
     cls = np.asarray(plane.extra.get("classes", np.full(len(plane.track_ids), -1)))
     use = plane.inliers & np.isin(cls, PERSON_CLASSES)
     if not use.any():
