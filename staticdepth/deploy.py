@@ -383,7 +383,8 @@ def register(sub) -> None:
                    help="stop after N kept frames (source frames 0, K, ..., (N-1)K)")
     add_device_argument(p)
     add_overwrite_argument(p, help="write into an output folder that holds files already "
-                                   "(same-named frames are replaced; refused otherwise)")
+                                   "(same-named frames are replaced, an earlier run's other "
+                                   "frames removed at the end; refused otherwise)")
     p.set_defaults(func=_run_predict)
 
 

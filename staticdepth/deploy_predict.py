@@ -16,6 +16,7 @@ from __future__ import annotations
 import io
 import math
 import os
+import re
 import time
 from typing import Any, Iterator
 
@@ -165,6 +166,18 @@ def make_predictor(model: str, summary: str | None, sequence: str | None,
         f"{model} (relative depth 1/D: give --summary and --sequence for metres)"
 
 
+_OUTPUT_NAME = re.compile(r"^(\d{6,})\.(png|npy)$")
+
+
+def stale_outputs(out_dir: str, written: set[str]) -> list[str]:
+    """The files in ``out_dir`` named as ``predict`` names its outputs (``NNNNNN.png``,
+    ``NNNNNN.npy``, ``depth.mp4``) that the run just finished did not write (``written``): an
+    earlier run's (another ``--every``, ``--format`` or source), which would otherwise be taken
+    for this one's. Other files are never touched."""
+    return [name for name in sorted(os.listdir(out_dir))
+            if (name == "depth.mp4" or _OUTPUT_NAME.match(name)) and name not in written]
+
+
 def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
             summary: str | None = None, sequence: str | None = None, every: int = 1,
             max_frames: int | None = None, device: str = "auto", log=print) -> dict[str, Any]:
@@ -188,6 +201,7 @@ def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
     unit = "m" if kind == "metric" else "relative"
     writer, tmp_ctx, rng, bar, video_fps = None, None, None, None, None
     n, first, last, t_model, t0 = 0, None, None, 0.0, time.perf_counter()
+    written = {"depth.mp4"} if fmt == "mp4" else set()
     try:
         for i, img in progress(_frames(source, every, max_frames), desc="predict", unit="frame"):
             t = time.perf_counter()
@@ -197,9 +211,11 @@ def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
                 buf = io.BytesIO()
                 np.save(buf, depth)
                 atomic_write_bytes(os.path.join(out_dir, f"{i:06d}.npy"), buf.getvalue())
+                written.add(f"{i:06d}.npy")
             elif fmt == "png16":
                 q, scale = png16_from_depth(depth, kind == "metric")
                 write_png16(os.path.join(out_dir, f"{i:06d}.png"), q, scale, unit)
+                written.add(f"{i:06d}.png")
             else:
                 if writer is None:
                     from staticdepth.report_figures import depth_colour_bar, depth_range
@@ -238,6 +254,11 @@ def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
         raise
     if n == 0:
         raise InputError("no frame was read", source)
+    stale = stale_outputs(out_dir, written)
+    for name in stale:      # an earlier run's frames (another --every, --format or source)
+        os.remove(os.path.join(out_dir, name))
+    if stale:
+        log(f"removed {len(stale)} file(s) of an earlier run from {out_dir}")
     wall = time.perf_counter() - t0
     return {"frames": n, "first_index": first, "last_index": last, "every": every,
             "fps_model": n / t_model, "fps_total": n / wall, "kind": kind, "out": out_dir,

@@ -208,3 +208,30 @@ def test_depth_from_png16_refuses_other_pngs(tmp_path):
     Image.fromarray(np.ones((4, 4), np.uint16)).save(tmp_path / "bad.png", pnginfo=info)
     with pytest.raises(InputError, match="unreadable staticdepth.depth_scale 'many'"):
         dp.depth_from_png16(str(tmp_path / "bad.png"))
+
+
+def test_overwrite_leaves_no_frame_of_an_earlier_run(tmp_path, known_model, capsys):
+    """Was: a second run with --overwrite into the same folder (another --every, another format)
+    kept the first run's frames beside its own, so the folder mixed two runs. Now only this run's
+    frames stay; files not named as predict names its outputs are never touched, and a run that
+    fails removes nothing."""
+    write_video(tmp_path / "v.avi", 25.0, 12)
+    out = tmp_path / "o"
+    assert run(tmp_path / "v.avi", out, "--format", "npy") == 0
+    (out / "notes.txt").write_text("mine")
+    (out / "12345.npy").write_bytes(b"not ours: 5 digits")
+    first = {p.name for p in out.iterdir()}
+    assert {f"{i:06d}.npy" for i in range(12)} <= first
+    # a failing run (a missing input) removes nothing
+    assert run(tmp_path / "missing.avi", out, "--overwrite", "--format", "npy") == 2
+    assert {p.name for p in out.iterdir()} == first
+    capsys.readouterr()
+    assert run(tmp_path / "v.avi", out, "--overwrite", "--format", "npy", "--every", "4") == 0
+    assert sorted(p.name for p in out.iterdir()) == [
+        "000000.npy", "000004.npy", "000008.npy", "12345.npy", "notes.txt"]
+    assert "removed 9 file(s) of an earlier run" in capsys.readouterr().out
+    assert (out / "notes.txt").read_text() == "mine"
+    for i in (0, 4, 8):
+        assert np.load(out / f"{i:06d}.npy").shape == (96, 320)
+    assert run(tmp_path / "v.avi", out, "--overwrite", "--format", "mp4") == 0
+    assert sorted(p.name for p in out.iterdir()) == ["12345.npy", "depth.mp4", "notes.txt"]
