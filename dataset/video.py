@@ -43,6 +43,9 @@ class VideoFrame:
     rgb: np.ndarray       # (H, W, 3) uint8
 
 
+MAX_WIDTH = 16384     # px: wider frames are a typo (a sequence chunk holds one frame)
+
+
 def is_url(source: str) -> bool:
     return "://" in source
 
@@ -91,8 +94,8 @@ def iter_frames(source: str, *, every: int = 1, max_frames: int | None = None,
         raise InputError(f"--every must be >= 1, got {every}")
     if max_frames is not None and max_frames < 1:
         raise InputError(f"--max-frames must be >= 1, got {max_frames}")
-    if fps is not None and not fps > 0:
-        raise InputError(f"--fps must be positive, got {fps}")
+    if fps is not None and not (fps > 0 and math.isfinite(fps)):
+        raise InputError(f"--fps must be a positive number, got {fps}")
     n_out = 0
     if os.path.isdir(source):
         rate = fps or 10.0
@@ -288,8 +291,8 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
     if adapt_frames is not None and adapt_frames < 1:
         raise InputError(f"--adapt-frames must be >= 1 (the first frames, which adapt learns "
                          f"from; leave it out for all of them), got {adapt_frames}")
-    if width is not None and width < 16:
-        raise InputError(f"--width must be >= 16, got {width}")
+    if width is not None and not 16 <= width <= MAX_WIDTH:
+        raise InputError(f"--width must lie in [16, {MAX_WIDTH}], got {width}")
     if resume and restart:
         raise InputError("give --resume or --restart, not both")
     if resume and is_url(source):

@@ -274,6 +274,8 @@ def test_config_and_prior_errors():
             AgentPlaneConfig(agent_height_m=bad)
         with pytest.raises(InputError, match="radius"):
             AgentPlaneConfig(radius_m=bad)
+    with pytest.raises(InputError, match="column weight"):   # was a scipy traceback
+        AgentPlaneConfig(column_weight=float("inf"))
     with pytest.raises(InputError, match="less than the agent height"):
         AgentPlaneConfig(radius_m=2.0)
     with pytest.raises(InputError, match="bootstrap must be a whole number"):

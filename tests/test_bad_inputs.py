@@ -246,6 +246,9 @@ CASES = [
         "observations", d["seq.h5"], opt, "1", "--out", os.path.join(d["root"], "obs-out.csv")],
        f"{opt}: for a video only")
       for opt in ("--start", "--max-frames", "--step")],
+    *[(f"nonsense-import-video{opt}-{v}", lambda d, opt=opt, v=v: [
+        "import-video", d["pairs"] + "/right", opt, v, "--out", os.path.join(d["root"], "v.h5")],
+       f"{opt} must") for opt, v in (("--width", "99999999"), ("--fps", "inf"))],
     ("nonsense-observations-min-height", lambda d: [
         "observations", d["seq.h5"], "--min-height-px", "-1", "--out",
         os.path.join(d["root"], "obs-out.csv")], "--min-height-px must be"),

@@ -137,7 +137,7 @@ class AgentPlaneConfig:
             raise InputError(f"max_pitch_deg must be in (0, 90), got {self.max_pitch_deg}")
         if self.relative_noise is not None and not self.relative_noise >= 0:
             raise InputError(f"relative_noise must be >= 0, got {self.relative_noise}")
-        if not self.fit_column_weight >= 0:
+        if not (self.fit_column_weight >= 0 and math.isfinite(self.fit_column_weight)):
             raise InputError(f"column weight must be >= 0, got {self.column_weight}")
         if self.known_height_m is not None and not (math.isfinite(self.known_height_m)
                                                     and self.known_height_m > 0):
