@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -304,16 +305,32 @@ class _Masks:
                 raise InputError(f"frame {i}: aux/{self.aux}: {e.problem}", reader.path) from None
         if self.polygon is not None:
             return ground_mask_from_polygon(self.polygon, shape[1], shape[0])
-        if self.fixed.shape != shape:
-            raise InputError(f"prediction shape {shape} differs from the ground mask's "
-                             f"{self.fixed.shape}", self.source)
-        return self.fixed
+        return fit_mask(self.fixed, shape, "ground", self.source)
 
     def agent(self, shape: tuple[int, int]) -> np.ndarray | None:
-        if self.agents is not None and self.agents.shape != shape:
-            raise InputError(f"agent mask shape {self.agents.shape} differs from the "
-                             f"prediction's {shape}", self.agent_path)
-        return self.agents
+        if self.agents is None:
+            return None
+        return fit_mask(self.agents, shape, "agent", self.agent_path)
+
+
+def fit_mask(mask: np.ndarray, shape: tuple[int, int], what: str, source) -> np.ndarray:
+    """``mask`` for a prediction of ``shape`` (H, W): itself, or resized (nearest) when the map is
+    a uniform resize of the mask's image, by the rule the camera follows
+    (:meth:`staticdepth.geometry.camera.Camera.fitted_to`: a pixel off is the same image, else
+    the two scales within 1%; a mask under 16 px a side is never resized); any other shape is
+    one line naming the mask."""
+    h, w = mask.shape
+    H, W = int(shape[0]), int(shape[1])
+    if (h, w) == (H, W):
+        return mask
+    sx, sy = W / w, H / h
+    if min(h, w) < 16 or (abs(sx - sy) > 0.01 * max(sx, sy)
+                          and not (abs(W - w) <= 1 and abs(H - h) <= 1)):
+        raise InputError(f"prediction shape {tuple(shape)} differs from the {what} mask's "
+                         f"{mask.shape}: not a uniform resize", source)
+    import cv2
+
+    return cv2.resize(mask.astype(np.uint8), (W, H), interpolation=cv2.INTER_NEAREST) > 0
 
 
 def _align_cmd(args: argparse.Namespace) -> int:
@@ -332,6 +349,15 @@ def _align_cmd(args: argparse.Namespace) -> int:
         raise InputError(f"camera height must be positive, got {height}")
     if args.ground_aux and not args.sequence:
         raise InputError("--ground-aux reads a sequence's per-frame maps: it needs --sequence")
+    if args.pred and args.out:
+        folder = os.path.isdir(args.pred)
+        if folder == args.out.lower().endswith(".npy"):
+            raise InputError("a folder of maps is aligned into a folder (not a name ending in "
+                             ".npy)" if folder else "one map is written as a .npy file: end "
+                             "--out in .npy", args.out)
+    if args.near_plane is not None and not (math.isfinite(args.near_plane)
+                                            and args.near_plane > 0):
+        raise InputError(f"--near-plane must be a positive number, got {args.near_plane}")
     args.align_conf = align_config(args.mode, args.set)
     if args.near_plane is not None and args.align_conf.mode != "eq2":
         raise InputError(f"--near-plane selects pixels for Eq. 2: it needs --mode eq2, not "

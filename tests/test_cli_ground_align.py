@@ -260,7 +260,7 @@ def test_align_polygon_and_agent_mask_errors(tmp_path, capsys):
              (["--ground-polygon", str(tmp_path / "bad.json")], "list of u,v pairs"),
              (["--ground-polygon", "500,500 600,500 600,600"], "covers no pixel"),
              (["--ground-mask", str(tmp_path / "mask.png"), "--agent-mask",
-               str(tmp_path / "agents_small.png")], "agent mask shape"),
+               str(tmp_path / "agents_small.png")], "differs from the agent mask's (10, 10)"),
              (["--ground-mask", str(tmp_path / "mask.png"), "--agent-mask",
                str(tmp_path / "agents_all.png")], "empty once the agents' pixels are removed")]
     for extra, msg in cases:
@@ -459,3 +459,54 @@ def test_ground_plane_shows_the_bootstraps_progress(fitted, monkeypatch, capsys)
     assert "ground plane (bootstrap)" in err and "/3 [" in err
     quiet, bar = (json.loads((d / f).read_text()) for f in ("quiet.json", "bar.json"))
     assert bar["normal"] == quiet["normal"] and bar["uncertainty"] == quiet["uncertainty"]
+
+
+def test_align_fits_a_camera_sized_mask_to_a_resized_map(tmp_path, capsys):
+    """A network's map at half the camera's resolution, with the camera's own JSON and a ground
+    mask drawn on the camera's image: the camera was scaled to the map, the mask was refused
+    ("prediction shape (40, 80) differs from the ground mask's (80, 160)"). Now the mask is
+    resized as the camera is, and the metric output is the closed-form scene's depth."""
+    K, n, depth, ground = _align_inputs(tmp_path)
+    h, w = depth.shape
+    half = cv2.resize(depth, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    np.save(tmp_path / "half.npy", dpt_failure(half))
+    rc = main(["align", "--pred", str(tmp_path / "half.npy"), "--inverse", "--intrinsics",
+               str(tmp_path / "cam.json"), "--plane", str(tmp_path / "plane.json"),
+               "--ground-mask", str(tmp_path / "mask.png"), "--camera-height", "5",
+               "--out", str(tmp_path / "out.npy")])
+    assert rc == 0, capsys.readouterr().err
+    out = np.load(tmp_path / "out.npy")
+    g = cv2.resize(ground.astype(np.uint8), (w // 2, h // 2),
+                   interpolation=cv2.INTER_NEAREST) > 0
+    g &= cv2.erode(g.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0   # away from its edge
+    assert out.shape == (h // 2, w // 2)
+    assert np.median(np.abs(out - half)[g] / half[g]) < 0.01
+
+
+@pytest.mark.parametrize("extra,msg", [
+    (["--near-plane", "-3", "--mode", "eq2"], "--near-plane must be a positive number, got -3"),
+    (["--near-plane", "nan", "--mode", "eq2"], "--near-plane must be a positive number"),
+    (["--out", "OUT/aligned.txt"], "aligned.txt: one map is written as a .npy file"),
+])
+def test_align_option_checks(tmp_path, capsys, extra, msg):
+    """--near-plane -3 was "no ground pixel can be aligned"; --out aligned.txt was written as
+    NumPy data under a .txt name."""
+    _align_inputs(tmp_path)
+    extra = [e.replace("OUT", str(tmp_path)) for e in extra]
+    rc = _align(tmp_path, "--ground-mask", str(tmp_path / "mask.png"), *extra)
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and msg in err and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "out.npy").exists() and not (tmp_path / "aligned.txt").exists()
+
+
+def test_align_folder_of_maps_refuses_an_npy_name(tmp_path, capsys):
+    """--pred FOLDER --out x.npy made a folder named x.npy."""
+    _align_inputs(tmp_path)
+    (tmp_path / "preds").mkdir()
+    np.save(tmp_path / "preds" / "000.npy", np.load(tmp_path / "pred.npy"))
+    rc = main(["align", "--pred", str(tmp_path / "preds"), "--inverse", "--intrinsics",
+               str(tmp_path / "cam.json"), "--plane", str(tmp_path / "plane.json"),
+               "--ground-mask", str(tmp_path / "mask.png"), "--out", str(tmp_path / "x.npy")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "x.npy: a folder of maps is aligned into a folder" in err
+    assert not (tmp_path / "x.npy").exists()
