@@ -31,8 +31,7 @@ from typing import Iterator
 import numpy as np
 
 from staticdepth.errors import InputError
-
-IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm", ".webp")
+from staticdepth.fileio import IMAGE_EXTS
 DEFAULT_FOV_DEG = 60.0
 
 

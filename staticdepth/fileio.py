@@ -49,6 +49,11 @@ _PROBLEMS = {
 }
 
 
+# the file names the toolkit reads as images and as videos (folders, globs, inputs)
+IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm", ".webp")
+VIDEO_EXTS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v")
+
+
 def os_error(e: OSError, path: str | os.PathLike | None = None) -> InputError:
     """An :class:`InputError` for ``e``: ``<path>: <problem>``."""
     where = path if path is not None else (e.filename or None)

@@ -245,6 +245,9 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
                          f"{args.max_normal_std}")
     if args.bootstrap is not None and args.bootstrap < 0:
         raise InputError(f"--bootstrap must be >= 0 (0 = no uncertainty), got {args.bootstrap}")
+    if args.agent_height is not None and args.camera_height is not None:
+        print("warning: --camera-height is given: --agent-height does not set the camera height "
+              "(it only sets the exact model's body-to-height ratio)")
     conf = PRESETS[args.model]
     changes = {k: v for k, v in (("radius_m", args.radius), ("bootstrap", args.bootstrap),
                                  ("column_weight", args.column_weight),

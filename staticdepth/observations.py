@@ -128,7 +128,8 @@ def register(sub) -> None:
                        description="Detect and track the agents of a sequence file or a video and "
                                    "write the observation CSV that `staticdepth ground-plane` "
                                    "reads (frame, track, class_id, foot_u, foot_v, height_px, "
-                                   "score, top_u; pixels).")
+                                   "score, top_u, feet; pixels; image_width, image_height: the "
+                                   "size of the images they were measured on).")
     p.add_argument("input", help="sequence file (.h5) or video (.avi, .mp4, ...)")
     p.add_argument("--out", required=True, help="observation CSV to write")
     p.add_argument("--detector", choices=("gt", "motion", "yolox", "mask2former"),
@@ -155,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
     import json
 
     from staticdepth.cli import refuse_existing
-    from staticdepth.fileio import atomic_write_text
+    from staticdepth.fileio import IMAGE_EXTS, VIDEO_EXTS, atomic_write_text
     from staticdepth.stereo.io import is_video
 
     refuse_existing(args.out, args.camera_out, overwrite=args.overwrite)
@@ -175,6 +176,10 @@ def run(args: argparse.Namespace) -> int:
                                max_frames=300 if args.max_frames is None else args.max_frames,
                                step=1 if args.step is None else args.step, **common)
     elif os.path.isfile(args.input):
+        if args.input.lower().endswith(IMAGE_EXTS):
+            raise InputError("an image: observations reads a sequence file (.h5) or a video "
+                             f"({', '.join(VIDEO_EXTS)}); import a folder of frames with "
+                             "import-video first", args.input)
         if video_only:
             raise InputError(f"{', '.join(video_only)}: for a video only (a sequence's frames "
                              f"are chosen with --split)", args.input)

@@ -13,10 +13,9 @@ import cv2
 import numpy as np
 
 from staticdepth.errors import InputError
-from staticdepth.fileio import read_image, read_npy, read_rgb  # noqa: F401  (the toolkit's one reader)
-
-IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm")
-VIDEO_EXTS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v")
+# the toolkit's one image reader, and its names for images and videos
+from staticdepth.fileio import (IMAGE_EXTS, VIDEO_EXTS, read_image, read_npy,  # noqa: F401
+                                read_rgb)
 
 
 def check_image_headers(files: list[str], size: tuple[int, int] | None = None) -> None:

@@ -50,6 +50,13 @@ def test_ground_plane_command(fitted, capsys):
                str(d / "cam.json"), "--model", "paper", "--camera-height", "6",
                "--bootstrap", "0", "--out", str(d / "paper.json")])
     assert rc == 0 and "camera height 6.000 m (given)" in capsys.readouterr().out
+    # both heights: the agent height does not set the camera height, said in one warning
+    rc = main(["ground-plane", "--observations", str(d / "obs.csv"), "--intrinsics",
+               str(d / "cam.json"), "--model", "paper", "--camera-height", "6",
+               "--agent-height", "1.7", "--bootstrap", "0", "--out", str(d / "both.json")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "camera height 6.000 m (given)" in out
+    assert "warning: --camera-height is given: --agent-height does not set the camera" in out
 
 
 @pytest.mark.parametrize("text,msg", [
@@ -80,7 +87,35 @@ def test_ground_plane_collinear_feet_is_a_clear_error(tmp_path, capsys):
     (tmp_path / "cam.json").write_text('{"fx": 500, "fy": 500, "cx": 400, "cy": 200}')
     rc = main(["ground-plane", "--observations", str(tmp_path / "obs.csv"), "--intrinsics",
                str(tmp_path / "cam.json"), "--out", str(tmp_path / "p.json")])
-    assert rc == 2 and "collinear" in capsys.readouterr().err
+    assert rc == 2 and "collinear (12 observations of 3 track(s))" in capsys.readouterr().err
+
+
+def test_ground_plane_one_parked_vehicle_says_so(tmp_path, capsys):
+    """--classes vehicles on a video whose one vehicle is parked: "collinear" did not say that one
+    track stood still; the line now counts the observations and tracks of the classes selected."""
+    rows = "".join(f"{i},7,2,{400 + 0.2 * (i % 2)},{300 + 0.1 * (i % 3)},40\n" for i in range(9))
+    people = "".join(f"{i},{1 + i // 5},0,{100 + 13 * i},{250 + 7 * (i % 5)},60\n"
+                     for i in range(15))
+    (tmp_path / "obs.csv").write_text("frame,track,class_id,foot_u,foot_v,height_px\n" + rows
+                                      + people)
+    (tmp_path / "cam.json").write_text('{"fx": 500, "fy": 500, "cx": 400, "cy": 200}')
+    rc = main(["ground-plane", "--observations", str(tmp_path / "obs.csv"), "--intrinsics",
+               str(tmp_path / "cam.json"), "--classes", "vehicles", "--out",
+               str(tmp_path / "p.json")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1
+    assert "(9 observations of 1 track(s) of the classes selected)" in err
+    assert not (tmp_path / "p.json").exists()
+
+
+def test_observations_refuses_an_image_in_one_line(tmp_path, capsys):
+    """Was "not a readable HDF5 file" for a JPEG."""
+    cv2.imwrite(str(tmp_path / "a.jpg"), np.zeros((32, 32, 3), np.uint8))
+    rc = main(["observations", str(tmp_path / "a.jpg"), "--out", str(tmp_path / "o.csv")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1
+    assert "a.jpg: an image: observations reads a sequence file (.h5) or a video" in err
+    assert not (tmp_path / "o.csv").exists()
 
 
 def _align_inputs(tmp_path, pitch=30.0, height=5.0):

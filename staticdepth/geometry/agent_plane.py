@@ -308,10 +308,12 @@ def _prepare(K: np.ndarray, obs: np.ndarray, model: str = "exact",
                          f"point, height_px > 0), got {len(obs)}")
     uv = np.stack([u, v], axis=1)
     sv = np.linalg.svd(uv - uv.mean(0), compute_uv=False)
-    if sv[1] / math.sqrt(len(uv)) < 1.0:
-        raise InputError("the agents' foot points are collinear: the ground plane is undetermined"
-                         " (need agents at positions off one line)")
     ids, idx = np.unique(np.asarray(obs["track"]), return_inverse=True)
+    if sv[1] / math.sqrt(len(uv)) < 1.0:
+        raise InputError(f"the agents' foot points are collinear ({len(obs)} observations of "
+                         f"{len(ids)} track(s){' of the classes selected' if classes else ''}): "
+                         "the ground plane is undetermined (need agents at positions off one "
+                         "line: more tracks, or tracks that turn)")
     if model in ("exact", "joint") and len(obs) - len(ids) < 2:
         raise InputError(f"{len(obs)} observations of {len(ids)} track(s): the exact model needs "
                          "tracks seen in several frames (each track's first observation only "
