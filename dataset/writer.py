@@ -425,8 +425,11 @@ class SequenceWriter:
             self._lock.close()
         return self.path
 
-    def abort(self) -> None:
-        """Close without finishing: the ``.partial`` file stays for a later ``resume``."""
+    def abort(self, exc: BaseException | None = None) -> None:
+        """Close without finishing: the ``.partial`` file stays for a later ``resume``. Stopped by
+        Ctrl-C or SIGTERM (``exc``, else the exception being handled), it says on stderr what
+        was kept and how to go on (the command's own "interrupted" line follows)."""
+        exc = exc if exc is not None else sys.exc_info()[1]
         try:
             if self._f is not None:
                 with contextlib.suppress(Exception):
@@ -438,6 +441,9 @@ class SequenceWriter:
         finally:
             self._restore_sigterm()
             self._lock.close()
+        if isinstance(exc, KeyboardInterrupt) and os.path.exists(self.partial):
+            print(f"note: {self.partial} keeps the {self.n} frame(s) written; the same command "
+                  f"with --resume continues it, --restart starts over", file=sys.stderr)
 
     def __enter__(self) -> "SequenceWriter":
         return self
@@ -445,5 +451,5 @@ class SequenceWriter:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
             self.close()
-        else:
-            self.abort()
+            return
+        self.abort(exc)

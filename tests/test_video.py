@@ -225,3 +225,30 @@ def test_a_width_beyond_the_frames_is_said_to_enlarge_them(tmp_path, capsys):
     assert f"warning: --width 160 enlarges the {src} frames 2.5x" in capsys.readouterr().out
     assert main(["import-video", str(src), "--out", str(tmp_path / "b.h5"), "--width", "32"]) == 0
     assert "enlarges" not in capsys.readouterr().out
+
+
+def test_ctrl_c_names_the_partial_and_how_to_resume(tmp_path, monkeypatch, capsys):
+    """Ctrl-C used to print only "interrupted": the kept partial and --resume were not named."""
+    import staticdepth.dataset.video as video
+
+    src = tmp_path / "v.avi"
+    _video(src, n=12)
+    real, calls = video._to_rgb, []
+
+    def interrupted(img, where):
+        calls.append(where)
+        if len(calls) == 5:
+            raise KeyboardInterrupt
+        return real(img, where)
+
+    monkeypatch.setattr(video, "_to_rgb", interrupted)
+    out = tmp_path / "v.h5"
+    assert main(["import-video", str(src), "--out", str(out)]) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"note: {out}.partial keeps the 4 frame(s) written; the same command with "
+                   "--resume continues it, --restart starts over",
+                   "staticdepth import-video: interrupted"]
+    monkeypatch.setattr(video, "_to_rgb", real)
+    assert main(["import-video", str(src), "--out", str(out), "--resume"]) == 0
+    with SequenceReader(out) as r:
+        assert len(r) == 12
