@@ -87,7 +87,7 @@ def check_replaceable(out: str, overwrite: bool, ours: Callable[[str], bool], wh
     if not os.path.lexists(out):
         return
     if not overwrite:
-        raise InputError("output exists (use --overwrite to replace it)", out)
+        raise InputError("exists already; pass --overwrite to replace it", out)
     if os.path.islink(out) or not os.path.isdir(out) or not ours(out):
         raise InputError(f"exists and is not {what}; --overwrite replaces only that, so it is "
                          "left untouched (move it away yourself)", out)

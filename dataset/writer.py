@@ -97,7 +97,7 @@ class SequenceWriter:
             raise InputError(f"streams must include 'left' and be among {schema.FRAME_STREAMS}, "
                              f"got {self.streams}")
         if os.path.lexists(self.path) and not overwrite:
-            raise InputError("output exists (use --overwrite to replace it)", self.path)
+            raise InputError("exists already; pass --overwrite to replace it", self.path)
         self._warn = warn
         self._replaced = os.path.lexists(self.path)
         if self._replaced:

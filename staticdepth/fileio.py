@@ -147,6 +147,11 @@ def read_image(path: str | os.PathLike, *, flags: int | None = None):
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as e:
         raise os_error(e, path) from None
+    if (data[:8].tobytes() == b"\x89PNG\r\n\x1a\n" and data[-8:-4].tobytes() != b"IEND"
+            and data.tobytes().rfind(b"IEND", 8) < 0):
+        # a cut PNG (its end chunk is last, or followed by appended bytes): said here, before
+        # libpng prints a line of its own to stderr
+        raise InputError("corrupt or unreadable image (a PNG cut short: no IEND chunk)", path)
     img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED if flags is None else flags) \
         if data.size else None
     if img is None:

@@ -293,3 +293,21 @@ def test_bad_input_is_one_line_exit_2(d, argv_of, expected, capsys, monkeypatch,
         shutil.rmtree(os.path.join(d["root"], "rec"))
         left = {p for p in left if p != "rec" and not p.startswith("rec" + os.sep)}
     assert not left, f"left behind: {sorted(left)}"
+
+
+def test_a_cut_png_is_one_line_even_at_the_file_descriptor(d, tmp_path, capfd):
+    """libpng printed "libpng error: PNG input buffer is incomplete" to fd 2 before the
+    toolkit's own line (capsys does not see it; capfd does). A PNG with bytes after its end
+    chunk still decodes."""
+    raw = open(d["left.png"], "rb").read()
+    cut = tmp_path / "cut.png"
+    cut.write_bytes(raw[: len(raw) // 2])
+    rc = main(_stereo({**d, "cut": str(cut)}, "cut", str(tmp_path / "disp.npy")))
+    err = capfd.readouterr().err
+    assert rc == 2 and err.strip().splitlines() == [
+        f"staticdepth stereo: error: {cut}: corrupt or unreadable image (a PNG cut short: no "
+        "IEND chunk)"], err
+    tail = tmp_path / "tail.png"
+    tail.write_bytes(raw + b"appended by some tool")
+    from staticdepth.fileio import read_image
+    assert np.array_equal(read_image(tail), read_image(d["left.png"]))

@@ -82,7 +82,7 @@ def test_export_cli_round_trip(tmp_path, capsys):
     assert info["camera_height_m"] == 5.0 and info["adapt_frames"] == 2
     # no overwrite without the flag; nothing left behind
     assert main(["export", str(seq), "--out", str(out)]) == 2
-    assert "output exists" in capsys.readouterr().err
+    assert "exists already; pass --overwrite" in capsys.readouterr().err
     export_kitti(seq, out, overwrite=True)
     assert sorted(p.name for p in tmp_path.iterdir()
                   if not p.name.endswith(".lock")) == ["S.h5", "calib", "kitti"]

@@ -71,7 +71,7 @@ def test_round_trip_with_attributes(tmp_path):
 def test_existing_output_is_not_overwritten_without_flag(tmp_path):
     p = tmp_path / "s.h5"
     _write(p)
-    with pytest.raises(InputError, match="output exists"):
+    with pytest.raises(InputError, match="exists already; pass --overwrite"):
         _write(p)
     _write(p, n=3, overwrite=True)
     with SequenceReader(p) as r:

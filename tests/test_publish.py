@@ -95,7 +95,7 @@ def test_publish_bad_input(tmp_path):
     make_sequence(tmp_path / "x" / "A.h5", n=2, adapt=1)
     with pytest.raises(InputError, match="share the name 'A'"):
         publish([tmp_path / "A.h5", tmp_path / "x" / "A.h5"], tmp_path / "rel")
-    with pytest.raises(InputError, match="output exists"):
+    with pytest.raises(InputError, match="exists already; pass --overwrite"):
         publish([tmp_path / "A.h5"], tmp_path / "x")
     (tmp_path / "bad.h5").write_bytes(b"nope")
     with pytest.raises(InputError, match="not a readable HDF5 file"):
