@@ -5,6 +5,7 @@ import os
 import time
 from typing import Any, Mapping
 
+from staticdepth.config import check_seed
 from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
 from staticdepth.errors import InputError
 from staticdepth.progress import progress
@@ -17,6 +18,7 @@ def render_to_file(out: str | os.PathLike, *, preset_name: str = "demo", n_frame
     """Render ``n_frames`` of a preset scene to ``out``; returns a small summary dict."""
     from staticdepth.dataset.synth import SyntheticScene, preset
 
+    check_seed(seed)
     if n_frames <= 0:
         raise InputError(f"--frames must be positive, got {n_frames}")
     if adapt_frames is None:

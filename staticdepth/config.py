@@ -165,6 +165,20 @@ def from_dict(cls: type[C], values: Mapping[str, Any] | None = None, *,
         raise InputError(f"{cls.__name__}: {e}", source) from None
 
 
+SEED_LIMIT = 2 ** 32      # numpy's and torch's generators take seeds in [0, 2^32)
+
+
+def check_seed(seed: Any, key: str = "--seed") -> int:
+    """``seed`` as an int in [0, 2^32), else one :class:`InputError` naming ``key`` (numpy raised
+    "expected non-negative integer" from deep inside a run for a negative one)."""
+    import numbers
+
+    if (isinstance(seed, bool) or not isinstance(seed, numbers.Integral)
+            or not 0 <= seed < SEED_LIMIT):
+        raise InputError(f"{key} must be a whole number in [0, 2^32), got {seed!r}")
+    return int(seed)
+
+
 def parse_set(items: Sequence[str] | None) -> dict[str, str]:
     """The one ``--set KEY=VALUE`` grammar: dotted keys, values still strings (converted to the
     setting's type by :func:`from_dict`)."""

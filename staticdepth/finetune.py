@@ -38,7 +38,7 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from staticdepth.config import config_hash
+from staticdepth.config import check_seed, config_hash
 from staticdepth.errors import InputError
 from staticdepth.losses import LOSSES, masked_l1
 from staticdepth.models.base import TorchDepthModel
@@ -68,13 +68,14 @@ class FinetuneConfig:
     #                               its frames from all of it
 
     def __post_init__(self):
+        check_seed(self.seed, "finetune.seed")
         if not (np.isfinite(self.agent_weight) and self.agent_weight > 0):
             raise InputError(f"finetune.agent_weight must be > 0, got {self.agent_weight}")
         if self.loss not in LOSSES:
             raise InputError(f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
         if self.max_steps < 0:
             raise InputError(f"finetune.max_steps must be >= 0 (0 = no budget), got {self.max_steps}")
-        if self.epochs < 0 or self.batch_size < 1 or not self.lr > 0:
+        if self.epochs < 0 or self.batch_size < 1 or not (self.lr > 0 and np.isfinite(self.lr)):
             raise InputError(f"need epochs >= 0, batch_size >= 1, lr > 0 (got {self.epochs}, "
                              f"{self.batch_size}, {self.lr})")
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from staticdepth.config import check_seed
 from staticdepth.errors import InputError
 
 FRAMES_PER_LAYOUT = 8      # frames rendered per scene seed (10 frames = 1 s apart)
@@ -37,6 +38,9 @@ class TrainBuiltinConfig:
     # street-level poses vary a little (cars, tripods, hand-held): one pitch and height per layout
     pitch_range_deg: tuple[float, float] = (-3.0, 12.0)
     height_range_m: tuple[float, float] = (1.2, 2.2)
+
+    def __post_init__(self):
+        check_seed(self.seed)
 
 
 def parse_size(text: str) -> tuple[int, int]:

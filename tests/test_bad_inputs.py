@@ -249,6 +249,16 @@ CASES = [
     *[(f"nonsense-import-video{opt}-{v}", lambda d, opt=opt, v=v: [
         "import-video", d["pairs"] + "/right", opt, v, "--out", os.path.join(d["root"], "v.h5")],
        f"{opt} must") for opt, v in (("--width", "99999999"), ("--fps", "inf"))],
+    ("nonsense-synth-seed", lambda d: ["synth", "--frames", "2", "--seed", "-1", "--out",
+                                       os.path.join(d["root"], "s.h5")],
+     "--seed must be a whole number in [0, 2^32), got -1"),
+    ("nonsense-train-builtin-seed", lambda d: ["train-builtin", "--frames", "2", "--epochs", "1",
+                                               "--size", "64x32", "--seed", "-1", "--out",
+                                               os.path.join(d["root"], "b.pt")],
+     "--seed must be a whole number in [0, 2^32), got -1"),
+    ("nonsense-adapt-seed", lambda d: ["adapt", d["seq.h5"], "--model", "builtin:/nonexistent.pt",
+                                       "--seed", "-1"],
+     "finetune.seed must be a whole number in [0, 2^32), got -1"),
     ("nonsense-observations-min-height", lambda d: [
         "observations", d["seq.h5"], "--min-height-px", "-1", "--out",
         os.path.join(d["root"], "obs-out.csv")], "--min-height-px must be"),

@@ -44,6 +44,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from staticdepth.config import check_seed
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import (_BIG, AgentObservations, extreme_rim,  # noqa: F401
                                                  head_pixels, head_residuals, head_rows,
@@ -129,6 +130,7 @@ class AgentPlaneConfig:
             raise InputError(f"agent radius and head radius must be less than the agent height "
                              f"({self.agent_height_m} m), got {self.radius_m} and "
                              f"{self.head_radius_m}")
+        check_seed(self.seed, "plane.seed")
         if isinstance(self.bootstrap, bool) or not (isinstance(self.bootstrap, (int, np.integer))
                                                     and self.bootstrap >= 0):
             raise InputError(f"bootstrap must be a whole number >= 0 (0 = no uncertainty), "
