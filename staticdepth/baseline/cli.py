@@ -13,7 +13,7 @@ def register(sub) -> None:
                                    "bound the paper compares with.")
     bsub = p.add_subparsers(dest="baseline_command", metavar="ACTION", required=True)
 
-    from staticdepth.cli import add_device_argument
+    from staticdepth.cli import add_device_argument, add_overwrite_argument
 
     t = bsub.add_parser("train", help="train on the adaptation split's stereo pairs",
                         description="Train on the adaptation split's rectified stereo pairs. "
@@ -32,29 +32,36 @@ def register(sub) -> None:
     t.add_argument("--weights", help="ImageNet ResNet18 weights: a local torchvision .pth")
     t.add_argument("--checkpoint", help="checkpoint file (default: SEQ.baseline.pt)")
     t.add_argument("--checkpoint-every", type=int, default=200, metavar="STEPS",
-                   help="write the resumable checkpoint every STEPS optimisation steps")
+                   help="write the resumable checkpoint every STEPS (>= 1) optimisation steps, "
+                        "and at the end of every epoch")
     t.add_argument("--overwrite", action="store_true", help="start again, replacing the checkpoint")
     add_device_argument(t)
     t.set_defaults(func=_train)
 
     q = bsub.add_parser("predict", help="predict metric depth for every frame",
-                        description="Predict every frame's depth and store it in the sequence as "
-                                    "pred/NAME/depth.",
+                        description="Predict every frame's depth and store it beside the "
+                                    "sequence as SEQ.h5.pred/NAME.h5 (the sequence file is not "
+                                    "rewritten). An existing prediction NAME is replaced only "
+                                    "with --overwrite.",
                         epilog="example:\n  staticdepth baseline predict c1.h5 --checkpoint "
                                "c1.baseline.pt")
     q.add_argument("sequence", help="sequence file (.h5) whose frames are predicted")
     q.add_argument("--checkpoint", help="trained checkpoint (default: SEQ.baseline.pt)")
-    q.add_argument("--name", default="stereo-baseline", help="prediction name")
+    q.add_argument("--name", default="stereo-baseline",
+                   help="prediction name: the file SEQ.h5.pred/NAME.h5 (default stereo-baseline)")
     q.add_argument("--batch-size", type=int, default=4, help="frames per forward pass")
+    add_overwrite_argument(q, help="replace the prediction SEQ.h5.pred/NAME.h5 if it exists "
+                                   "(refused otherwise)")
     add_device_argument(q)
     q.set_defaults(func=_predict)
 
 
 def _train(args: argparse.Namespace) -> int:
     from staticdepth.baseline.config import preset
-    from staticdepth.baseline.train import default_checkpoint_path, train
+    from staticdepth.baseline.train import check_checkpoint_every, default_checkpoint_path, train
     from staticdepth.cli import parse_overrides, resolve_device
 
+    check_checkpoint_every(args.checkpoint_every)
     overrides = parse_overrides(args.set)
     if args.weights:
         overrides["imagenet_weights"] = args.weights
@@ -85,7 +92,7 @@ def _predict(args: argparse.Namespace) -> int:
 
     ckpt = args.checkpoint or default_checkpoint_path(args.sequence)
     info = predict_sequence(args.sequence, ckpt, resolve_device(args.device), name=args.name,
-                            batch_size=args.batch_size)
+                            batch_size=args.batch_size, overwrite=args.overwrite)
     from staticdepth.dataset.predictions import prediction_path
 
     print(f"stored prediction {info['name']!r} ({info['frames']} frames, metric) -> "

@@ -2,11 +2,21 @@
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
 from dataclasses import dataclass
 from typing import Any, Mapping
 
 from staticdepth.config import from_dict
 from staticdepth.errors import InputError
+
+
+def _whole(x: Any) -> bool:
+    return isinstance(x, numbers.Integral) and not isinstance(x, bool)
+
+
+def _finite(x: Any) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
 
 
 @dataclass(frozen=True)
@@ -32,28 +42,42 @@ class BaselineConfig:
     lr: float = 1e-4                 # Adam
     lr_step_epochs: int = 15         # step decay: lr x lr_gamma every lr_step_epochs
     lr_gamma: float = 0.1
-    seed: int = 0
+    seed: int = 0                    # 0 <= seed < 2**32
 
     def __post_init__(self):
-        if self.width < 64 or self.height < 64 or self.width % 32 or self.height % 32:
-            raise InputError(f"width and height must be multiples of 32, at least 64 (the "
-                             f"decoder pads the stride-32 features), got "
-                             f"{self.width}x{self.height}")
-        if not 0 < self.min_depth < self.max_depth:
-            raise InputError(f"need 0 < min_depth < max_depth, got {self.min_depth}, "
-                             f"{self.max_depth}")
-        if len(self.decoder_channels) != 5 or min(self.decoder_channels) < 1:
+        # every message names the setting and its value (``--set KEY=VALUE``)
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if not _whole(v) or v < 64 or v % 32:
+                raise InputError(f"width and height must be multiples of 32, at least 64 (the "
+                                 f"decoder pads the stride-32 features), got {name} {v!r}")
+        for name in ("min_depth", "max_depth"):
+            if not (_finite(getattr(self, name)) and getattr(self, name) > 0):
+                raise InputError(f"need a finite {name} > 0 (metres), got {name} "
+                                 f"{getattr(self, name)!r}")
+        if not self.min_depth < self.max_depth:
+            raise InputError(f"need 0 < min_depth < max_depth, got min_depth {self.min_depth}, "
+                             f"max_depth {self.max_depth}")
+        if len(self.decoder_channels) != 5 or not all(_whole(c) and c >= 1
+                                                      for c in self.decoder_channels):
             raise InputError(f"decoder_channels needs 5 positive values, got "
                              f"{self.decoder_channels}")
-        if not 1 <= self.num_scales <= 4:
-            raise InputError(f"num_scales must be 1..4, got {self.num_scales}")
-        if self.encoder_width < 1 or self.epochs < 1 or self.batch_size < 1 \
-                or self.lr_step_epochs < 1:
-            raise InputError("encoder_width, epochs, batch_size and lr_step_epochs must be >= 1")
-        if not (self.lr > 0 and 0 < self.lr_gamma <= 1 and 0 <= self.ssim_weight <= 1
-                and self.smoothness_weight >= 0):
-            raise InputError("need lr > 0, 0 < lr_gamma <= 1, 0 <= ssim_weight <= 1, "
-                             "smoothness_weight >= 0")
+        if not (_whole(self.num_scales) and 1 <= self.num_scales <= 4):
+            raise InputError(f"num_scales must be 1..4, got {self.num_scales!r}")
+        for name in ("encoder_width", "epochs", "batch_size", "lr_step_epochs"):
+            if not (_whole(getattr(self, name)) and getattr(self, name) >= 1):
+                raise InputError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if not (_finite(self.lr) and self.lr > 0):
+            raise InputError(f"need a finite lr > 0, got lr {self.lr!r}")
+        if not (_finite(self.lr_gamma) and 0 < self.lr_gamma <= 1):
+            raise InputError(f"need 0 < lr_gamma <= 1, got lr_gamma {self.lr_gamma!r}")
+        if not (_finite(self.ssim_weight) and 0 <= self.ssim_weight <= 1):
+            raise InputError(f"need 0 <= ssim_weight <= 1, got ssim_weight {self.ssim_weight!r}")
+        if not (_finite(self.smoothness_weight) and self.smoothness_weight >= 0):
+            raise InputError(f"need a finite smoothness_weight >= 0, got smoothness_weight "
+                             f"{self.smoothness_weight!r}")
+        if not (_whole(self.seed) and 0 <= self.seed < 2**32):
+            raise InputError(f"need 0 <= seed < 2**32, got seed {self.seed!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -1,4 +1,5 @@
-"""Stage ``baseline predict``: metric depth for every frame, stored as ``pred/<name>/depth``.
+"""Stage ``baseline predict``: metric depth for every frame, stored beside the sequence as
+``<SEQ>.h5.pred/<name>.h5`` (:mod:`staticdepth.dataset.predictions`).
 
 The network sees the left view resized to its input size; its scale-0 inverse depth
 (``1/max + (1/min - 1/max) sigmoid``) is upsampled bilinearly to the sequence's size and
@@ -59,17 +60,23 @@ def _depth_maps(sequence_path: str, model: DepthNet, conf: BaselineConfig, batch
 
 def predict_sequence(sequence_path: str | os.PathLike, checkpoint_path: str | os.PathLike,
                      device: torch.device | str = "cpu", *, name: str = DEFAULT_NAME,
-                     batch_size: int = 4) -> dict[str, Any]:
-    """Predict every frame of the sequence and store it with ``add_prediction``.
+                     batch_size: int = 4, overwrite: bool = False) -> dict[str, Any]:
+    """Predict every frame of the sequence and store it with ``add_prediction`` as
+    ``<SEQ>.h5.pred/<name>.h5``; an existing prediction ``name`` is refused before any work
+    unless ``overwrite``.
 
     The sequence must have the camera the network was trained with (same focal length at the
     network's width), else its metric scale would not hold.
     """
     from staticdepth.dataset.h5 import SequenceReader, add_prediction
+    from staticdepth.dataset.predictions import prediction_path
 
     seq = os.fspath(sequence_path)
     if batch_size < 1:
         raise InputError(f"batch size must be >= 1, got {batch_size}")
+    out = prediction_path(seq, name)
+    if os.path.lexists(out) and not overwrite:
+        raise InputError("exists already; pass --overwrite to replace it", out)
     model, state = load_model(checkpoint_path)
     conf: BaselineConfig = state["config"]
     with SequenceReader(seq) as r:
@@ -89,5 +96,6 @@ def predict_sequence(sequence_path: str | os.PathLike, checkpoint_path: str | os
              "checkpoint": os.path.abspath(os.fspath(checkpoint_path)),
              "baseline_m": float(state["baseline_m"]), "trained_on": str(state["sequence"]),
              "config": json.dumps(conf.to_dict())}
-    add_prediction(seq, name, _depth_maps(seq, model, conf, batch_size), attrs)
+    add_prediction(seq, name, _depth_maps(seq, model, conf, batch_size), attrs,
+                   overwrite=overwrite)
     return {"name": name, "frames": n}

@@ -67,6 +67,12 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     return state
 
 
+def check_checkpoint_every(steps: int) -> None:
+    """Refuse a checkpoint interval below one optimisation step (0 has no meaning)."""
+    if isinstance(steps, bool) or not (isinstance(steps, int) and steps >= 1):
+        raise InputError(f"--checkpoint-every must be >= 1 (optimisation steps), got {steps!r}")
+
+
 def _samples_per_epoch(n_frames: int, conf: BaselineConfig) -> int:
     return n_frames * (2 if conf.both_sides else 1)
 
@@ -79,11 +85,13 @@ def train(sequence_path: str | os.PathLike, checkpoint_path: str | os.PathLike,
 
     An existing unfinished checkpoint with the same settings is resumed; a finished one is kept
     (nothing to do) unless ``overwrite``; one with other settings is an error. Checkpoints are
-    written every ``checkpoint_every`` steps and at the end of every epoch.
+    written every ``checkpoint_every`` (>= 1) steps and at the end of every epoch; ``log`` lines
+    are printed above the progress bar.
     Returns a summary: epochs, steps, per-epoch mean losses, seconds, images per second.
     """
     from staticdepth.dataset.h5 import SequenceReader
 
+    check_checkpoint_every(checkpoint_every)
     log = log or (lambda s: None)
     seq, ckpt = os.fspath(sequence_path), os.fspath(checkpoint_path)
     device = torch.device(device)
@@ -141,13 +149,14 @@ def train(sequence_path: str | os.PathLike, checkpoint_path: str | os.PathLike,
             losses.append(rec)
             bar.update(1)
             bar.set_postfix(loss=f"{terms['loss']:.4f}", epoch=epoch)
-            if checkpoint_every and step % checkpoint_every == 0 and b + 1 < per_epoch:
+            if step % checkpoint_every == 0 and b + 1 < per_epoch:
                 save_checkpoint(ckpt, snapshot(b + 1))
         lr = opt.param_groups[0]["lr"]
         sched.step()
         save_checkpoint(ckpt, snapshot(per_epoch))
         mean = sum(h["loss"] for h in losses) / max(1, len(losses))
-        log(f"epoch {epoch + 1}/{conf.epochs}: loss {mean:.4f} (lr {lr:.2e})")
+        with bar.external_write_mode():     # tqdm's own: clear the bar, print, redraw it
+            log(f"epoch {epoch + 1}/{conf.epochs}: loss {mean:.4f} (lr {lr:.2e})")
         epoch, batch0 = epoch + 1, 0
     bar.close()
     seconds = time.perf_counter() - t0
