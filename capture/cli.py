@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import signal
 import sys
 import threading
@@ -28,14 +29,18 @@ def register(sub) -> None:
     p.add_argument("--numbered", action="store_true",
                    help="treat --out as a parent folder and record into the next free rec_NNNN")
     p.add_argument("--frames", type=int, help="stop after N pairs")
-    p.add_argument("--duration", type=float, help="stop after S seconds")
+    p.add_argument("--duration", type=float, help="stop after S seconds (S > 0)")
     p.add_argument("--device", help="depthai: device id/name/IP; uvc: 'LEFT,RIGHT' indices or "
                                     "paths (default 0,1); sbs: index or path (default 0)")
     p.add_argument("--preset", default="mono-800p",
                    help="depthai preset (mono-800p, mono-400p, color-1200p)")
-    p.add_argument("--size", help="WIDTHxHEIGHT of each view (uvc/sbs: of the camera frame)")
-    p.add_argument("--fps", type=float, help="frames per second")
-    p.add_argument("--color", action="store_true", help="record colour (default grey)")
+    p.add_argument("--size", help="WIDTHxHEIGHT of each view (uvc/sbs: of the camera frame; not "
+                                  "for replay, which keeps the input's size)")
+    p.add_argument("--fps", type=float, help="frames per second (replay of image folders or "
+                                             "videos: the rate that stamps the frames)")
+    p.add_argument("--color", action="store_true",
+                   help="cameras: record colour (default grey); replay keeps the input's pixels "
+                        "as they are (grey stays grey, colour stays colour)")
     p.add_argument("--exposure-us", type=int, help="depthai: manual exposure (with --iso)")
     p.add_argument("--iso", type=int, help="depthai: manual sensitivity")
     p.add_argument("--exposure", type=float, help="uvc/sbs: manual exposure in driver units")
@@ -81,8 +86,31 @@ def _device_list(text: str | None, default: list[str]) -> list[int | str]:
     return [int(t) if t.isdigit() else t for t in items]
 
 
+# Options that set up a camera: a replay keeps its input's pixels, size and device-free nature.
+CAMERA_OPTIONS = (("size", "--size"), ("color", "--color"), ("device", "--device"),
+                  ("exposure_us", "--exposure-us"), ("iso", "--iso"), ("exposure", "--exposure"),
+                  ("fourcc", "--fourcc"))
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse impossible numbers and options the source would ignore, before anything starts."""
+    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
+        raise InputError(f"--fps must be a positive number of frames per second, got {args.fps}")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise InputError(f"--duration must be a positive number of seconds, got {args.duration}")
+    if args.frames is not None and args.frames < 1:
+        raise InputError(f"--frames must be at least 1, got {args.frames}")
+    if args.source == "replay":
+        given = [flag for name, flag in CAMERA_OPTIONS if getattr(args, name, None)]
+        if given:
+            raise InputError(f"--source replay records its input's pixels unchanged (size, grey "
+                             f"or colour): drop {', '.join(given)} (camera settings), or convert "
+                             f"the input first")
+
+
 def build_source(args: argparse.Namespace, depthai_overrides: dict[str, str]):
     """The source named by ``args.source``, configured from the command line."""
+    check_options(args)
     w, h = _size(args.size)
     if args.source == "depthai":
         from staticdepth import config
@@ -156,6 +184,7 @@ def _capture(args: argparse.Namespace) -> int:
     from staticdepth.geometry.camera import StereoRig
     from staticdepth.progress import progress
 
+    check_options(args)
     if args.summary_json:
         check_writable(args.summary_json)       # before anything is recorded
     refuse_existing(args.summary_json, overwrite=args.overwrite)
@@ -169,13 +198,11 @@ def _capture(args: argparse.Namespace) -> int:
                             base=RECORD_PRESETS[args.record_preset])
     source = build_source(args, {k: v for k, v in overrides.items() if k not in record_keys})
     rig = StereoRig.load(args.rig) if args.rig else None
-    if args.frames is not None and args.frames < 1:
-        raise InputError(f"--frames must be at least 1, got {args.frames}")
     with stop_on_signals() as stop, progress(total=args.frames, desc="capture",
                                              unit="pair") as bar:
         root, summary = record(source, args.out, conf, numbered=args.numbered,
                                max_frames=args.frames, duration_s=args.duration, stop=stop, rig=rig,
-                               on_frame=lambda n, rec: bar.update(1))
+                               rig_name=args.rig, on_frame=lambda n, rec: bar.update(1))
     print(format_summary(root, summary))
     if args.summary_json:
         from staticdepth.fileio import atomic_write_json

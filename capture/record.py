@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import datetime
 import errno
+import itertools
 import os
 import queue
 import threading
@@ -318,24 +319,37 @@ class Recorder:
 def record(source: StereoSource, out: str | os.PathLike, conf: RecordConfig = RecordConfig(), *,
            numbered: bool = False, max_frames: int | None = None, duration_s: float | None = None,
            stop: threading.Event | None = None, rig: StereoRig | None = None,
-           on_frame: Callable[[int, Recorder], None] | None = None,
+           rig_name: str | None = None, on_frame: Callable[[int, Recorder], None] | None = None,
            write_bytes: Callable[[str, bytes], None] = write_file) -> tuple[Path, dict[str, Any]]:
     """Open ``source``, record it into a new folder, close everything; returns (folder, summary).
 
-    The folder is created only after the source opened (a missing device leaves nothing behind).
+    The folder is created only after the source opened and gave its first pair (a missing device
+    leaves nothing behind), and only when that pair has the size the rig was calibrated for
+    (else :class:`InputError` naming ``rig_name``, the rig's file).
     ``rig`` overrides the source's own calibration. Stops at the source's end, ``max_frames``,
     ``duration_s``, ``stop`` being set, Ctrl-C, the source failing or a write failing; in every
     case the frames committed so far are complete on disk and the manifest says why it stopped.
     """
     with source:
-        root = layout.create_recording_dir(out, numbered)
-        rec = Recorder(root, conf, rig=rig or source.rig, source_settings=source.settings(),
-                       nominal_fps=source.nominal_fps, write_bytes=write_bytes)
-        status, detail = "failed", None  # "complete" only when the source ends normally
         t_start = time.monotonic()
         frames = source.frames()
         try:
-            for frame in frames:
+            first, lost = [next(frames)], None
+        except StopIteration:
+            first, lost = [], None
+        except SourceLost as e:
+            first, lost = [], e
+        rig = rig or source.rig
+        if first and rig is not None:
+            check_rig_size(rig, first[0], rig_name)
+        root = layout.create_recording_dir(out, numbered)
+        rec = Recorder(root, conf, rig=rig, source_settings=source.settings(),
+                       nominal_fps=source.nominal_fps, write_bytes=write_bytes)
+        status, detail = "failed", None  # "complete" only when the source ends normally
+        try:
+            if lost is not None:
+                raise lost
+            for frame in itertools.chain(first, frames):
                 rec.write(frame)
                 if on_frame is not None:
                     on_frame(rec.submitted, rec)
@@ -364,6 +378,17 @@ def record(source: StereoSource, out: str | os.PathLike, conf: RecordConfig = Re
                 frames.close()
             summary = rec.close(status, detail=detail, source_stats=source.stats.to_dict())
     return root, summary
+
+
+def check_rig_size(rig: StereoRig, frame: StereoFrame, rig_name: str | None = None) -> None:
+    """Raise :class:`InputError` (naming ``rig_name``) unless both views of ``frame`` have the
+    image size ``rig`` was calibrated for: a rig of another camera or resolution is useless."""
+    for side, cam, image in (("left", rig.left, frame.left), ("right", rig.right, frame.right)):
+        h, w = image.shape[:2]
+        if (w, h) != tuple(cam.size):
+            raise InputError(f"the rig's {side} camera is {cam.width}x{cam.height} but the "
+                             f"source's {side} frames are {w}x{h}: use the rig calibrated for "
+                             f"these frames", rig_name)
 
 
 def format_summary(root: Path, s: dict[str, Any]) -> str:

@@ -19,6 +19,8 @@ from staticdepth.stereo.io import read_rgb
 from staticdepth.stereo.rectify import stereo_rectify
 
 PATTERNS = ("chessboard", "charuco")
+MIN_PAIRS = 2                 # Zhang: two views of a flat board fix zero-skew intrinsics, one not
+MIN_BASELINE_SQUARES = 0.04   # a baseline under 1/25 of the square (1 mm for 25 mm) is no rig
 
 
 @dataclass(frozen=True)
@@ -116,7 +118,15 @@ def _stereo(obj, pl, pr, size, refine=True):
 
 def calibrate_stereo(left_files: list[str], right_files: list[str], board: Board, *,
                      min_pairs: int = 5, outlier_factor: float = 2.5) -> Calibration:
-    """Calibrate a stereo rig from pairs of board images (sorted, left[i] with right[i])."""
+    """Calibrate a stereo rig from pairs of board images (sorted, left[i] with right[i]).
+
+    Refused (:class:`InputError`): ``min_pairs`` below 2, a file given as both views, fewer than
+    ``min_pairs`` pairs with the board, a baseline under ``MIN_BASELINE_SQUARES`` squares (the
+    same view twice) and a right camera to the left of the left one (swapped views).
+    """
+    if min_pairs < MIN_PAIRS:
+        raise InputError(f"min_pairs must be at least {MIN_PAIRS} (one view of a flat board cannot "
+                         f"fix the focal length), got {min_pairs}")
     if len(left_files) != len(right_files):
         raise InputError(f"{len(left_files)} left images but {len(right_files)} right images")
     size = None
@@ -133,16 +143,21 @@ def calibrate_stereo(left_files: list[str], right_files: list[str], board: Board
         if dl is None or dr is None:
             not_found.append(lf if dl is None else rf)
             continue
+        if os.path.realpath(lf) == os.path.realpath(rf):   # a view paired with itself
+            raise InputError("given as both the left and the right image of a pair: give the "
+                             "left camera's images as --left and the right camera's as --right",
+                             lf)
         o, a, b = _pair_points(board, dl, dr)
         if len(o) < 6:
             not_found.append(lf)
             continue
         obj.append(o), pl.append(a), pr.append(b), used.append(lf)
+    folder = (os.path.dirname(left_files[0]) or ".") if left_files else "."
     if len(used) < min_pairs:
-        raise InputError(f"board ({board.pattern} {board.cols}x{board.rows}) found in only "
-                         f"{len(used)} of {len(left_files)} pairs, need {min_pairs}; not found in: "
-                         f"{', '.join(map(os.path.basename, not_found))}",
-                         os.path.dirname(left_files[0]) or ".")
+        found = (f"found in only {len(used)} of {len(left_files)} pairs, need {min_pairs}; not "
+                 f"found in: {', '.join(map(os.path.basename, not_found))}" if not_found else
+                 f"found in all {len(used)} pairs, but {min_pairs} are needed: give more pairs")
+        raise InputError(f"board ({board.pattern} {board.cols}x{board.rows}) {found}", folder)
     rms, K1, d1, K2, d2, R, T, per_view = _stereo(obj, pl, pr, size)
     view_rms = np.sqrt((per_view ** 2).mean(axis=1))
     limit = max(outlier_factor * float(np.median(view_rms)), 0.5)
@@ -156,6 +171,7 @@ def calibrate_stereo(left_files: list[str], right_files: list[str], board: Board
         view_rms = np.sqrt((per_view ** 2).mean(axis=1))
     else:
         dropped = {}
+    check_baseline(R, T.ravel(), board, folder)
     left, right = Camera(K1, *size, d1.ravel()), Camera(K2, *size, d2.ravel())
     rig = StereoRig(left, right, R, T.ravel(), None, None, float(rms),
                     {"board": f"{board.pattern} {board.cols}x{board.rows} square "
@@ -165,3 +181,21 @@ def calibrate_stereo(left_files: list[str], right_files: list[str], board: Board
                     dict(rig.extra))
     return Calibration(rig, used, dropped, not_found,
                        {u: float(e) for u, e in zip(used, view_rms)})
+
+
+def check_baseline(R: np.ndarray, T: np.ndarray, board: Board, source: str | None = None) -> None:
+    """Raise :class:`InputError` for a calibrated pose ``right_from_left`` (R, T) that is no
+    usable left/right rig: cameras less than ``MIN_BASELINE_SQUARES`` board squares apart (the
+    same images given twice), or the right camera further left than it is up or down (swapped)."""
+    baseline = float(np.linalg.norm(T))
+    limit = MIN_BASELINE_SQUARES * board.square_m
+    if baseline < limit:
+        raise InputError(f"the calibrated cameras are {baseline:.2g} m apart (under {limit:.2g} m, "
+                         f"{MIN_BASELINE_SQUARES:g} of the square): both views show the board "
+                         f"from the same place; are --left and --right images of one camera?",
+                         source)
+    right_in_left = -np.asarray(R).T @ np.asarray(T).ravel()   # the right camera's centre
+    if right_in_left[0] < 0 and abs(right_in_left[0]) > abs(right_in_left[1]):
+        raise InputError(f"the views look swapped: the --right camera is {-right_in_left[0]:.4f} m "
+                         f"to the left of the --left one; give the left camera's images as "
+                         f"--left and the right camera's as --right", source)

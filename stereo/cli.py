@@ -87,7 +87,13 @@ def register(sub) -> None:
     p.add_argument("--square", type=float, required=True, help="square side in metres")
     p.add_argument("--marker", type=float, default=0.0, help="ChArUco marker side in metres")
     p.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco ArUco dictionary")
-    p.add_argument("--thickness", type=float, default=0.0, help="board thickness in metres")
+    p.add_argument("--thickness", type=float, default=0.0,
+                   help="board thickness in metres (0 to under 0.5)")
+    p.add_argument("--max-normal-spread", type=float, default=2.0, metavar="DEG",
+                   help="largest angle between two views' ground normals (default 2)")
+    p.add_argument("--max-height-spread", type=float, default=0.05, metavar="FRACTION",
+                   help="largest spread of the views' camera heights, as a fraction of the "
+                        "height (default 0.05)")
     p.add_argument("--out", required=True, help="rig JSON to write (may be --rig itself: the rig "
                                                 "is updated in place)")
     _overwrite(p)
@@ -113,13 +119,28 @@ def _board(args):
     return Board.parse(args.pattern, args.board, args.square, **kw)
 
 
+def _check_out(path: str, overwrite: bool) -> None:
+    """An output that cannot be written (missing folder, read-only) is refused before any work."""
+    from staticdepth.fileio import check_writable
+
+    check_writable(path)
+    _refuse_existing(path, overwrite=overwrite)
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from staticdepth.stereo.calibrate import calibrate_stereo
+    from staticdepth.stereo.calibrate import MIN_PAIRS, calibrate_stereo
     from staticdepth.stereo.io import expand_images
 
-    _refuse_existing(args.out, overwrite=args.overwrite)
-    cal = calibrate_stereo(expand_images(args.left), expand_images(args.right), _board(args),
-                           min_pairs=args.min_pairs)
+    if args.min_pairs < MIN_PAIRS:
+        raise InputError(f"--min-pairs must be at least {MIN_PAIRS} (one view of a flat board "
+                         f"cannot fix the focal length), got {args.min_pairs}")
+    board = _board(args)
+    _check_out(args.out, args.overwrite)
+    left, right = expand_images(args.left), expand_images(args.right)
+    if args.min_pairs > len(left):
+        raise InputError(f"--min-pairs {args.min_pairs} but only {len(left)} left images are "
+                         f"given: give more pairs or a lower --min-pairs", args.left)
+    cal = calibrate_stereo(left, right, board, min_pairs=args.min_pairs)
     for f in cal.not_found:
         print(f"board not found: {f}")
     for f, e in cal.dropped.items():
@@ -134,13 +155,26 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 def cmd_mount(args: argparse.Namespace) -> int:
     from staticdepth.stereo.io import expand_images
-    from staticdepth.stereo.mount import mount_from_board
+    from staticdepth.stereo.mount import MAX_THICKNESS_M, mount_from_board
 
+    if not (np.isfinite(args.thickness) and 0 <= args.thickness < MAX_THICKNESS_M):
+        raise InputError(f"--thickness is the board's thickness in metres, from 0 to under "
+                         f"{MAX_THICKNESS_M:g}; got {args.thickness}")
+    for flag, value in (("--max-normal-spread", args.max_normal_spread),
+                        ("--max-height-spread", args.max_height_spread)):
+        if not (np.isfinite(value) and value >= 0):
+            raise InputError(f"{flag} must be a non-negative number, got {value}")
+    board = _board(args)
     if os.path.abspath(args.out) != os.path.abspath(args.rig):
-        _refuse_existing(args.out, overwrite=args.overwrite)
+        _check_out(args.out, args.overwrite)
+    else:
+        from staticdepth.fileio import check_writable
+
+        check_writable(args.out)
     rig = StereoRig.load(args.rig)
-    est = mount_from_board(rig, expand_images(args.images), _board(args),
-                           thickness_m=args.thickness)
+    est = mount_from_board(rig, expand_images(args.images), board, thickness_m=args.thickness,
+                           max_normal_spread_deg=args.max_normal_spread,
+                           max_height_spread=args.max_height_spread, source=args.images)
     for f in est.skipped:
         print(f"board not found: {f}")
     for f, (h, a) in est.per_view.items():
@@ -163,9 +197,29 @@ def _config(args, **extra):
         if not args.model:
             raise InputError("--matcher onnx needs --model FILE.onnx")
         options.update(model=args.model, contract=args.contract)
+    _check_depth_range(args, fields, extra)
+    # the options above are valid on their own: what from_dict still refuses came with --set
     return from_dict(StereoConfig, {"max_depth_m": args.max_depth, "min_depth_m": args.min_depth,
                                     "fill": args.fill, **extra, **fields,
-                                    "matcher": args.matcher, "options": options}, source="--set")
+                                    "matcher": args.matcher, "options": options},
+                     source="--set" if fields else None)
+
+
+def _check_depth_range(args, fields: dict, extra: dict) -> None:
+    """Refuse --max-depth / --min-depth by their names, and two ways to set one disparity range."""
+    if not (np.isfinite(args.max_depth) and args.max_depth > 0):
+        raise InputError(f"--max-depth must be a positive number of metres, got {args.max_depth}")
+    if args.min_depth is not None and not 0 < args.min_depth < args.max_depth:
+        raise InputError(f"--min-depth must be above 0 and below --max-depth ({args.max_depth:g} "
+                         f"m), got {args.min_depth}")
+    by_depth = [flag for flag, given in (("--min-depth", args.min_depth is not None),
+                                         ("--set min_depth_m", "min_depth_m" in fields)) if given]
+    by_count = [flag for flag, given in (("--max-disparity", "num_disparities" in extra),
+                                         ("--set num_disparities", "num_disparities" in fields))
+                if given]
+    if by_depth and by_count:
+        raise InputError(f"give one of {by_count[0]} or {by_depth[0]}, not both: each sets the "
+                         f"disparity range (the nearest depth it reaches is f B / disparity)")
 
 
 def cmd_stereo(args: argparse.Namespace) -> int:
@@ -213,7 +267,8 @@ def _stereo_pair(args) -> int:
     check = _rectification(args, left, right, args.left)
     unit = Camera.from_intrinsics(1.0, 1.0, (w - 1) / 2, (h - 1) / 2, w, h)
     rig = StereoRig.load(args.rig) if args.rig else StereoRig.rectified(unit, 1.0)
-    pipe = StereoPipeline(rig, _config(args, num_disparities=_num_disparities(args.max_disparity)))
+    pipe = StereoPipeline(rig, _config(args, num_disparities=_num_disparities(args.max_disparity)),
+                          rig_source=args.rig)
     res = pipe.process(left, right)
     _disparity_warnings(check, pipe, res)
     write_disparity(args.disparity_out, res.disparity)
@@ -347,7 +402,7 @@ def _stereo_sequence(args) -> int:
     extra = {}
     if args.max_disparity:
         extra["num_disparities"] = _num_disparities(args.max_disparity)
-    pipe = StereoPipeline(rig, _config(args, **extra))
+    pipe = StereoPipeline(rig, _config(args, **extra), rig_source=rig_name)
     # Every check before any work: sizes and readability of every file's header, the first pair
     # in full, and that the rig really rectifies it.
     for files in (frames.left_files, frames.right_files):

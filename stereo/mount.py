@@ -6,6 +6,12 @@ Levenberg-Marquardt) otherwise, and always as a cross-check), and read the groun
 the board's z axis is the plane normal and its origin lies on the plane (plus the board's
 thickness). Planes are expressed in the *rectified* left camera's frame (the frame of the stereo
 depth maps): ``n_rect = R1 n_raw``.
+
+Views are combined as one plane: the normal is the mean of the views' normals and the plane passes
+through the mean of their (thickness-shifted) board origins along it, so height and normal belong
+to the same plane. Views that disagree (normals more than ``max_normal_spread_deg`` apart, heights
+spread over more than ``max_height_spread`` of the height) are refused: the board moved off the
+ground plane or the camera moved between views.
 """
 from __future__ import annotations
 
@@ -22,6 +28,10 @@ from staticdepth.stereo.calibrate import Board, detect_corners
 from staticdepth.stereo.colmap import camera_to_colmap
 from staticdepth.stereo.io import read_rgb
 from staticdepth.stereo.rectify import stereo_rectify
+
+MAX_THICKNESS_M = 0.5            # a board on the ground, not on a table
+MAX_NORMAL_SPREAD_DEG = 2.0      # largest angle between two views' ground normals
+MAX_HEIGHT_SPREAD = 0.05         # largest (max - min) of the views' heights / the height
 
 try:
     import pycolmap
@@ -76,14 +86,25 @@ class MountEstimate:
 
 
 def mount_from_board(rig: StereoRig, files: list[str], board: Board, *,
-                     thickness_m: float = 0.0) -> MountEstimate:
-    """Estimate the mounting from raw left images of ``board`` lying on the ground."""
+                     thickness_m: float = 0.0,
+                     max_normal_spread_deg: float = MAX_NORMAL_SPREAD_DEG,
+                     max_height_spread: float = MAX_HEIGHT_SPREAD,
+                     source: str | None = None) -> MountEstimate:
+    """Estimate the mounting from raw left images of ``board`` lying on the ground.
+
+    Raises :class:`InputError` (naming ``source``, the images' folder or pattern) for a thickness
+    outside [0, ``MAX_THICKNESS_M``), no view with the board, or views that disagree beyond the
+    tolerances (see the module's docstring).
+    """
+    if not (np.isfinite(thickness_m) and 0 <= thickness_m < MAX_THICKNESS_M):
+        raise InputError(f"board thickness must be in [0, {MAX_THICKNESS_M:g}) m, "
+                         f"got {thickness_m}")
     camera = rig.left
     if rig.rectification is not None:
         R1 = np.asarray(rig.rectification["R1"])
     else:
         R1 = np.eye(3) if rig.is_rectified() else stereo_rectify(rig)["R1"]
-    normals, heights, used, skipped = [], [], [], []
+    normals, origins, heights, used, skipped = [], [], [], [], []
     crosscheck, method = 0.0, "pycolmap" if pycolmap is not None else "opencv"
     for f in files:
         img = read_rgb(f)
@@ -97,21 +118,50 @@ def mount_from_board(rig: StereoRig, files: list[str], board: Board, *,
         ids, uv = det
         obj = board.object_points()[ids]
         R_cv, t_cv = pose_opencv(obj, uv, camera)
-        n_cv, d_cv = ground_from_pose(R_cv, t_cv, thickness_m)
+        n_cv, _ = ground_from_pose(R_cv, t_cv, thickness_m)
         pose = pose_colmap(obj, uv, camera)
         if pose is not None:
             n, d = ground_from_pose(*pose, thickness_m)
+            t = pose[1]
             crosscheck = max(crosscheck, angle_between_deg(n, n_cv))
         else:
-            n, d = n_cv, d_cv
+            n, d, t = n_cv, float(n_cv @ t_cv) + thickness_m, t_cv
             method = "opencv"
-        normals.append(R1 @ n), heights.append(d), used.append(f)
+        normals.append(R1 @ n), origins.append(R1 @ t), heights.append(d), used.append(f)
     if not used:
         raise InputError(f"board ({board.pattern} {board.cols}x{board.rows}) not found in any of "
-                         f"the {len(files)} images: {', '.join(map(os.path.basename, files))}")
+                         f"the {len(files)} images: {', '.join(map(os.path.basename, files))}",
+                         source)
     n_mean = np.mean(normals, axis=0)
     n_mean /= np.linalg.norm(n_mean)
-    height = float(np.median(heights))
+    # the plane with the mean normal through the views' board origins, lowered by the thickness
+    height = float(np.mean(np.asarray(origins) @ n_mean)) + thickness_m
+    _check_agreement(used, normals, heights, height, max_normal_spread_deg, max_height_spread,
+                     source)
     per_view = {f: (h, angle_between_deg(n, n_mean)) for f, h, n in zip(used, heights, normals)}
     mounting = Mounting(height, n_mean, source=f"board on the ground ({len(used)} views, {method})")
     return MountEstimate(mounting, per_view, method, crosscheck, skipped)
+
+
+def _check_agreement(files: list[str], normals: list[np.ndarray], heights: list[float],
+                     height: float, max_deg: float, max_spread: float, source: str | None) -> None:
+    """Raise :class:`InputError` when the views' ground planes disagree beyond the tolerances."""
+    worst, pair = 0.0, (files[0], files[0])
+    for i in range(len(files)):
+        for j in range(i + 1, len(files)):
+            a = angle_between_deg(normals[i], normals[j])
+            if a > worst:
+                worst, pair = a, (files[i], files[j])
+    spread = (max(heights) - min(heights)) / height if height > 0 else float("inf")
+    if worst <= max_deg and spread <= max_spread:
+        return
+    names = [os.path.basename(f) for f in files]
+    lo, hi = names[int(np.argmin(heights))], names[int(np.argmax(heights))]
+    raise InputError(f"the {len(files)} views disagree on the ground: normals up to "
+                     f"{worst:.1f} deg apart ({os.path.basename(pair[0])}, "
+                     f"{os.path.basename(pair[1])}; at most {max_deg:g}), heights "
+                     f"{min(heights):.3f} m ({lo}) to {max(heights):.3f} m "
+                     f"({hi}), {100 * spread:.0f}% of {height:.3f} m (at most "
+                     f"{100 * max_spread:g}%); the board must lie flat on one ground plane and the "
+                     f"camera stay still: drop the views that differ, or raise --max-normal-spread "
+                     f"/ --max-height-spread", source)

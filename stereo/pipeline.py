@@ -5,7 +5,7 @@
 >>> res.depth                   # float32 metres, NaN = invalid, in pipe.camera's frame
 
 The pipeline is a pure function of (images, rig, config): it holds no per-frame state and pickles
-as (rig, config), so worker processes can rebuild it.
+as (rig, config, the rig's file name for errors), so worker processes can rebuild it.
 """
 from __future__ import annotations
 
@@ -78,14 +78,17 @@ class StereoResult:
 class StereoPipeline:
     """Rectification maps and matcher built once for ``rig``; :meth:`process` per frame."""
 
-    def __init__(self, rig: StereoRig, config: StereoConfig | None = None):
+    def __init__(self, rig: StereoRig, config: StereoConfig | None = None,
+                 rig_source: str | None = None):
+        """``rig_source`` (the rig's file) is named when the rig cannot be rectified."""
         self.rig = rig
         self.config = config or StereoConfig()
+        self.rig_source = rig_source
         self._build()
 
     def _build(self) -> None:
         c = self.config
-        self.rectifier = Rectifier(self.rig, c.alpha)
+        self.rectifier = Rectifier(self.rig, c.alpha, source=self.rig_source)
         self.camera: Camera = self.rectifier.camera
         self.baseline_m: float = self.rectifier.baseline_m
         if c.num_disparities is not None:
@@ -99,10 +102,11 @@ class StereoPipeline:
                                       dense=c.fill, options=c.options)
 
     def __getstate__(self) -> dict[str, Any]:
-        return {"rig": self.rig, "config": self.config}
+        return {"rig": self.rig, "config": self.config, "rig_source": self.rig_source}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.rig, self.config = state["rig"], state["config"]
+        self.rig_source = state.get("rig_source")
         self._build()
 
     def provenance(self) -> dict[str, Any]:

@@ -25,15 +25,23 @@ def stereo_rectify(rig: StereoRig, alpha: float = 0.0) -> dict[str, np.ndarray]:
     return {"R1": R1, "R2": R2, "P1": P1, "P2": P2, "Q": Q}
 
 
-class Rectifier:
-    """Undistort-and-rectify maps for a rig, built once; :meth:`rectify` per frame."""
+# focal (px) x baseline (m) below which a rig measures nothing: 1 px of disparity at 1 mm depth
+MIN_SHIFT_PX_M = 1e-3
 
-    def __init__(self, rig: StereoRig, alpha: float = 0.0):
+
+class Rectifier:
+    """Undistort-and-rectify maps for a rig, built once; :meth:`rectify` per frame.
+
+    A rig that cannot be rectified side by side (cameras of different sizes, one camera above the
+    other, no baseline) is an :class:`InputError` naming ``source`` (the rig's file).
+    """
+
+    def __init__(self, rig: StereoRig, alpha: float = 0.0, source: str | None = None):
         self.rig = rig
         self.size = rig.left.size
         if rig.right.size != rig.left.size:
             raise InputError(f"rig cameras differ in image size ({rig.left.width}x{rig.left.height}"
-                             f" vs {rig.right.width}x{rig.right.height})")
+                             f" vs {rig.right.width}x{rig.right.height})", source)
         if rig.is_rectified():
             self.maps = None
             self.camera = rig.left
@@ -41,9 +49,13 @@ class Rectifier:
             return
         rect = rig.rectification if rig.rectification is not None else stereo_rectify(rig, alpha)
         P1, P2 = np.asarray(rect["P1"]), np.asarray(rect["P2"])
+        if abs(P2[0, 3]) < MIN_SHIFT_PX_M and abs(P2[1, 3]) < MIN_SHIFT_PX_M:
+            raise InputError(f"rig has no baseline (its rectified cameras are "
+                             f"{np.hypot(P2[0, 3], P2[1, 3]) / P2[0, 0]:.2g} m apart): calibrated "
+                             f"from the same images for both views? Calibrate it again", source)
         if abs(P2[1, 3]) > abs(P2[0, 3]):
             raise InputError("rig is rectified vertically (one camera above the other); "
-                             "only side-by-side rigs are supported")
+                             "only side-by-side rigs are supported", source)
         self.camera = Camera(P1[:3, :3], *self.size)
         self.baseline_m = float(abs(P2[0, 3] / P2[0, 0]))
         self.maps = []

@@ -11,6 +11,7 @@ Use lossless inputs for stereo matching; a lossy video replays, but its artefact
 from __future__ import annotations
 
 import glob
+import math
 import os
 from pathlib import Path
 from typing import Any, Iterator
@@ -25,6 +26,16 @@ from staticdepth.errors import InputError
 from staticdepth.geometry.camera import StereoRig
 
 IMAGE_EXTENSIONS = (".png", ".pgm", ".ppm", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg")
+DEFAULT_FPS = 30.0
+
+
+def _check_fps(fps: float | None, path: str) -> float | None:
+    """``fps`` unchanged when it is None or a positive finite rate, else a :class:`SourceError`
+    (a rate of 0 or below would stamp frames at one time or backwards)."""
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise SourceError(f"the replay rate must be a positive number of frames per second, "
+                          f"got {fps}", path)
+    return fps
 
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
@@ -83,11 +94,11 @@ class FolderSource(StereoSource):
 
     kind = "folder"
 
-    def __init__(self, left: str | os.PathLike, right: str | os.PathLike, fps: float = 30.0,
+    def __init__(self, left: str | os.PathLike, right: str | os.PathLike, fps: float = DEFAULT_FPS,
                  rig: StereoRig | None = None):
         super().__init__()
         self.left_spec, self.right_spec = os.fspath(left), os.fspath(right)
-        self.nominal_fps, self.rig = float(fps), rig
+        self.nominal_fps, self.rig = float(_check_fps(fps, self.left_spec)), rig
         self.pairs: list[tuple[str, str]] = []
 
     def open(self) -> None:
@@ -127,7 +138,7 @@ class VideoSource(StereoSource):
         super().__init__()
         self.left_path = os.fspath(left)
         self.right_path = None if right is None else os.fspath(right)
-        self.fps_override, self.rig = fps, rig
+        self.fps_override, self.rig = _check_fps(fps, self.left_path), rig
         self._caps: list[cv2.VideoCapture] = []
 
     def open(self) -> None:
@@ -138,7 +149,10 @@ class VideoSource(StereoSource):
             if not cap.isOpened():
                 raise SourceError("cannot open as a video", path)
             self._caps.append(cap)
-        fps = self.fps_override or self._caps[0].get(cv2.CAP_PROP_FPS) or 30.0
+        fps = self.fps_override
+        if fps is None:
+            fps = self._caps[0].get(cv2.CAP_PROP_FPS)   # 0 or NaN when the file does not say
+            fps = fps if math.isfinite(fps) and fps > 0 else DEFAULT_FPS
         self.nominal_fps = float(fps)
 
     def frames(self) -> Iterator[StereoFrame]:
@@ -178,18 +192,24 @@ def open_replay(path: str | os.PathLike, right: str | os.PathLike | None = None,
     """The replay source for ``path``: a recording folder (has ``manifest.json``), a folder with
     ``left/`` and ``right/``, two image folders/patterns, two videos, or one video that holds
     both views side by side (only when ``side_by_side`` says so: a lone video is more often a
-    monocular one, which is not a stereo pair)."""
+    monocular one, which is not a stereo pair). ``fps`` stamps image folders and overrides a
+    video's rate (default: the video's, else 30); a recording keeps its own timestamps."""
     p = os.fspath(path)
+    _check_fps(fps, p)
+    rate = DEFAULT_FPS if fps is None else fps
     if right is None and os.path.isdir(p):
         if os.path.isfile(os.path.join(p, layout.MANIFEST)):
+            if fps is not None:
+                raise SourceError("a recording keeps its own timestamps: drop the replay rate "
+                                  "(--fps)", p)
             return RecordingSource(p)
         if os.path.isdir(os.path.join(p, "left")) and os.path.isdir(os.path.join(p, "right")):
-            return FolderSource(os.path.join(p, "left"), os.path.join(p, "right"), fps or 30.0, rig)
+            return FolderSource(os.path.join(p, "left"), os.path.join(p, "right"), rate, rig)
         raise SourceError("folder is neither a recording (manifest.json) nor has left/ and "
                           "right/ image folders", p)
     if right is not None and (os.path.isdir(p) or any(c in p for c in "*?[")
                               or p.lower().endswith(IMAGE_EXTENSIONS)):
-        return FolderSource(p, right, fps or 30.0, rig)
+        return FolderSource(p, right, rate, rig)
     if not os.path.exists(p):
         raise SourceError("replay input not found", p)
     if right is None and not side_by_side:
