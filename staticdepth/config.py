@@ -29,13 +29,17 @@ def _convert(value: Any, typ: Any, key: str) -> Any:
         if value is None or (isinstance(value, str) and value.lower() in ("none", "null")):
             if type(None) in args:
                 return None
+        nan = None
         for a in args:
             if a is type(None):
                 continue
             try:
                 return _convert(value, a, key)
-            except InputError:
+            except InputError as e:
+                nan = e if "NaN is no value" in e.problem else nan
                 continue
+        if nan is not None:
+            raise nan
         raise InputError(f"setting {key!r}: cannot read {value!r} as {typ}")
     if typ in (set, frozenset) or origin in (set, frozenset):
         if isinstance(value, str):
@@ -60,10 +64,15 @@ def _convert(value: Any, typ: Any, key: str) -> Any:
         if typ in (int, float, str):
             if typ is int and isinstance(value, float) and not value.is_integer():
                 raise ValueError(value)
-            return typ(value)
+            out = typ(value)
+        else:
+            return value
     except (TypeError, ValueError):
         raise InputError(f"setting {key!r}: expected {typ.__name__}, got {value!r}") from None
-    return value
+    if typ is float and out != out:
+        raise InputError(f"setting {key!r}: NaN is no value (give a number, or none where the "
+                         "setting allows it)")
+    return out
 
 
 def _dataclass_type(typ: Any) -> type | None:
@@ -163,6 +172,27 @@ def from_dict(cls: type[C], values: Mapping[str, Any] | None = None, *,
         raise InputError(e.problem, source) from None
     except TypeError as e:
         raise InputError(f"{cls.__name__}: {e}", source) from None
+
+
+def check_ranges(conf: Any, prefix: str, rules: Mapping[str, str]) -> None:
+    """Check ``conf``'s numeric fields against ``rules`` (field -> ``">=0"``, ``">0"``, ``">=1"``,
+    ``"0..1"``; every value finite unless the rule ends in ``"|inf"``; None passes): one
+    :class:`InputError` naming the first setting out of its range."""
+    import math
+
+    for name, rule in rules.items():
+        v = getattr(conf, name)
+        if v is None:
+            continue
+        rule, _, inf = rule.partition("|")
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and v == v and (
+            math.isfinite(v) or (inf == "inf" and v > 0))
+        ok = ok and {">=0": lambda x: x >= 0, ">0": lambda x: x > 0, ">=1": lambda x: x >= 1,
+                     "0..1": lambda x: 0 <= x <= 1}[rule](v)
+        if not ok:
+            want = {">=0": ">= 0", ">0": "> 0", ">=1": ">= 1", "0..1": "within 0..1"}[rule]
+            raise InputError(f"{prefix}{name} must be {'a finite number ' if not inf else ''}"
+                             f"{want}, got {v}")
 
 
 SEED_LIMIT = 2 ** 32      # numpy's and torch's generators take seeds in [0, 2^32)

@@ -38,7 +38,7 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from staticdepth.config import check_seed, config_hash
+from staticdepth.config import check_ranges, check_seed, config_hash
 from staticdepth.errors import InputError
 from staticdepth.losses import LOSSES, masked_l1
 from staticdepth.models.base import TorchDepthModel
@@ -69,6 +69,7 @@ class FinetuneConfig:
 
     def __post_init__(self):
         check_seed(self.seed, "finetune.seed")
+        check_ranges(self, "finetune.", {"grad_weight": ">=0", "weight_decay": ">=0"})
         if not (np.isfinite(self.agent_weight) and self.agent_weight > 0):
             raise InputError(f"finetune.agent_weight must be > 0, got {self.agent_weight}")
         if self.loss not in LOSSES:

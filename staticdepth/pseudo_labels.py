@@ -83,6 +83,11 @@ class PseudoLabelConfig:
     #                                    row and the mask's edge, half a row each)
 
     def __post_init__(self):
+        from staticdepth.config import check_ranges
+
+        check_ranges(self, "pseudo_labels.", {"bottom_rows": ">=1", "accessory_reach": ">=0",
+                                              "dense_spread": ">=0", "dense_frames": ">=1",
+                                              "contact_row_px": ">=0"})
         if self.contact not in CONTACTS:
             raise InputError(f"pseudo-label contact must be one of {CONTACTS}, got {self.contact!r}")
         if self.source not in LABEL_SOURCES:

@@ -82,6 +82,15 @@ class TrackingConfig:
     min_visibility: float = 0.9      # agent rows with a known visible share below it are occluded
     edge_px: float = 0.5             # mask rows -> silhouette extremes: foot + edge, top - edge
 
+    def __post_init__(self):
+        from staticdepth.config import check_ranges
+
+        check_ranges(self, "tracking.", {
+            "min_height_px": ">=0", "min_score": "0..1", "min_frames": ">=1", "border_px": ">=0",
+            "min_iou": "0..1", "max_step_rel": ">0|inf", "max_gap": ">=0",
+            "min_travel_px": ">=0", "collinear_px": ">=0", "contact_px": ">=0",
+            "min_visibility": "0..1", "edge_px": ">=0"})
+
     @classmethod
     def for_model(cls, model: str, **overrides) -> "TrackingConfig":
         """The default for a ground-plane model: straight walkers are dropped for the Eq. 1 models

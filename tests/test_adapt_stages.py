@@ -276,7 +276,7 @@ def test_dotted_settings_and_fail_fast(tmp_path, clip, tiny, capsys):
              (["--epochs", "-1"], "need epochs >= 0"),
              (["--camera-height", "0"], "camera height must be a positive number"),
              (["--camera-height", "-2"], "camera height must be a positive number"),
-             (["--camera-height", "nan"], "camera height must be a positive number"),
+             (["--camera-height", "nan"], "scale.camera_height_m': NaN is no value"),
              (["--set", "finetune.layers=neck"], "has no layer group 'neck'"),
              (["--detector", "yolox"], "weights were not found"),
              (["--set", "detector.name=yolo"], "unknown detector 'yolo'"),

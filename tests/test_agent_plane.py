@@ -257,7 +257,7 @@ def test_config_and_prior_errors():
         AgentPlaneConfig(model="magic")
     with pytest.raises(InputError):
         AgentPlaneConfig(radius_m=-1.0)
-    with pytest.raises(InputError, match="head radius"):
+    with pytest.raises(InputError, match="head_radius_m must be a finite number >= 0"):
         AgentPlaneConfig(head_radius_m=-0.1)
     with pytest.raises(InputError, match="column weight"):
         AgentPlaneConfig(column_weight=-0.5)
@@ -270,7 +270,7 @@ def test_config_and_prior_errors():
     for bad in (float("nan"), float("inf")):      # were taken: a NaN or infinite camera height
         with pytest.raises(InputError, match="agent height must be positive and finite"):
             camera_height_from_prior(plane, bad)
-        with pytest.raises(InputError, match="agent height finite"):
+        with pytest.raises(InputError, match="plane.agent_height_m must be a finite number > 0"):
             AgentPlaneConfig(agent_height_m=bad)
         with pytest.raises(InputError, match="radius"):
             AgentPlaneConfig(radius_m=bad)
@@ -278,7 +278,7 @@ def test_config_and_prior_errors():
         AgentPlaneConfig(column_weight=float("inf"))
     with pytest.raises(InputError, match="less than the agent height"):
         AgentPlaneConfig(radius_m=2.0)
-    with pytest.raises(InputError, match="bootstrap must be a whole number"):
+    with pytest.raises(InputError, match="bootstrap must be a finite number >= 0"):
         AgentPlaneConfig(bootstrap=-1)
     with pytest.raises(InputError, match="camera height must be positive"):
         plane.with_camera_height(-2.0, "given")

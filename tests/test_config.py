@@ -1,4 +1,5 @@
 """Strict configuration loading."""
+import re
 from dataclasses import dataclass
 
 import pytest
@@ -126,3 +127,59 @@ def test_a_known_camera_height_reruns_the_ground_plane():
     assert plane_config(conf, 5.0).known_height_m == 5.0 and plane_config(conf).classes == (0,)
     told = ac.build_config({"model": "builtin", "plane.known_height_m": 4.0})
     assert plane_config(told, 5.0).known_height_m == 4.0    # the plane's own setting wins
+
+
+def _numeric_keys():
+    import typing
+
+    from staticdepth.adaptation.config import AdaptConfig
+    from staticdepth.config import setting_keys
+
+    out = []
+    for k in setting_keys(AdaptConfig):
+        cls = AdaptConfig
+        for part in k.split(".")[:-1]:
+            cls = typing.get_type_hints(cls)[part]
+        t = str(typing.get_type_hints(cls)[k.split(".")[-1]])
+        if "float" in t and "tuple" not in t:
+            out.append(k)
+    return out
+
+
+def test_no_adapt_setting_takes_nan():
+    """NaN passed every range check written as `x < 0` (tracking.min_iou=nan, plane.inlier_px=nan,
+    finetune.grad_weight=nan ... were taken): the conversion refuses it for every float setting."""
+    from staticdepth.adaptation.config import build_config
+
+    keys = _numeric_keys()
+    assert len(keys) > 30
+    for k in keys:
+        with pytest.raises(InputError, match=f"setting '{k}': NaN is no value"):
+            build_config({k: "nan"})
+
+
+@pytest.mark.parametrize("key,value,msg", [
+    ("tracking.min_iou", "-1", "tracking.min_iou must be a finite number within 0..1, got -1.0"),
+    ("tracking.min_frames", "0", "tracking.min_frames must be a finite number >= 1, got 0"),
+    ("tracking.edge_px", "inf", "tracking.edge_px must be a finite number >= 0, got inf"),
+    ("plane.inlier_px", "0", "plane.inlier_px must be a finite number > 0, got 0.0"),
+    ("plane.ransac_iters", "-1", "plane.ransac_iters must be a finite number >= 1, got -1"),
+    ("plane.max_roll_deg", "120", "plane.max_roll_deg must be at most 90, got 120.0"),
+    ("plane.height_prior_weight", "inf", "plane.height_prior_weight must be a finite number"),
+    ("finetune.grad_weight", "-1", "finetune.grad_weight must be a finite number >= 0"),
+    ("finetune.weight_decay", "inf", "finetune.weight_decay must be a finite number >= 0"),
+    ("pseudo_labels.accessory_reach", "-1", "pseudo_labels.accessory_reach must be a finite"),
+])
+def test_adapt_settings_out_of_range_name_themselves(key, value, msg):
+    """Each was taken (build_config returned) before; the run then failed deep inside, or not."""
+    from staticdepth.adaptation.config import build_config
+
+    with pytest.raises(InputError, match=re.escape(msg)):
+        build_config({key: value})
+
+
+def test_unbounded_settings_still_take_inf():
+    from staticdepth.adaptation.config import build_config
+
+    conf = build_config({"tracking.max_step_rel": "inf", "plane.max_class_misfit_deg": "inf"})
+    assert conf.tracking.max_step_rel == float("inf")

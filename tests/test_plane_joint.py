@@ -145,7 +145,7 @@ def test_bad_inputs_raise():
         plane_gate(p, 0.0)
     with pytest.raises(InputError, match="classes must be a tuple"):
         AgentPlaneConfig(classes="people")
-    with pytest.raises(InputError, match="relative_noise must be >= 0"):
+    with pytest.raises(InputError, match="relative_noise must be a finite number >= 0"):
         AgentPlaneConfig(relative_noise=-0.1)
     assert not plane_gate(p).ok and "uncertainty unknown" in plane_gate(p).message   # no bootstrap
 

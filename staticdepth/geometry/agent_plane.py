@@ -44,7 +44,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from staticdepth.config import check_seed
+from staticdepth.config import check_ranges, check_seed
 from staticdepth.errors import InputError
 from staticdepth.geometry.agent_cylinder import (_BIG, AgentObservations, extreme_rim,  # noqa: F401
                                                  head_pixels, head_residuals, head_rows,
@@ -66,10 +66,6 @@ PERSON_CLASSES = (0, -1)  # COCO person, or unknown class (a CSV without classes
 UNCERTAINTY_PARTS = ("bootstrap_std_deg", "class_misfit_deg", "laplace_std_deg",
                      "laplace_data_std_deg", "boxed_share", "pitch_std_deg", "roll_std_deg",
                      "pitch_roll_corr")
-
-
-def _finite_at_least(x, low: float) -> bool:
-    return isinstance(x, (int, float, np.integer, np.floating)) and math.isfinite(x) and x >= low
 
 
 @dataclass(frozen=True)
@@ -121,24 +117,23 @@ class AgentPlaneConfig:
                              f"{self.classes!r}")
         if self.model not in MODELS:
             raise InputError(f"unknown ground-plane model {self.model!r} (use {', '.join(MODELS)})")
-        if not (_finite_at_least(self.radius_m, 0) and _finite_at_least(self.head_radius_m, 0)
-                and _finite_at_least(self.agent_height_m, 0) and self.agent_height_m > 0):
-            raise InputError(f"agent radius and head radius must be finite and >= 0 and agent "
-                             f"height finite and > 0 (got {self.radius_m}, "
-                             f"{self.head_radius_m}, {self.agent_height_m})")
+        check_seed(self.seed, "plane.seed")
+        check_ranges(self, "plane.", {
+            "radius_m": ">=0", "head_radius_m": ">=0", "agent_height_m": ">0", "bootstrap": ">=0",
+            "inlier_px": ">0", "ransac_iters": ">=1", "f_scale_px": ">0", "max_roll_deg": ">0",
+            "shape_prior_weight": ">=0", "height_prior_weight": ">=0", "relative_noise": ">=0",
+            "max_class_misfit_deg": ">0|inf"})
         if max(self.radius_m, self.head_radius_m) >= self.agent_height_m:
             raise InputError(f"agent radius and head radius must be less than the agent height "
                              f"({self.agent_height_m} m), got {self.radius_m} and "
                              f"{self.head_radius_m}")
-        check_seed(self.seed, "plane.seed")
-        if isinstance(self.bootstrap, bool) or not (isinstance(self.bootstrap, (int, np.integer))
-                                                    and self.bootstrap >= 0):
-            raise InputError(f"bootstrap must be a whole number >= 0 (0 = no uncertainty), "
+        if not isinstance(self.bootstrap, (int, np.integer)):
+            raise InputError(f"plane.bootstrap must be a whole number >= 0 (0 = no uncertainty), "
                              f"got {self.bootstrap}")
+        if self.max_roll_deg > 90:
+            raise InputError(f"plane.max_roll_deg must be at most 90, got {self.max_roll_deg}")
         if not 0 < self.max_pitch_deg < 90:
             raise InputError(f"max_pitch_deg must be in (0, 90), got {self.max_pitch_deg}")
-        if self.relative_noise is not None and not self.relative_noise >= 0:
-            raise InputError(f"relative_noise must be >= 0, got {self.relative_noise}")
         if not (self.fit_column_weight >= 0 and math.isfinite(self.fit_column_weight)):
             raise InputError(f"column weight must be >= 0, got {self.column_weight}")
         if self.known_height_m is not None and not (math.isfinite(self.known_height_m)
@@ -430,7 +425,7 @@ def _without_group(K, observations, obs, conf: AgentPlaneConfig, gs: tuple[int, 
 def camera_height_from_prior(plane: AgentPlane, agent_height_m: float = 1.7) -> float:
     """Camera height d = H_prior / s_j, median over the inlier person tracks (all inlier tracks
     when no class is known). Raises when no such track exists."""
-    if not (_finite_at_least(agent_height_m, 0) and agent_height_m > 0):
+    if not (math.isfinite(agent_height_m) and agent_height_m > 0):
         raise InputError(f"agent height must be positive and finite (metres), got "
                          f"{agent_height_m}")
     cls = np.asarray(plane.extra.get("classes", np.full(len(plane.track_ids), -1)))
