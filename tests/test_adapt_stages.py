@@ -281,7 +281,8 @@ def test_dotted_settings_and_fail_fast(tmp_path, clip, tiny, capsys):
              (["--detector", "yolox"], "weights were not found"),
              (["--set", "detector.name=yolo"], "unknown detector 'yolo'"),
              (["--summary", str(tmp_path / "no" / "s.json")], "folder of the summary"),
-             (["--set", "tracking.min_score=1.5"], "tracking.min_score must be in [0, 1]"),
+             (["--set", "tracking.min_score=1.5"],
+              "tracking.min_score must be a finite number within 0..1, got 1.5"),
              (["--set", "tracking.min_height_px=64"], "not below the image height (64 px)"),
              (["--set", "tracking.min_frames=25"], "the adaptation split's 24 frames")]
     for argv, message in cases:

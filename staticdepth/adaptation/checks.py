@@ -35,11 +35,8 @@ def writable_folder(path: str, what: str, inside: bool = False) -> None:
 
 def usable_agents(conf: AdaptConfig, ws: Workspace) -> None:
     """Tracking settings no agent of this sequence can pass (the ground plane would fail only
-    after every frame is predicted)."""
+    after every frame is predicted; each setting's own range is TrackingConfig's)."""
     t, n_split = conf.tracking, len(ws.adapt_split)
-    if not 0 <= t.min_score <= 1:
-        raise InputError(f"tracking.min_score must be in [0, 1] (detection scores are), got "
-                         f"{t.min_score}")
     if t.min_height_px >= ws.height:
         raise InputError(f"tracking.min_height_px = {t.min_height_px} is not below the image "
                          f"height ({ws.height} px): no agent can be kept", ws.seq)
