@@ -88,6 +88,13 @@ def test_shipped_recipes_parse_against_the_real_cli(recipe):
             from staticdepth.adapt import config_from_args
 
             config_from_args(args)
+        if st["command"] == "baseline predict":
+            # its output is the prediction it writes, not the sequence (which it never rewrites):
+            # the sequence as output made `run` pass --overwrite on a first run and never redo
+            # the stage when the prediction was deleted
+            from staticdepth.dataset.predictions import prediction_path
+
+            assert st["outputs"] == [prediction_path(st["args"]["_"][0], args.name)], name
 
 
 CHAIN = """
