@@ -226,8 +226,9 @@ def register(sub) -> None:
     p.set_defaults(func=_metrics_cmd)
 
     p = sub.add_parser("evaluate", help="evaluate the predictions stored in a sequence file",
-                       description="Metrics of pred/<name>/depth against the ground truth, per "
-                                   "protocol and region (all, agents, ground, distance bands).")
+                       description="Metrics of the sequence's predictions (SEQ.h5.pred/NAME.h5) "
+                                   "against its ground truth, per protocol and region (all, "
+                                   "agents, ground, distance bands).")
     p.add_argument("sequence", help="sequence file (.h5) with stored predictions")
     p.add_argument("--pred", nargs="*", help="prediction names (default: all stored)")
     p.add_argument("--split", default="eval", choices=("eval", "adapt", "all"),
