@@ -101,6 +101,8 @@ def test_help_and_readme_name_the_prediction_file(capsys):
 
 
 # -- 4. settings refused in one line naming them -------------------------------------------------
+NAN = "setting '{}': NaN is no value (give a number, or none where the setting allows it)"
+
 @pytest.mark.parametrize("args, message", [
     (["--checkpoint-every", "0"], "--checkpoint-every must be >= 1 (optimisation steps), got 0"),
     (["--checkpoint-every", "-5"], "--checkpoint-every must be >= 1 (optimisation steps), got -5"),
@@ -109,16 +111,16 @@ def test_help_and_readme_name_the_prediction_file(capsys):
     (["--set", "encoder_width=0"], "encoder_width must be >= 1, got 0"),
     (["--set", "lr_step_epochs=0"], "lr_step_epochs must be >= 1, got 0"),
     (["--set", "lr=-1"], "need a finite lr > 0, got lr -1.0"),
-    (["--set", "lr=nan"], "need a finite lr > 0, got lr nan"),
+    (["--set", "lr=nan"], NAN.format("lr")),
     (["--set", "lr=inf"], "need a finite lr > 0, got lr inf"),          # segfaulted in training
-    (["--set", "lr_gamma=nan"], "need 0 < lr_gamma <= 1, got lr_gamma nan"),
-    (["--set", "ssim_weight=nan"], "need 0 <= ssim_weight <= 1, got ssim_weight nan"),
+    (["--set", "lr_gamma=nan"], NAN.format("lr_gamma")),
+    (["--set", "ssim_weight=nan"], NAN.format("ssim_weight")),
     (["--set", "smoothness_weight=inf"],                                 # segfaulted in training
      "need a finite smoothness_weight >= 0, got smoothness_weight inf"),
     (["--set", "smoothness_weight=-1"],
      "need a finite smoothness_weight >= 0, got smoothness_weight -1.0"),
     (["--set", "max_depth=inf"], "need a finite max_depth > 0 (metres), got max_depth inf"),
-    (["--set", "min_depth=nan"], "need a finite min_depth > 0 (metres), got min_depth nan"),
+    (["--set", "min_depth=nan"], NAN.format("min_depth")),
     (["--set", "min_depth=-1"], "need a finite min_depth > 0 (metres), got min_depth -1.0"),
     (["--set", "height=-64"], "width and height must be multiples of 32, at least 64 (the decoder "
                               "pads the stride-32 features), got height -64"),

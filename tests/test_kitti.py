@@ -270,7 +270,8 @@ def test_skip_bad_passes_over_unreadable_sample_images(kitti_root, tmp_path, cap
     out = tmp_path / "K.h5"
     argv = ["import-kitti", "--root", str(root), "--drives", *drives, "--out", str(out)]
     assert main(argv) == 2
-    assert _one_error_line(capsys).endswith(f"{bad[0]}: corrupt or unreadable image")
+    assert _one_error_line(capsys).endswith(
+        f"{bad[0]}: corrupt or unreadable image (a PNG cut short: no IEND chunk)")
     assert not out.exists() and not os.path.exists(f"{out}.partial")
     assert main(argv + ["--skip-bad"]) == 0
     text = capsys.readouterr().out
