@@ -103,6 +103,7 @@ def test_help_and_readme_name_the_prediction_file(capsys):
 # -- 4. settings refused in one line naming them -------------------------------------------------
 NAN = "setting '{}': NaN is no value (give a number, or none where the setting allows it)"
 
+
 @pytest.mark.parametrize("args, message", [
     (["--checkpoint-every", "0"], "--checkpoint-every must be >= 1 (optimisation steps), got 0"),
     (["--checkpoint-every", "-5"], "--checkpoint-every must be >= 1 (optimisation steps), got -5"),
