@@ -169,13 +169,14 @@ def build_report(sequences: Mapping[str, str], out_dir: str | os.PathLike,
     (:func:`prediction_protocols`; the note is in its HTML too)."""
     os.makedirs(out_dir, exist_ok=True)
     summaries = summaries or {}
-    evals, notes_of = {}, {}
+    evals, notes_of, protocols = {}, {}, {}
     protos = ("median", "metric")
     for scene, seq in sequences.items():
         from staticdepth.dataset.h5 import SequenceReader
 
         with SequenceReader(seq) as r:
             protocol, note = prediction_protocols(r)
+            protocols[scene] = protocol
             names = list(protocol)
             has_gt = r.has("depth")
         if not names:
@@ -187,7 +188,7 @@ def build_report(sequences: Mapping[str, str], out_dir: str | os.PathLike,
             evals[scene] = evaluate_sequence(seq, names, protocols=protos)["results"]
     anchors = {scene: anchor_row(seq, summaries.get(scene)) for scene, seq in sequences.items()
                if scene in evals}
-    tables = ([table1(evals), table2(anchors), table3(evals), table_regions(evals)]
+    tables = ([table1(evals), table2(anchors), table3(evals), table_regions(evals, protocols=protocols)]
               if evals else [])
     paths = write_tables(tables, out_dir) if tables else []
     from staticdepth.report_figures import metric_definitions

@@ -109,8 +109,11 @@ def table3(evals: Mapping[str, Mapping[str, Any]]) -> Table:
                  ["scene", "method"] + [LABELS[k] for k in TABLE1_METRICS], rows)
 
 
-def table_regions(evals: Mapping[str, Mapping[str, Any]], key: str = "abs_rel") -> Table:
-    """AbsRel (or ``key``) per stage and region: all pixels, agents, ground, distance bands."""
+def table_regions(evals: Mapping[str, Mapping[str, Any]], key: str = "abs_rel",
+                  protocols: Mapping[str, Mapping[str, str]] | None = None) -> Table:
+    """AbsRel (or ``key``) per stage and region: all pixels, agents, ground, distance bands;
+    each prediction under ``protocols[scene][name]`` (the protocol ``evaluate`` gives it, from
+    its stored attributes), else the one its name implies."""
     regions: list[str] = []
     for res in evals.values():
         for by_prot in res.values():
@@ -121,7 +124,7 @@ def table_regions(evals: Mapping[str, Mapping[str, Any]], key: str = "abs_rel") 
     rows = []
     for scene, res in evals.items():
         for name in res:
-            prot = default_protocol(name)  # relative predictions: median; metric ones: metric
+            prot = ((protocols or {}).get(scene) or {}).get(name) or default_protocol(name)
             rows.append([scene, name, prot] + [_metric(res, name, prot, key, r) for r in regions])
     return Table(f"Regions: {LABELS.get(key, key)} by region (evaluation split)",
                  ["scene", "prediction", "protocol"] + regions, rows)

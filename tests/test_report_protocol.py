@@ -66,3 +66,19 @@ def test_predictions_without_the_attribute_are_named_in_one_note(tmp_path, capsy
         "base: depth (median protocol, scale 0.5)",
         "ft-align-metric: depth (metric protocol, scale 1)",
         "stereo: depth (median protocol, scale 0.769)"]
+
+
+def test_the_regions_table_uses_each_predictions_protocol(tmp_path):
+    """The regions table named the protocol from the prediction's name: the stored metric stereo
+    map (1.3x too far) was a median row with AbsRel 0.000; now metric, 0.300, as evaluate says."""
+    p = _sequence(tmp_path / "s.h5", attrs=True)
+    build_report({"S": str(p)}, tmp_path / "rep")
+    md = (tmp_path / "rep" / "tables.md").read_text()
+    block = md[md.index("Regions:"):]
+    rows = {cells[2]: cells[3:6] for cells in (
+        [c.strip() for c in ln.split("|")] for ln in block.splitlines()[2:] if ln.startswith("|"))
+        if len(cells) > 5 and cells[1] == "S"}
+    assert rows["stereo"][0] == "metric" and float(rows["stereo"][1]) == pytest.approx(0.3, 1e-3)
+    assert rows["base"][0] == "median" and float(rows["base"][1]) == pytest.approx(0, abs=1e-3)
+    assert rows["ft-align-metric"][0] == "metric"
+    assert float(rows["ft-align-metric"][1]) == pytest.approx(0.1, 1e-3)
