@@ -33,6 +33,23 @@ def default_protocol(name: str, attrs: dict[str, Any] | None = None) -> str:
     return "metric" if metric or int((attrs or {}).get("metric", 0)) else "median"
 
 
+def prediction_protocols(reader, names: Sequence[str] | None = None
+                         ) -> tuple[dict[str, str], str | None]:
+    """The depth predictions of an open sequence (``names``, else all; confidence maps left out)
+    with the protocol ``evaluate`` gives each: its attribute ``metric`` where stored, else its
+    name (:func:`default_protocol`). The second value is a one-line note naming the predictions
+    whose protocol came from the name (None when every one stores it)."""
+    attrs = {n: reader.prediction_attrs(n) for n in (names or reader.predictions())}
+    prot = {n: default_protocol(n, a) for n, a in attrs.items() if a.get("kind") != "confidence"}
+    guessed = [n for n in prot if "metric" not in attrs[n]]
+    if not guessed:
+        return prot, None
+    return prot, (f"note: {reader.path}: {len(guessed)} prediction(s) store no 'metric' "
+                  "attribute; protocol from the name (metric if it ends in -metric or starts "
+                  "with stereo-baseline, else median): "
+                  + ", ".join(f"{n} {prot[n]}" for n in guessed))
+
+
 def confidence_masks(confidence: np.ndarray, bands: int = CONFIDENCE_BANDS
                      ) -> dict[str, np.ndarray]:
     """``conf qK`` masks: the K-th of ``bands`` equal shares of the pixels with a confidence
@@ -84,11 +101,13 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
     """Per prediction and protocol: averages over the split's frames, per region.
 
     Returns ``{"sequence": ..., "split": ..., "frames": n, "frames_with_gt": m, "results":
-    {name: {protocol: {region: averages}}}, "missing": {name: {"pixels", "share"}}}``:
+    {name: {protocol: {region: averages}}}, "missing": {name: {"pixels", "share"}},
+    "protocol_note": ...}``:
     ``missing`` counts the pixels of valid ground truth where a prediction has no depth (NaN:
     a stereo map's holes), which its metrics leave out. ``protocols=None`` uses
-    :func:`default_protocol` per prediction. Raises when no frame of the split has ground truth
-    within the depth range.
+    :func:`default_protocol` per prediction (``protocol_note``: the line naming those whose
+    protocol came from their name, :func:`prediction_protocols`; None otherwise). Raises when no
+    frame of the split has ground truth within the depth range.
     """
     from staticdepth.dataset.h5 import SequenceReader
 
@@ -116,6 +135,8 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
         per: dict[tuple[str, str, str], list[dict]] = {}
         prot_of = {n: list(protocols) if protocols else [default_protocol(n, attrs.get(n))]
                    for n in names}
+        # said when a protocol comes from a name, not an attribute
+        note = None if protocols else prediction_protocols(r, names)[1]
         conf_of = {n: attrs[n].get("confidence") for n in names
                    if attrs[n].get("confidence") in attrs}
         used, n_valid, n_missing = 0, 0, dict.fromkeys(names, 0)
@@ -157,7 +178,7 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
     missing = {n: {"pixels": k, "share": k / n_valid} for n, k in n_missing.items()}
     return {"sequence": name_seq, "path": os.fspath(path), "split": split,
             "frames": len(frames), "frames_with_gt": used, "results": results,
-            "missing": missing}
+            "missing": missing, "protocol_note": note}
 
 
 # --------------------------------------------------------------------------------------------
@@ -291,6 +312,8 @@ def _evaluate_cmd(args: argparse.Namespace) -> int:
     used = res["frames_with_gt"]
     print(f"{res['sequence']}: split {res['split']} ({res['frames']} frames"
           + ("" if used == res["frames"] else f", {used} with ground truth") + ")")
+    if res["protocol_note"]:
+        print(res["protocol_note"])
     for name, miss in res["missing"].items():
         if miss["pixels"]:
             print(f"warning: {name} has no depth (NaN) at {miss['pixels']} pixels "

@@ -19,7 +19,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from staticdepth.errors import InputError
-from staticdepth.evaluate import default_protocol, evaluate_sequence
+from staticdepth.evaluate import evaluate_sequence, prediction_protocols
 from staticdepth.metrics import apply_protocol, valid_mask
 from staticdepth.tables import Table, table1, table2, table3, table_regions, write_tables
 
@@ -43,22 +43,6 @@ def _png_uri(rgb: np.ndarray) -> str:
     if not ok:
         raise RuntimeError("PNG encoding failed")
     return "data:image/png;base64," + base64.b64encode(buf.tobytes()).decode()
-
-
-def prediction_protocols(reader) -> tuple[dict[str, str], str | None]:
-    """The depth predictions of an open sequence (confidence maps left out) with the protocol
-    ``evaluate`` gives each: its attribute ``metric`` where stored, else its name
-    (:func:`~staticdepth.evaluate.default_protocol`). The second value is a one-line note naming
-    the predictions whose protocol came from the name (None when every one stores it)."""
-    attrs = {n: reader.prediction_attrs(n) for n in reader.predictions()}
-    prot = {n: default_protocol(n, a) for n, a in attrs.items() if a.get("kind") != "confidence"}
-    guessed = [n for n in prot if "metric" not in attrs[n]]
-    if not guessed:
-        return prot, None
-    return prot, (f"note: {reader.path}: {len(guessed)} prediction(s) store no 'metric' "
-                  "attribute; protocol from the name (metric if it ends in -metric or starts "
-                  "with stereo-baseline, else median): "
-                  + ", ".join(f"{n} {prot[n]}" for n in guessed))
 
 
 def sequence_figures(path: str | os.PathLike, summary: Mapping[str, Any] | None = None,
@@ -188,8 +172,8 @@ def build_report(sequences: Mapping[str, str], out_dir: str | os.PathLike,
             evals[scene] = evaluate_sequence(seq, names, protocols=protos)["results"]
     anchors = {scene: anchor_row(seq, summaries.get(scene)) for scene, seq in sequences.items()
                if scene in evals}
-    tables = ([table1(evals), table2(anchors), table3(evals), table_regions(evals, protocols=protocols)]
-              if evals else [])
+    tables = ([table1(evals), table2(anchors), table3(evals),
+               table_regions(evals, protocols=protocols)] if evals else [])
     paths = write_tables(tables, out_dir) if tables else []
     from staticdepth.report_figures import metric_definitions
 

@@ -82,3 +82,18 @@ def test_the_regions_table_uses_each_predictions_protocol(tmp_path):
     assert rows["base"][0] == "median" and float(rows["base"][1]) == pytest.approx(0, abs=1e-3)
     assert rows["ft-align-metric"][0] == "metric"
     assert float(rows["ft-align-metric"][1]) == pytest.approx(0.1, 1e-3)
+
+
+def test_evaluate_says_which_protocols_came_from_names(tmp_path, capsys):
+    """evaluate fell back on the names without a word; now the same note line as report's."""
+    p = _sequence(tmp_path / "old.h5", attrs=False)
+    assert main(["evaluate", str(p)]) == 0
+    out = capsys.readouterr().out
+    assert (f"note: {p}: 3 prediction(s) store no 'metric' attribute; protocol from the name "
+            "(metric if it ends in -metric or starts with stereo-baseline, else median): base "
+            "median, ft-align-metric metric, stereo median") in out.splitlines()
+    p2 = _sequence(tmp_path / "new.h5", attrs=True)
+    assert main(["evaluate", str(p2)]) == 0
+    assert "note:" not in capsys.readouterr().out
+    assert main(["evaluate", str(p), "--protocol", "metric"]) == 0    # chosen: nothing guessed
+    assert "note:" not in capsys.readouterr().out
