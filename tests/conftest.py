@@ -67,3 +67,16 @@ def trained_builtin(request, tmp_path_factory, train_args: list[str]) -> Path:
     if not path.exists():
         assert main(["train-builtin", "--out", str(path), "--device", "cpu", *train_args]) == 0
     return path
+
+
+@pytest.fixture(scope="module")
+def one_thread():
+    """One torch thread (``pytestmark = pytest.mark.usefixtures("one_thread")``, or requested):
+    reproducible reductions, bit-exact in a subprocess too, and no oversubscription of a shared
+    CPU."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

@@ -74,14 +74,6 @@ def clip(tmp_path_factory):
     return str(path)
 
 
-@pytest.fixture
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def _long_sequence(clip, path, n):
     """``n`` frames cycling through the clip's (its adaptation split comes first)."""
     with SequenceReader(clip) as r:

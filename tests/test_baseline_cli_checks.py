@@ -14,7 +14,6 @@ import termios
 from pathlib import Path
 
 import pytest
-import torch
 from test_baseline_scene import write_sequence
 
 import staticdepth.dataset.h5 as h5
@@ -24,17 +23,11 @@ from staticdepth.baseline.train import train
 from staticdepth.cli import main
 from staticdepth.errors import InputError
 
+pytestmark = pytest.mark.usefixtures("one_thread")
+
 MICRO = ["--preset", "tiny", "--scene-fit", "none", "--set", "width=64", "--set", "height=64",
          "--set", "epochs=2", "--set", "batch_size=4", "--device", "cpu"]
 README = Path(__file__).resolve().parents[1] / "README.md"
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="module")

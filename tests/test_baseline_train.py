@@ -16,17 +16,10 @@ from staticdepth.dataset.h5 import SequenceReader
 from staticdepth.errors import InputError
 from staticdepth.metrics import depth_metrics
 
+pytestmark = pytest.mark.usefixtures("one_thread")
+
 # A few steps at 64x64: for resume, determinism and error paths.
 MICRO = {"width": 64, "height": 64, "epochs": 2, "batch_size": 4}
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """One torch thread: reproducible reductions, and no oversubscription of a shared CPU."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="module")

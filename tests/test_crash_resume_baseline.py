@@ -17,21 +17,14 @@ import staticdepth.baseline.train as train_mod
 from staticdepth.baseline.config import preset
 from staticdepth.baseline.train import load_checkpoint, train
 
+pytestmark = pytest.mark.usefixtures("one_thread")
+
 # Each step of the killed run is slowed by 0.3 s (the weights are unchanged): the signal must land
 # while steps are left, and a loaded machine's poll can take longer than three bare tiny steps.
 CLI = ("import sys, time; import staticdepth.baseline.train as t; step = t.train_step; "
        "t.train_step = lambda *a, **k: (time.sleep(0.3), step(*a, **k))[1]; "
        "from staticdepth.cli import main; sys.exit(main(sys.argv[1:]))")
 SETTINGS = {"width": 64, "height": 64, "epochs": 5, "batch_size": 4}  # 2 steps per epoch
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """One torch thread here and in the subprocess: bit-exact reductions in both."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 def checkpoint_step(path) -> int:

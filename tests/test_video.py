@@ -139,20 +139,30 @@ def test_folder_import_resumes_after_a_broken_image(tmp_path, capsys):
     assert (tmp_path / "g.h5.partial").exists()
 
 
+def _interrupt_at(monkeypatch, n: int):
+    """Ctrl-C while the video's ``n``-th frame is decoded; returns (the real decoder, the calls
+    so far): set ``video._to_rgb`` back to the first to go on."""
+    import staticdepth.dataset.video as video
+
+    real, calls = video._to_rgb, []
+
+    def interrupted(img, where):
+        calls.append(where)
+        if len(calls) == n:
+            raise KeyboardInterrupt
+        return real(img, where)
+
+    monkeypatch.setattr(video, "_to_rgb", interrupted)
+    return real, calls
+
+
 def test_video_import_resumes_after_an_interruption(tmp_path, monkeypatch, capsys):
     import staticdepth.dataset.video as video
 
     src = tmp_path / "v.avi"
     _video(src, n=12)
-    real, calls = video._to_rgb, []
-
-    def interrupted(img, where):
-        calls.append(where)
-        if len(calls) == 5:
-            raise KeyboardInterrupt
-        return real(img, where)
-
-    monkeypatch.setattr(video, "_to_rgb", interrupted)
+    real, calls = _interrupt_at(monkeypatch, 5)
+    interrupted = video._to_rgb
     out = tmp_path / "v.h5"
     with pytest.raises(KeyboardInterrupt):
         import_video(str(src), str(out), every=2)
@@ -233,15 +243,7 @@ def test_ctrl_c_names_the_partial_and_how_to_resume(tmp_path, monkeypatch, capsy
 
     src = tmp_path / "v.avi"
     _video(src, n=12)
-    real, calls = video._to_rgb, []
-
-    def interrupted(img, where):
-        calls.append(where)
-        if len(calls) == 5:
-            raise KeyboardInterrupt
-        return real(img, where)
-
-    monkeypatch.setattr(video, "_to_rgb", interrupted)
+    real, _ = _interrupt_at(monkeypatch, 5)
     out = tmp_path / "v.h5"
     assert main(["import-video", str(src), "--out", str(out)]) == 130
     err = capsys.readouterr().err.strip().splitlines()
