@@ -150,9 +150,11 @@ def build_report(sequences: Mapping[str, str], out_dir: str | os.PathLike,
     """Evaluate every sequence, write the tables (text, CSV, Markdown) and one HTML per scene.
 
     ``warn`` receives a sequence's note when some of its predictions store no attribute ``metric``
-    (:func:`prediction_protocols`; the note is in its HTML too)."""
-    os.makedirs(out_dir, exist_ok=True)
+    (:func:`prediction_protocols`; the note is in its HTML too), a summary written for another
+    sequence, and that no tables were written when no sequence has ground truth. Every sequence
+    is read before ``out_dir`` is made."""
     summaries = summaries or {}
+    check_summaries(sequences, summaries, warn)
     evals, notes_of, protocols = {}, {}, {}
     protos = ("median", "metric")
     for scene, seq in sequences.items():
@@ -170,6 +172,10 @@ def build_report(sequences: Mapping[str, str], out_dir: str | os.PathLike,
             notes_of[scene] = [note]
         if has_gt:
             evals[scene] = evaluate_sequence(seq, names, protocols=protos)["results"]
+    if not evals:
+        warn("note: no tables written: no sequence has ground truth (depth); the HTML pages "
+             "show the predictions only")
+    os.makedirs(out_dir, exist_ok=True)
     anchors = {scene: anchor_row(seq, summaries.get(scene)) for scene, seq in sequences.items()
                if scene in evals}
     tables = ([table1(evals), table2(anchors), table3(evals),
@@ -187,6 +193,29 @@ def build_report(sequences: Mapping[str, str], out_dir: str | os.PathLike,
                    notes=notes)
         paths.append(p)
     return {"tables": tables, "paths": paths, "evals": evals, "anchors": anchors}
+
+
+def check_summaries(sequences: Mapping[str, str], summaries: Mapping[str, Mapping[str, Any]],
+                    warn=print) -> None:
+    """A summary whose scene is no sequence's is an error; one whose ``"sequence"`` names another
+    file than its scene's gets one warning line naming both (Table 2 would show that file's anchor
+    depths). Only a warning: a run folder moved or copied as a whole keeps its old paths inside,
+    so a recorded path that no longer exists but has the same file name passes."""
+    unknown = sorted(set(summaries) - set(sequences))
+    if unknown:
+        raise InputError(f"--summary: no sequence labelled {', '.join(map(repr, unknown))}; the "
+                         f"sequences': {', '.join(map(repr, sequences))}")
+    for scene, s in summaries.items():
+        recorded, seq = (s or {}).get("sequence"), sequences[scene]
+        if not isinstance(recorded, str):
+            continue
+        if os.path.exists(recorded) and os.path.exists(seq):
+            same = os.path.samefile(recorded, seq)
+        else:
+            same = os.path.basename(recorded) == os.path.basename(seq)
+        if not same:
+            warn(f"warning: the summary for {scene!r} was written for {recorded}, not for {seq}; "
+                 "its anchor depths and planes are that sequence's")
 
 
 def _file_stem(name: str) -> str:

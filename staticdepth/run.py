@@ -169,19 +169,29 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
         raise InputError(f"--only: no stage(s) {unknown}; the recipe's: "
                          f"{', '.join(recipe['stages'])}", recipe["path"])
     prev = ""
+    fresh = ""   # the chain as a full run would compute it (what the next --dry-run checks)
     status: dict[str, str] = {}
     for name, st in recipe["stages"].items():
         # a stage's hash chains the hash recorded for the stage before it (what its outputs were
         # made with), so a stage whose inputs were remade since - or were made with other
         # settings when it ran under --only - runs again
         chain = config_hash({"prev": prev, "command": st["command"], "args": st["args"]})
+        fresh_chain = config_hash({"prev": fresh, "command": st["command"], "args": st["args"]})
+        fresh = fresh_chain
         argv = argv_from_args(st["command"], st["args"])
-        done = (state.get(name) == chain and st["outputs"]
-                and all(os.path.exists(p) for p in st["outputs"]))
+        outputs_there = bool(st["outputs"]) and all(os.path.exists(p) for p in st["outputs"])
+        done = state.get(name) == chain and outputs_there
         if (only and name not in only) or (done and not force):
             status[name] = "skipped"
-            log(f"[{recipe['name']}] {name}: up to date, skipped" if done else
-                f"[{recipe['name']}] {name}: not selected, skipped")
+            # "up to date" only when a full run would skip it too: an unselected stage after
+            # one that ran (or is out of date) is stale even when its own recorded hash matches
+            if state.get(name) == fresh_chain and outputs_there:
+                why = "up to date"
+            elif only and name not in only:
+                why = "out of date, not selected"
+            else:
+                why = "up to date with its inputs as they are (an earlier stage is out of date)"
+            log(f"[{recipe['name']}] {name}: {why}, skipped")
             prev = state.get(name, "not run")
             continue
         if any(os.path.exists(p) for p in st["outputs"]) and _accepts(argv, "--overwrite"):
@@ -221,9 +231,18 @@ def register(sub) -> None:
     p.set_defaults(func=_run_cmd)
 
 
-def _run_cmd(args: argparse.Namespace) -> int:
-    from staticdepth.cli import parse_overrides
+def parse_vars(items: list[str] | None) -> dict[str, str]:
+    """``--var key=value`` pairs (the ``--set`` grammar, :func:`staticdepth.config.parse_set`);
+    a malformed one is an error naming ``--var``."""
+    from staticdepth.config import parse_set
 
-    recipe = load_recipe(args.recipe, parse_overrides(args.var))
+    try:
+        return parse_set(items)
+    except InputError as e:
+        raise InputError(e.problem.replace("--set", "--var", 1), e.path) from None
+
+
+def _run_cmd(args: argparse.Namespace) -> int:
+    recipe = load_recipe(args.recipe, parse_vars(args.var))
     run_recipe(recipe, force=args.force, only=args.only, dry_run=args.dry_run)
     return 0
