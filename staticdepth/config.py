@@ -174,10 +174,12 @@ def from_dict(cls: type[C], values: Mapping[str, Any] | None = None, *,
         raise InputError(f"{cls.__name__}: {e}", source) from None
 
 
-def check_ranges(conf: Any, prefix: str, rules: Mapping[str, str]) -> None:
+def check_ranges(conf: Any, prefix: str, rules: Mapping[str, str], *, options: bool = False
+                 ) -> None:
     """Check ``conf``'s numeric fields against ``rules`` (field -> ``">=0"``, ``">0"``, ``">=1"``,
     ``"0..1"``; every value finite unless the rule ends in ``"|inf"``; None passes): one
-    :class:`InputError` naming the first setting out of its range."""
+    :class:`InputError` naming the first setting out of its range (``prefix`` + its name; with
+    ``options``, as the command-line option ``--max-steps`` for ``max_steps``)."""
     import math
 
     for name, rule in rules.items():
@@ -191,7 +193,8 @@ def check_ranges(conf: Any, prefix: str, rules: Mapping[str, str]) -> None:
                      "0..1": lambda x: 0 <= x <= 1}[rule](v)
         if not ok:
             want = {">=0": ">= 0", ">0": "> 0", ">=1": ">= 1", "0..1": "within 0..1"}[rule]
-            raise InputError(f"{prefix}{name} must be {'a finite number ' if not inf else ''}"
+            label = "--" + name.replace("_", "-") if options else prefix + name
+            raise InputError(f"{label} must be {'a finite number ' if not inf else ''}"
                              f"{want}, got {v}")
 
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from staticdepth.config import check_seed
+from staticdepth.config import check_ranges, check_seed
 from staticdepth.errors import InputError
 
 FRAMES_PER_LAYOUT = 8      # frames rendered per scene seed (10 frames = 1 s apart)
@@ -33,6 +33,8 @@ class TrainBuiltinConfig:
     lr: float = 1e-3
     batch_size: int = 8
     seed: int = 0
+    max_steps: int = 0            # optimiser steps at most (0 = every epoch's; adapt's fine-tuning
+    #                               has a budget of its own, finetune.max_steps)
     preset: str = "street"
     arch: str = "tiny"            # "tiny" (TinyDepthNet) or "unet" (models/unet.py)
     # street-level poses vary a little (cars, tripods, hand-held): one pitch and height per layout
@@ -41,6 +43,9 @@ class TrainBuiltinConfig:
 
     def __post_init__(self):
         check_seed(self.seed)
+        check_ranges(self, "", {"frames": ">=1", "epochs": ">=1", "width": ">=1",
+                                "height": ">=1", "lr": ">0", "batch_size": ">=1",
+                                "max_steps": ">=0"}, options=True)
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -58,8 +63,6 @@ def render_training_set(conf: TrainBuiltinConfig) -> tuple[np.ndarray, np.ndarra
     """(frames, H, W, 3) uint8 images and (frames, H, W) float32 inverse-depth targets."""
     from staticdepth.dataset.synth import SyntheticScene, preset
 
-    if conf.frames < 1:
-        raise InputError(f"frames must be >= 1, got {conf.frames}")
     images = np.empty((conf.frames, conf.height, conf.width, 3), np.uint8)
     targets = np.empty((conf.frames, conf.height, conf.width), np.float32)
     k = 0
@@ -106,8 +109,11 @@ def train_builtin(conf: TrainBuiltinConfig, *, out: str | os.PathLike, device=No
     model = builtin_model(net, input_height=conf.height, input_width=conf.width)
     if device is not None:
         model.to(device)
+    # every epoch asked for (FinetuneConfig's default budget of 60 steps is adapt's: it cut
+    # the README's 125-step network at 60 without a word), or --max-steps
     ft = FinetuneConfig(epochs=conf.epochs, lr=conf.lr, batch_size=conf.batch_size,
-                        seed=conf.seed, layers="all", flip=True, loss="ssi_mae")
+                        seed=conf.seed, layers="all", flip=True, loss="ssi_mae",
+                        max_steps=conf.max_steps)
     history = finetune(model, images, targets, conf=ft, checkpoint=checkpoint,
                        on_epoch=lambda r: log(f"epoch {r['epoch']}: loss {r['loss']:.4f} "
                                               f"({r['seconds']:.1f} s)"))
@@ -139,6 +145,8 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0,
                    help="seed of the scenes and the training (the weights also depend on "
                         "torch's thread count, written into the file)")
+    p.add_argument("--max-steps", type=int, default=0,
+                   help="stop after this many optimiser steps (0: train every epoch)")
     p.add_argument("--arch", choices=("tiny", "unet"), default="tiny",
                    help="network: tiny (the default encoder-decoder) or unet (a second one)")
     from staticdepth.cli import add_device_argument, add_overwrite_argument
@@ -156,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
     w, h = parse_size(args.size)
     conf = TrainBuiltinConfig(frames=args.frames, epochs=args.epochs, width=w, height=h,
                               lr=args.lr, batch_size=args.batch_size, seed=args.seed,
-                              arch=args.arch)
+                              arch=args.arch, max_steps=args.max_steps)
     device = resolve_device(args.device)
     _, hist = train_builtin(conf, out=args.out, device=device, checkpoint=args.out + ".ckpt")
     import torch        # loaded by the training already

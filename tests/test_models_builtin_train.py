@@ -52,8 +52,11 @@ def test_train_builtin_errors(tmp_path, capsys):
         with pytest.raises(InputError, match="size"):
             parse_size(bad)
     assert parse_size("384x192") == (384, 192)
-    with pytest.raises(InputError, match="frames must be >= 1"):
-        render_training_set(TrainBuiltinConfig(frames=0))
+    with pytest.raises(InputError, match="--frames must be a finite number >= 1, got 0"):
+        TrainBuiltinConfig(frames=0)
+    assert main(["train-builtin", "--out", str(tmp_path / "e.pt"), "--epochs", "0"]) == 2
+    assert "--epochs must be a finite number >= 1, got 0" in capsys.readouterr().err
+    assert not (tmp_path / "e.pt").exists()     # was: an untrained network, "wrote e.pt"
     assert main(["train-builtin", "--out", str(tmp_path / "no" / "b.pt"), "--frames", "1",
                  "--epochs", "1", "--size", "64x32"]) == 2
     assert "folder does not exist" in capsys.readouterr().err
@@ -66,3 +69,18 @@ def test_hf_without_transformers_is_a_clear_error(monkeypatch):
     from staticdepth.detectors import make_detector
     with pytest.raises(InputError, match="needs transformers"):
         make_detector("mask2former", model="x")
+
+
+def test_train_builtin_runs_every_epoch_asked_for(tmp_path):
+    """It stopped at adapt's fine-tuning budget (finetune.max_steps, 60 steps) without a word:
+    8 frames, batch 1, 8 epochs are 64 steps, of which 60 were taken; --max-steps cuts on
+    purpose."""
+    from staticdepth.train_builtin import train_builtin
+
+    conf = TrainBuiltinConfig(frames=8, epochs=8, width=64, height=32, batch_size=1)
+    _, hist = train_builtin(conf, out=tmp_path / "a.pt", device="cpu", log=lambda *_: None)
+    assert [r["steps"] for r in hist] == [8] * 8
+    conf = TrainBuiltinConfig(frames=8, epochs=8, width=64, height=32, batch_size=1,
+                              max_steps=10)
+    _, hist = train_builtin(conf, out=tmp_path / "b.pt", device="cpu", log=lambda *_: None)
+    assert [r["steps"] for r in hist] == [8, 2]
