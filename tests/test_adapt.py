@@ -191,3 +191,19 @@ def test_adapt_refuses_before_the_network_pass(tmp_path, tiny_model):
         adapt(str(empty), conf, log=lambda m: None)
     assert not os.path.exists(prediction_path(empty, "base"))
     assert not os.path.exists(f"{empty}.adapt/inverse-base.h5")
+
+
+def test_the_summary_counts_the_agents_labelled_pixels(tmp_path, tiny_model):
+    """pseudo_label_agent_pixels summed every labelled pixel of the "aligned" labels (85% of the
+    frames on a walk's scene), not the agents'. Against the scene's own instance maps: the
+    agents' pixels of the adaptation split bound it, and most of them are labelled."""
+    seq = str(tmp_path / "n.h5")
+    render_to_file(seq, preset_name="c1", n_frames=40, adapt_frames=30, seed=1,
+                   overrides={"width": 256, "height": 128})
+    s = adapt(seq, build_config({"model": f"builtin:{tiny_model}", "detector.name": "gt",
+                                 "finetune.epochs": 1, "tracking.min_height_px": 8}),
+              log=lambda m: None)
+    with SequenceReader(seq) as r:
+        agents = sum(int((r.instances(i) > 0).sum()) for i in r.split("adapt"))
+        frame_pixels = len(r.split("adapt")) * r.width * r.height
+    assert 0.5 * agents <= s["pseudo_label_agent_pixels"] <= agents < 0.3 * frame_pixels

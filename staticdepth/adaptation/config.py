@@ -216,7 +216,7 @@ def model_identity(spec: str) -> dict[str, Any]:
 # being reused (the stage hashes name outputs by settings; without this an upgrade would
 # silently keep, e.g., the former pseudo labels). Raising one reruns that stage and the stages
 # after it, as a changed setting does.
-STAGE_VERSIONS = {"base": 1, "agents": 3, "ground_plane": 12, "pseudo_labels": 8, "finetune": 2,
+STAGE_VERSIONS = {"base": 1, "agents": 3, "ground_plane": 12, "pseudo_labels": 9, "finetune": 2,
                   "align": 12, "scale": 1}
 
 

@@ -113,7 +113,9 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str,
             for k in progress(range(w.start, len(split)), desc="pseudo labels"):
                 i = split[k]
                 label, m = label_frame(i, inv[i])
-                w.write(k, label, np.array([(k, int(m.sum()))], ROWS))
+                # the agents' labelled pixels (the mask is every labelled pixel with "aligned")
+                on_agents = int((m & (agents.instances(i) > 0)).sum())
+                w.write(k, label, np.array([(k, on_agents)], ROWS))
                 ws.count("pseudo_labels")
     with ws.frame_file("labels.h5") as f:
         return int(f._f["rows"]["agent_pixels"].sum())
