@@ -311,11 +311,12 @@ def resolve_device(name: str):
     return dev
 
 
-def parse_overrides(items: Sequence[str] | None) -> dict[str, str]:
-    """``--set key=value`` pairs into a dict (values still strings): :func:`staticdepth.config.parse_set`."""
+def parse_overrides(items: Sequence[str] | None, option: str = "--set") -> dict[str, str]:
+    """``--set key=value`` pairs into a dict (values still strings):
+    :func:`staticdepth.config.parse_set`; ``option`` names the option in errors."""
     from staticdepth.config import parse_set
 
-    return parse_set(items)
+    return parse_set(items, option)
 
 
 def main(argv: Sequence[str] | None = None, *, recipe: str | None = None) -> int:

@@ -212,15 +212,15 @@ def check_seed(seed: Any, key: str = "--seed") -> int:
     return int(seed)
 
 
-def parse_set(items: Sequence[str] | None) -> dict[str, str]:
+def parse_set(items: Sequence[str] | None, option: str = "--set") -> dict[str, str]:
     """The one ``--set KEY=VALUE`` grammar: dotted keys, values still strings (converted to the
-    setting's type by :func:`from_dict`)."""
+    setting's type by :func:`from_dict`); ``option`` names the option in errors (``--var``)."""
     out: dict[str, str] = {}
     for item in items or ():
         k, sep, v = str(item).partition("=")
         k = k.strip()
         if not sep or not k or any(not part for part in k.split(".")):
-            raise InputError(f"--set expects key=value with a (dotted) key, got {item!r}")
+            raise InputError(f"{option} expects key=value with a (dotted) key, got {item!r}")
         out[k] = v.strip()
     return out
 

@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     variables = {"out_dir": args.out, **(QUICK if args.quick else {}),
-                 **parse_overrides(args.var)}
+                 **parse_overrides(args.var, "--var")}
     recipe = load_recipe(DEMO_RECIPE, variables)
     run_recipe(recipe, force=args.force)
     seq = os.path.join(recipe["out_dir"], "demo.h5")

@@ -76,9 +76,7 @@ class FinetuneConfig:
             raise InputError(f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
         if self.max_steps < 0:
             raise InputError(f"finetune.max_steps must be >= 0 (0 = no budget), got {self.max_steps}")
-        if self.epochs < 0 or self.batch_size < 1 or not (self.lr > 0 and np.isfinite(self.lr)):
-            raise InputError(f"need epochs >= 0, batch_size >= 1, lr > 0 (got {self.epochs}, "
-                             f"{self.batch_size}, {self.lr})")
+        check_ranges(self, "finetune.", {"epochs": ">=0", "batch_size": ">=1", "lr": ">0"})
 
 
 # builtin: Adam 3e-4 and the scale-only loss on adapt's shift-free trusted labels

@@ -236,10 +236,7 @@ def parse_vars(items: list[str] | None) -> dict[str, str]:
     a malformed one is an error naming ``--var``."""
     from staticdepth.config import parse_set
 
-    try:
-        return parse_set(items)
-    except InputError as e:
-        raise InputError(e.problem.replace("--set", "--var", 1), e.path) from None
+    return parse_set(items, "--var")
 
 
 def _run_cmd(args: argparse.Namespace) -> int:

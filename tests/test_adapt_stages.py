@@ -256,6 +256,8 @@ def test_the_plane_gate_is_kept_in_the_summary_and_said_on_every_run(tmp_path, c
         gate = _summary(seq)["plane_gate"]
         assert gate["ok"] is False and gate["normal_std_deg"] > gate["max_normal_std_deg"]
         assert f"warning: {gate['message']}; adapt went on with it" in out
+        # not "refused" while going on with it
+        assert gate["message"].startswith("ground plane too uncertain: ")
     assert "ground_plane" in _summary(seq)["skipped_stages"]
 
 
@@ -265,7 +267,7 @@ def test_dotted_settings_and_fail_fast(tmp_path, clip, tiny, capsys):
     cases = [(["--set", "min_height_px=8"], "did you mean 'tracking.min_height_px'?"),
              (["--set", "tracking.min_heigt_px=8"], "did you mean 'tracking.min_height_px'?"),
              (["--set", "detector_model=x.onnx"], "did you mean 'detector.model'?"),
-             (["--epochs", "-1"], "need epochs >= 0"),
+             (["--epochs", "-1"], "finetune.epochs must be a finite number >= 0, got -1"),
              (["--camera-height", "0"], "camera height must be a positive number"),
              (["--camera-height", "-2"], "camera height must be a positive number"),
              (["--camera-height", "nan"], "scale.camera_height_m': NaN is no value"),

@@ -259,6 +259,8 @@ CASES = [
     ("nonsense-adapt-seed", lambda d: ["adapt", d["seq.h5"], "--model", "builtin:/nonexistent.pt",
                                        "--seed", "-1"],
      "finetune.seed must be a whole number in [0, 2^32), got -1"),
+    ("nonsense-demo-var", lambda d: ["demo", "--out", os.path.join(d["root"], "demo"), "--var",
+                                     "frames"], "--var expects key=value"),
     ("nonsense-observations-min-height", lambda d: [
         "observations", d["seq.h5"], "--min-height-px", "-1", "--out",
         os.path.join(d["root"], "obs-out.csv")], "--min-height-px must be"),

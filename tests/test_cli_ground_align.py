@@ -341,13 +341,13 @@ def test_ground_plane_gate_refuses_then_accepts(tmp_path, capsys):
             "--out", str(tmp_path / "p.json")]
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "ground plane refused" in err and "need" in err
+    assert len(err.splitlines()) == 1 and "ground plane too uncertain" in err and "need" in err
     assert not (tmp_path / "p.json").exists()
     assert main(args + ["--accept-uncertain"]) == 0
     p = json.loads((tmp_path / "p.json").read_text())
     assert p["gate"]["ok"] is False and p["gate"]["tracks_needed"] > p["gate"]["tracks"]
     assert p["extents"]["people"] and p["camera_height_m"] > 0
-    assert "warning: ground plane refused" in capsys.readouterr().out
+    assert "warning: ground plane too uncertain" in capsys.readouterr().out
     assert main(args + ["--classes", "vehicles", "--overwrite"]) == 2
     assert "no observation of the classes selected" in capsys.readouterr().err
 

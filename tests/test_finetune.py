@@ -124,7 +124,7 @@ def test_errors():
         finetune(_model(), images[:0], targets[:0], conf=CONF)
     with pytest.raises(InputError, match="loss must be one of"):
         FinetuneConfig(loss="mse")
-    with pytest.raises(InputError, match="lr > 0"):
+    with pytest.raises(InputError, match="finetune.lr must be a finite number > 0, got 0"):
         FinetuneConfig(lr=0)
     with pytest.raises(InputError, match="diverged"):
         bad = targets.copy()

@@ -165,7 +165,7 @@ def plane_gate(plane, max_normal_std_deg: float = GATE_STD_DEG, min_tracks: int 
     if not math.isfinite(std) or tracks < min_tracks:
         need = max(min_tracks, 2 * tracks)
         return PlaneGate(False, std, max_normal_std_deg, tracks, need, need / max(tracks, 1),
-                         f"ground plane refused: {tracks} inlier track(s), uncertainty unknown; "
+                         f"ground plane too uncertain: {tracks} inlier track(s), uncertainty unknown; "
                          f"need at least {need} tracks (about {need / max(tracks, 1):.1f}x the "
                          "frames)")
     parts = _parts(plane)
@@ -176,6 +176,6 @@ def plane_gate(plane, max_normal_std_deg: float = GATE_STD_DEG, min_tracks: int 
     factor = (std / max_normal_std_deg) ** 2
     need = int(math.ceil(tracks * factor))
     return PlaneGate(False, std, max_normal_std_deg, tracks, need, factor,
-                     f"ground plane refused: normal uncertainty {std:.2f} deg{parts} > "
+                     f"ground plane too uncertain: normal uncertainty {std:.2f} deg{parts} > "
                      f"{max_normal_std_deg:.2g} deg over {tracks} inlier tracks; need about {need} "
                      f"tracks ({factor:.1f}x the frames)")
