@@ -15,8 +15,8 @@ fps; for a URL the wall clock since the first frame.
 (:mod:`staticdepth.dataset.resume`): the settings fingerprint holds the source file's size and
 modification time and every setting that changes the frames; for an image folder each image is an
 input identity (its path, size and time). The frames already written are passed over without
-conversion (a video's are grabbed, which decodes them, not retrieved). A camera/stream URL cannot be resumed: its frames
-are live, not the ones the partial holds.
+conversion (a video's are grabbed, which decodes them, not retrieved). A camera/stream URL
+cannot be resumed: its frames are live, not the ones the partial holds.
 """
 from __future__ import annotations
 

@@ -165,9 +165,9 @@ def plane_gate(plane, max_normal_std_deg: float = GATE_STD_DEG, min_tracks: int 
     if not math.isfinite(std) or tracks < min_tracks:
         need = max(min_tracks, 2 * tracks)
         return PlaneGate(False, std, max_normal_std_deg, tracks, need, need / max(tracks, 1),
-                         f"ground plane too uncertain: {tracks} inlier track(s), uncertainty unknown; "
-                         f"need at least {need} tracks (about {need / max(tracks, 1):.1f}x the "
-                         "frames)")
+                         f"ground plane too uncertain: {tracks} inlier track(s), uncertainty "
+                         f"unknown; need at least {need} tracks (about "
+                         f"{need / max(tracks, 1):.1f}x the frames)")
     parts = _parts(plane)
     if std <= max_normal_std_deg:
         return PlaneGate(True, std, max_normal_std_deg, tracks, tracks, 1.0,
