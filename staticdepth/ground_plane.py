@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import math
 import os
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
@@ -234,17 +233,12 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
 
     check_writable(args.out)
     refuse_existing(args.out, overwrite=args.overwrite)
-    for opt, v, positive in (("--radius", args.radius, False), ("--agent-height",
-                             args.agent_height, True), ("--camera-height", args.camera_height,
-                             True), ("--column-weight", args.column_weight, False)):
-        if v is not None and not (math.isfinite(v) and (v > 0 if positive else v >= 0)):
-            raise InputError(f"{opt} must be a finite number {'> 0' if positive else '>= 0'}, "
-                             f"got {v}")
-    if not args.max_normal_std > 0:
-        raise InputError(f"--max-normal-std must be > 0 degrees (inf: never refuse), got "
-                         f"{args.max_normal_std}")
-    if args.bootstrap is not None and args.bootstrap < 0:
-        raise InputError(f"--bootstrap must be >= 0 (0 = no uncertainty), got {args.bootstrap}")
+    from staticdepth.config import check_ranges
+
+    # the options as given, before any file is read (the config checks its settings again)
+    check_ranges(args, "", {"radius": ">=0", "agent_height": ">0", "camera_height": ">0",
+                            "column_weight": ">=0", "bootstrap": ">=0",
+                            "max_normal_std": ">0|inf"}, options=True)
     if args.agent_height is not None and args.camera_height is not None:
         print("warning: --camera-height is given: --agent-height does not set the camera height "
               "(it only sets the exact model's body-to-height ratio)")

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import io
-import math
 import os
 
 import numpy as np
@@ -156,14 +155,12 @@ def run(args: argparse.Namespace) -> int:
     import json
 
     from staticdepth.cli import refuse_existing
+    from staticdepth.config import check_ranges
     from staticdepth.fileio import IMAGE_EXTS, VIDEO_EXTS, atomic_write_text
     from staticdepth.stereo.io import is_video
 
     refuse_existing(args.out, args.camera_out, overwrite=args.overwrite)
-    if args.min_height_px is not None and not (math.isfinite(args.min_height_px)
-                                               and args.min_height_px >= 0):
-        raise InputError(f"--min-height-px must be a number of pixels >= 0, got "
-                         f"{args.min_height_px}")
+    check_ranges(args, "", {"min_height_px": ">=0"}, options=True)
     video_only = [o for o, v in (("--start", args.start), ("--max-frames", args.max_frames),
                                  ("--step", args.step)) if v is not None]
     common = {"detector_model": args.detector_model, "model": args.model,
