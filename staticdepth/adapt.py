@@ -26,6 +26,9 @@ import numpy as np
 from staticdepth.errors import InputError
 
 STAGES = ("agents", "ground_plane", "base", "pseudo_labels", "finetune", "ft", "align", "scale")
+# adapt's predictions and the stage whose hash each stores (its ``config_hash`` attribute)
+PREDICTION_STAGES = {"base": "base", "ft": "ft", "align": "align", "ft-align": "align",
+                     "align-metric": "scale", "ft-align-metric": "scale"}
 
 
 def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
@@ -86,6 +89,8 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
             log(f"warning: {metric_note}")
         if not refuse:
             scales, anchor_scales = scale.run(conf, ws, ag, plane, h["scale"])
+        else:
+            _remove_metric(ws.seq, log)
         lap("scale")
 
     W, H, K, Hc = ws.width, ws.height, ws.K, plane.camera_height_m
@@ -125,6 +130,71 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
     atomic_write_json(summary_path, _jsonable(summary), indent=1)
     summary["summary_path"] = summary_path
     return summary
+
+
+def _remove_metric(seq_path: str, log: Callable[[str], None]) -> None:
+    """A run whose metric maps are refused removes those of an earlier run (``--overwrite``
+    let it replace that run's predictions; kept, they would be read beside this run's)."""
+    from staticdepth.dataset.predictions import prediction_path
+
+    for name in ("align-metric", "ft-align-metric"):
+        p = prediction_path(seq_path, name)
+        if os.path.exists(p):
+            os.remove(p)
+            log(f"removed {p}: an earlier run's metric map (this run writes none)")
+
+
+def other_runs_predictions(seq_path: str, hashes: dict[str, str],
+                           names=PREDICTION_STAGES) -> list[str]:
+    """The complete adapt predictions of ``seq_path`` (among ``names``) that were written with
+    other settings, another model or another sequence than the stage ``hashes`` say: their
+    paths. An interrupted file is not one (it is resumed or redone)."""
+    from staticdepth.dataset.framefile import is_complete
+    from staticdepth.dataset.h5 import SequenceReader
+    from staticdepth.dataset.predictions import prediction_path, store_dir
+
+    if not os.path.isdir(store_dir(seq_path)):
+        return []
+    paths = {n: prediction_path(seq_path, n) for n in names}
+    if not any(os.path.isfile(p) for p in paths.values()):
+        return []
+    with SequenceReader(seq_path) as r:
+        identity = r.sequence_id()
+    return [p for n, p in paths.items() if os.path.isfile(p)
+            and not is_complete(p, identity, hashes.get(PREDICTION_STAGES[n], ""))
+            and _finished(p)]
+
+
+def _finished(path: str) -> bool:
+    return _attr(path, "complete") is True
+
+
+def _attr(path: str, key: str):
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            v = f.attrs.get(key)
+            return v.item() if hasattr(v, "item") else v
+    except OSError:
+        return None
+
+
+def replaced_since(summary: dict[str, Any], seq_path: str) -> str | None:
+    """The first prediction ``summary`` lists that another run has written over since (its
+    stored ``config_hash`` is not the summary's for its stage), or None; also None for a
+    summary without stage hashes (written before they were kept)."""
+    from staticdepth.dataset.predictions import prediction_path
+
+    hashes = summary.get("stage_hashes")
+    if not isinstance(hashes, dict):
+        return None
+    for name in summary.get("predictions") or []:
+        stage = PREDICTION_STAGES.get(name)
+        p = prediction_path(seq_path, name) if stage else None
+        if p and os.path.isfile(p) and _attr(p, "config_hash") != hashes.get(stage):
+            return p
+    return None
 
 
 def default_summary_path(seq_path: str | os.PathLike) -> str:
@@ -243,6 +313,21 @@ def register(sub) -> None:
     train_builtin.register(sub)
 
 
+def refuse_other_runs(seq: str, conf) -> None:
+    """Predictions an earlier run wrote with other settings are replaced with ``--overwrite``
+    only: another ``--summary`` would leave the earlier summary describing maps that are gone."""
+    from staticdepth.adaptation.config import model_identity, stage_hashes
+
+    if not os.path.isfile(seq):
+        return                          # adapt names the missing or unreadable sequence
+    others = other_runs_predictions(seq, stage_hashes(conf, model_identity(conf.model)))
+    if others:
+        more = f" (and {len(others) - 1} more)" if len(others) > 1 else ""
+        raise InputError(f"holds an earlier adapt run's prediction{more}, written with other "
+                         "settings or another model; pass --overwrite to replace them",
+                         others[0])
+
+
 def run(args) -> int:
     from staticdepth.cli import refuse_existing, resolve_device
     from staticdepth.config import format_config
@@ -256,6 +341,8 @@ def run(args) -> int:
         raise InputError("no sequence given (a positional SEQ.h5 or 'sequence:' in the recipe)")
     refuse_existing(extras.get("summary") or default_summary_path(seq), extras.get("save_model"),
                     overwrite=args.overwrite)
+    if not args.overwrite:
+        refuse_other_runs(seq, conf)
     device = resolve_device(extras.get("device", args.device))
     summary = adapt(seq, conf, device=device, summary_path=extras.get("summary"),
                     save_model=extras.get("save_model"))

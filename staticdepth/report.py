@@ -200,7 +200,11 @@ def check_summaries(sequences: Mapping[str, str], summaries: Mapping[str, Mappin
     """A summary whose scene is no sequence's is an error; one whose ``"sequence"`` names another
     file than its scene's gets one warning line naming both (Table 2 would show that file's anchor
     depths). Only a warning: a run folder moved or copied as a whole keeps its old paths inside,
-    so a recorded path that no longer exists but has the same file name passes."""
+    so a recorded path that no longer exists but has the same file name passes. A summary of
+    the right sequence whose maps another adapt run has replaced since is an error: its Table 2
+    row and planes would be reported beside the other run's maps."""
+    from staticdepth.adapt import replaced_since
+
     unknown = sorted(set(summaries) - set(sequences))
     if unknown:
         raise InputError(f"--summary: no sequence labelled {', '.join(map(repr, unknown))}; the "
@@ -216,6 +220,10 @@ def check_summaries(sequences: Mapping[str, str], summaries: Mapping[str, Mappin
         if not same:
             warn(f"warning: the summary for {scene!r} was written for {recorded}, not for {seq}; "
                  "its anchor depths and planes are that sequence's")
+        elif (p := replaced_since(s, seq)) is not None:
+            raise InputError(f"an adapt run other than the one --summary gives for {scene!r} "
+                             "wrote this map since (other settings): give that run's summary, "
+                             "or none", p)
 
 
 def _file_stem(name: str) -> str:

@@ -207,3 +207,55 @@ def test_the_summary_counts_the_agents_labelled_pixels(tmp_path, tiny_model):
         agents = sum(int((r.instances(i) > 0).sum()) for i in r.split("adapt"))
         frame_pixels = len(r.split("adapt")) * r.width * r.height
     assert 0.5 * agents <= s["pseudo_label_agent_pixels"] <= agents < 0.3 * frame_pixels
+
+
+def test_another_summary_does_not_replace_an_earlier_runs_predictions(tmp_path, sequence,
+                                                                       tiny_model, capsys):
+    """A second run with other settings and another --summary replaced the first run's maps
+    without a word, leaving its summary describing predictions that were gone. It is refused
+    (one line naming a map) unless --overwrite; with it, a run whose metric maps are refused
+    removes the earlier run's instead of leaving them beside its own."""
+    from staticdepth.dataset.predictions import prediction_path
+
+    seq = _copy(sequence, tmp_path / "o.h5")
+    common = ["adapt", seq, "--model", f"builtin:{tiny_model}", "--detector", "gt",
+              "--epochs", "0", "--set", "tracking.min_height_px=8", "--device", "cpu"]
+    assert main([*common, "--summary", str(tmp_path / "a.json")]) == 0
+    a = json.load(open(tmp_path / "a.json"))
+    capsys.readouterr()
+
+    def hashes():
+        with SequenceReader(seq) as r:
+            return {n: r.prediction_attrs(n)["config_hash"] for n in r.predictions()}
+
+    first = hashes()
+    assert first == {n: a["stage_hashes"][s] for n, s in
+                     {"base": "base", "ft": "ft", "align": "align", "ft-align": "align",
+                      "align-metric": "scale", "ft-align-metric": "scale"}.items()}
+    other = [*common, "--set", "align.erode_px=4", "--summary", str(tmp_path / "b.json")]
+    assert main(other) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and prediction_path(seq, "align") in err[0]
+    assert "earlier adapt run" in err[0] and "--overwrite" in err[0]
+    assert hashes() == first and not (tmp_path / "b.json").exists()
+    # the same settings under another summary: every stage is up to date, nothing replaced
+    assert main([*common, "--summary", str(tmp_path / "c.json")]) == 0
+    assert hashes() == first
+    # --overwrite replaces them; metric maps refused: the earlier run's are removed
+    refused = [*other, "--set", "scale.max_rel_error=1e-9", "--overwrite"]
+    assert main(refused) == 0
+    b = json.load(open(tmp_path / "b.json"))
+    assert b["metric_refused"] and "align-metric" not in b["predictions"]
+    now = hashes()
+    assert set(now) == {"base", "ft", "align", "ft-align"}
+    assert now["base"] == first["base"] and now["align"] != first["align"]
+    assert now["align"] == b["stage_hashes"]["align"]
+    # report: a.json describes maps that b's run has replaced
+    out = tmp_path / "rep"
+    assert main(["report", f"o={seq}", "--summary", f"o={tmp_path / 'a.json'}", "--out",
+                 str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and prediction_path(seq, "align") in err[0] and "'o'" in err[0]
+    assert not out.exists()
+    assert main(["report", f"o={seq}", "--summary", f"o={tmp_path / 'b.json'}", "--out",
+                 str(out)]) == 0
