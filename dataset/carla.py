@@ -32,7 +32,8 @@ from staticdepth.dataset.h5 import SequenceMeta
 from staticdepth.dataset.pack import (AuxStream, LoadedFrame, list_frames, name_from_output,
                                       read_image, read_left_right, write_frames)
 from staticdepth.errors import InputError
-from staticdepth.geometry.camera import Camera, Mounting, StereoRig, read_json
+from staticdepth.geometry.camera import (Camera, Mounting, StereoRig, check_camera_height,
+                                         read_json)
 
 FAR_PLANE_M = 1000.0
 _DEPTH_SCALE = FAR_PLANE_M / (256.0 ** 3 - 1.0)
@@ -152,8 +153,7 @@ class CarlaSensor:
             raise InputError(f"sensor.json is malformed: {e}", path) from None
         if not 0 < fov < 180:
             raise InputError(f"fov must be within (0, 180) degrees, got {fov}", path)
-        if z <= 0:
-            raise InputError(f"camera height transform.location.z must be > 0, got {z}", path)
+        check_camera_height(z, "the camera height transform.location.z", path)
         base = d.get("baseline_m")
         tick = d.get("sensor_tick")
         if tick in (None, "", 0, "0", "0.0") and d.get("fps"):

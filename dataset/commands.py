@@ -2,11 +2,11 @@
 from __future__ import annotations
 
 import argparse
-import math
 import os
 
 from staticdepth.dataset import schema
 from staticdepth.errors import InputError
+from staticdepth.geometry.camera import check_camera_height
 
 
 def _writer_options(p: argparse.ArgumentParser, executors: bool = True) -> None:
@@ -125,16 +125,10 @@ def _write_with_executor(args: argparse.Namespace, write, *pos, **kw) -> int:
     return 0
 
 
-def _check_camera_height(value: float | None) -> None:
-    """Before any heavy work: a camera height is a positive, finite number of metres."""
-    if value is not None and not (math.isfinite(value) and value > 0):
-        raise InputError(f"--camera-height must be a positive number of metres, got {value:g}")
-
-
 def _import_kitti(args: argparse.Namespace) -> int:
     from staticdepth.dataset.kitti import import_kitti
 
-    _check_camera_height(args.camera_height)
+    check_camera_height(args.camera_height, "--camera-height")     # before any heavy work
     schema.check_name(args.name)
     return _write_with_executor(args, import_kitti, args.root, args.drives, args.out,
                                 name=args.name, adapt_frames=args.adapt_frames, right=args.right,
@@ -153,7 +147,8 @@ def _pack(args: argparse.Namespace) -> int:
     from staticdepth.cli import parse_overrides
     from staticdepth.dataset.pack import pack_recording
 
-    _check_camera_height(args.camera_height)
+    if args.camera_height is not None:
+        check_camera_height(args.camera_height, "--camera-height")
     schema.check_name(args.name)
     return _write_with_executor(args, pack_recording, args.recording, args.rig, args.out,
                                 camera_height_m=args.camera_height,

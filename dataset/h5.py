@@ -26,7 +26,7 @@ import numpy as np
 from staticdepth import __version__
 from staticdepth.dataset import schema
 from staticdepth.errors import InputError
-from staticdepth.geometry.camera import Camera, Mounting, StereoRig
+from staticdepth.geometry.camera import Camera, Mounting, StereoRig, check_camera_height
 
 try:  # Blosc-lz4 when hdf5plugin is importable, gzip otherwise (readable everywhere).
     import hdf5plugin
@@ -77,6 +77,9 @@ class SequenceMeta:
             raise InputError(f"adapt_frames must be >= 0, got {self.adapt_frames}")
         if self.camera_height_m is None and self.mounting is not None:
             object.__setattr__(self, "camera_height_m", self.mounting.height_m)
+        elif self.camera_height_m is not None:
+            object.__setattr__(self, "camera_height_m",
+                               check_camera_height(self.camera_height_m, "camera_height_m"))
 
     def to_attrs(self) -> dict[str, Any]:
         a: dict[str, Any] = {
@@ -101,6 +104,8 @@ class SequenceMeta:
             rig = StereoRig.from_dict(json.loads(attrs["rig"]), path) if "rig" in attrs else None
             mnt = Mounting.from_dict(json.loads(attrs["mounting"]), path) if "mounting" in attrs else None
             h = float(attrs.get("camera_height_m", np.nan))
+            if not np.isnan(h):
+                h = check_camera_height(h, "the camera_height_m attribute", path)
             return cls(name=str(attrs["name"]), camera=cam, gt_kind=str(attrs["gt_kind"]),
                        source=str(attrs["source"]), adapt_frames=int(attrs["adapt_frames"]),
                        rig=rig, mounting=mnt, camera_height_m=None if np.isnan(h) else h,

@@ -326,9 +326,11 @@ def pack_recording(recording: str | os.PathLike, rig_path: str | os.PathLike | N
     NaN where the stereo consistency check failed or beyond ``max_depth_m``. The first pair is
     checked first (:func:`check_rig_rectifies`) unless ``check_rectification`` is False.
     """
-    from staticdepth.geometry.camera import StereoRig
+    from staticdepth.geometry.camera import StereoRig, check_camera_height
     from staticdepth.stereo.pipeline import StereoConfig, StereoPipeline
 
+    if camera_height_m is not None:     # before any work
+        camera_height_m = check_camera_height(camera_height_m, "--camera-height")
     tasks, labels, rec_rig = recording_tasks(recording)
     if rig_path is not None:
         rig = StereoRig.load(rig_path)
@@ -349,8 +351,6 @@ def pack_recording(recording: str | os.PathLike, rig_path: str | os.PathLike | N
     if check_rectification:
         check_rig_rectifies(pipe, tasks, os.fspath(rig_path) if rig_path else
                             f"{os.fspath(recording)} (its rig)", skip_bad)
-    if camera_height_m is not None and not camera_height_m > 0:
-        raise InputError(f"--camera-height must be positive, got {camera_height_m}")
     tasks = [StereoTask(t.left, t.right, float(i) if t.timestamp is None else t.timestamp)
              for i, t in enumerate(tasks)]
     mounting = _rectified_mounting(rig, camera_height_m)

@@ -266,7 +266,10 @@ def config_from_args(args) -> tuple[Any, dict[str, Any]]:
     """(AdaptConfig, extras) from defaults < recipe < explicit flags < ``--set``."""
     from staticdepth.adaptation.config import build_config
     from staticdepth.config import parse_set
+    from staticdepth.geometry.camera import check_camera_height
 
+    if args.camera_height is not None:      # named as the option (the setting names its key)
+        check_camera_height(args.camera_height, "--camera-height")
     values: dict[str, Any] = recipe_settings(args.recipe) if args.recipe else {}
     flags = {"model": args.model, "detector": args.detector, "camera_height": args.camera_height,
              "epochs": args.epochs, "seed": args.seed, "sequence": args.sequence,

@@ -31,7 +31,7 @@ import numpy as np
 from staticdepth.errors import InputError
 from staticdepth.fileio import read_npy
 from staticdepth.geometry import load_camera
-from staticdepth.geometry.camera import read_json
+from staticdepth.geometry.camera import check_camera_height, read_json
 from staticdepth.geometry.scale import scale_from_anchor, temporal_scale
 from staticdepth.metrics import check_prediction
 from staticdepth.progress import progress
@@ -343,10 +343,10 @@ def _align_cmd(args: argparse.Namespace) -> int:
     if args.pred and args.out and not os.path.isdir(args.pred):
         check_writable(args.out)   # one map: a file (a folder of maps goes to a folder)
     refuse_existing(args.json, None if args.sequence else args.out, overwrite=args.overwrite)
-    plane = AgentPlane.from_dict(read_json(args.plane), args.plane)
+    if args.camera_height is not None:
+        check_camera_height(args.camera_height, "--camera-height")
+    plane = AgentPlane.from_dict(read_json(args.plane), args.plane)   # checks its camera_height_m
     height = args.camera_height if args.camera_height is not None else plane.camera_height_m
-    if height is not None and not height > 0:
-        raise InputError(f"camera height must be positive, got {height}")
     if args.ground_aux and not args.sequence:
         raise InputError("--ground-aux reads a sequence's per-frame maps: it needs --sequence")
     if args.pred and args.out:

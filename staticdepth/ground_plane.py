@@ -230,15 +230,17 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
     from staticdepth.cli import refuse_existing
     from staticdepth.fileio import check_writable
     from staticdepth.geometry.agent_plane import PRESETS
+    from staticdepth.geometry.camera import check_camera_height
 
     check_writable(args.out)
     refuse_existing(args.out, overwrite=args.overwrite)
     from staticdepth.config import check_ranges
 
     # the options as given, before any file is read (the config checks its settings again)
-    check_ranges(args, "", {"radius": ">=0", "agent_height": ">0", "camera_height": ">0",
-                            "column_weight": ">=0", "bootstrap": ">=0",
-                            "max_normal_std": ">0|inf"}, options=True)
+    check_ranges(args, "", {"radius": ">=0", "agent_height": ">0", "column_weight": ">=0",
+                            "bootstrap": ">=0", "max_normal_std": ">0|inf"}, options=True)
+    if args.camera_height is not None:
+        check_camera_height(args.camera_height, "--camera-height")
     if args.agent_height is not None and args.camera_height is not None:
         print("warning: --camera-height is given: --agent-height does not set the camera height "
               "(it only sets the exact model's body-to-height ratio)")

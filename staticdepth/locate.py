@@ -68,14 +68,18 @@ def plane_from_summary(summary: dict[str, Any], where: str) -> tuple[np.ndarray,
     if n is None or h is None:
         raise InputError("the summary has no ground plane (plane.normal) and camera height "
                          "(camera_height_m)", where)
-    return np.asarray(n, dtype=np.float64), float(h)
+    from staticdepth.geometry.camera import check_camera_height
+
+    return np.asarray(n, dtype=np.float64), check_camera_height(h, "camera_height_m", where)
 
 
 def load_plane(summary_path: str | None, plane_path: str | None, camera_height: float | None,
                seq_path: str) -> tuple[np.ndarray, float, str]:
     """(normal, camera height, what it came from); ``--camera-height`` overrides the summary's."""
-    from staticdepth.geometry.camera import read_json
+    from staticdepth.geometry.camera import check_camera_height, read_json
 
+    if camera_height is not None:
+        camera_height = check_camera_height(camera_height, "--camera-height")
     if plane_path:
         d = read_json(plane_path)
         if "normal" not in d:
@@ -84,13 +88,15 @@ def load_plane(summary_path: str | None, plane_path: str | None, camera_height: 
         if h is None:
             raise InputError("the plane JSON has no camera_height_m: give --camera-height",
                              plane_path)
-        return np.asarray(d["normal"], dtype=np.float64), float(h), f"plane {plane_path}"
+        if camera_height is None:
+            h = check_camera_height(h, "camera_height_m", plane_path)
+        return np.asarray(d["normal"], dtype=np.float64), h, f"plane {plane_path}"
     path = summary_path or f"{os.path.splitext(seq_path)[0]}.adapt.json"
     if not os.path.isfile(path):
         raise InputError("no adapt summary (run `staticdepth adapt` first, or give --summary, or "
                          "--plane with --camera-height)", path)
     n, h = plane_from_summary(read_json(path), path)
-    return n, (float(camera_height) if camera_height is not None else h), f"summary {path}"
+    return n, (camera_height if camera_height is not None else h), f"summary {path}"
 
 
 def metric_predictions(reader) -> list[str]:

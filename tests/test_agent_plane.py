@@ -280,7 +280,7 @@ def test_config_and_prior_errors():
         AgentPlaneConfig(radius_m=2.0)
     with pytest.raises(InputError, match="bootstrap must be a finite number >= 0"):
         AgentPlaneConfig(bootstrap=-1)
-    with pytest.raises(InputError, match="camera height must be positive"):
+    with pytest.raises(InputError, match=r"camera height \(given\) must be a height in metres"):
         plane.with_camera_height(-2.0, "given")
     with pytest.raises(InputError, match="missing the key 'normal'"):
         AgentPlane.from_dict({"horizon": [0, 1, 0]}, "p.json")

@@ -200,7 +200,7 @@ def test_bad_input(tmp_path, capsys):
     meta["fov"] = 90
     meta["transform"]["location"]["z"] = -1
     (src / "sensor.json").write_text(json.dumps(meta))
-    with pytest.raises(InputError, match="must be > 0"):
+    with pytest.raises(InputError, match=r"location.z must be a height in metres.*got -1.0"):
         import_carla(src, tmp_path / "x.h5")
     (src / "sensor.json").unlink()
     with pytest.raises(InputError, match="file not found") as e:

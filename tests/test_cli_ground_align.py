@@ -174,7 +174,7 @@ def test_align_command_errors(tmp_path, capsys):
              (["--ground-mask", str(tmp_path / "mask.png"), "--plane", str(tmp_path / "bad.json")],
               "missing the key 'normal'"),
              (["--ground-mask", str(tmp_path / "mask.png"), "--camera-height", "-1"],
-              "camera height must be positive")]
+              "--camera-height must be a height in metres in (0, 1000], got -1.0")]
     for extra, msg in cases:
         rc = main(base + extra)
         err = capsys.readouterr().err

@@ -193,7 +193,7 @@ def test_pack_bad_input(plain_recording, tmp_path, capsys):
         pack_recording(rec, None, tmp_path / "x.h5", overrides={"num_disparities": 32})
     with pytest.raises(InputError, match="unknown setting"):
         pack_recording(rec, rec / "rig.json", tmp_path / "x.h5", overrides={"bogus": "1"})
-    with pytest.raises(InputError, match="--camera-height must be positive"):
+    with pytest.raises(InputError, match=r"--camera-height must be a height in metres.*got -1.0"):
         pack_recording(rec, rec / "rig.json", tmp_path / "x.h5", camera_height_m=-1.0,
                        overrides={"num_disparities": 32})
     with pytest.raises(InputError, match="recording folder not found"):

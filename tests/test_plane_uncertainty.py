@@ -185,7 +185,7 @@ def test_a_given_camera_height_enters_the_fit():
     np.testing.assert_allclose(given.normal, told.normal, atol=1e-12)
     assert given.camera_height_m == s.height_m and given.camera_height_source == "given"
     assert angle_between_deg(told.normal, free.normal) > 0.01
-    with pytest.raises(Exception, match="known_height_m must be a positive"):
+    with pytest.raises(Exception, match=r"plane.known_height_m must be a height in metres"):
         AgentPlaneConfig(known_height_m=0.0)
     with pytest.raises(Exception, match="known_height_sd must be > 0"):
         AgentPlaneConfig(known_height_sd=0.0)

@@ -18,6 +18,7 @@ from staticdepth.errors import InputError
 from staticdepth.finetune import PRESETS as FINETUNE_PRESETS
 from staticdepth.finetune import FinetuneConfig
 from staticdepth.geometry.agent_plane import AgentPlaneConfig
+from staticdepth.geometry.camera import check_camera_height
 from staticdepth.pseudo_labels import PseudoLabelConfig
 from staticdepth.tracking import TrackingConfig
 
@@ -159,9 +160,8 @@ class ScaleConfig:
     def __post_init__(self):
         if self.metric_scale not in ("plane", "anchor"):
             raise InputError(f"metric_scale must be plane or anchor, got {self.metric_scale!r}")
-        h = self.camera_height_m
-        if h is not None and not (math.isfinite(h) and h > 0):
-            raise InputError(f"camera height must be a positive number of metres, got {h}")
+        if self.camera_height_m is not None:
+            check_camera_height(self.camera_height_m, "scale.camera_height_m")
         if not self.max_rel_error > 0:
             raise InputError(f"scale.max_rel_error must be > 0, got {self.max_rel_error}")
         a = self.agent_height_m

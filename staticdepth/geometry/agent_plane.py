@@ -56,7 +56,7 @@ from staticdepth.geometry.agent_plane_linear import (LINEAR_MODELS, fit_linear, 
                                                      plane_affine, plane_paper,
                                                      vertical_from_axes)
 from staticdepth.geometry.agent_walker import interpolate_one_foot
-from staticdepth.geometry.camera import pitch_roll_from_normal
+from staticdepth.geometry.camera import check_camera_height, pitch_roll_from_normal
 from staticdepth.geometry.plane import horizon_line
 from staticdepth.geometry.projection import rays_from_pixels
 
@@ -136,10 +136,8 @@ class AgentPlaneConfig:
             raise InputError(f"max_pitch_deg must be in (0, 90), got {self.max_pitch_deg}")
         if not (self.fit_column_weight >= 0 and math.isfinite(self.fit_column_weight)):
             raise InputError(f"column weight must be >= 0, got {self.column_weight}")
-        if self.known_height_m is not None and not (math.isfinite(self.known_height_m)
-                                                    and self.known_height_m > 0):
-            raise InputError(f"known_height_m must be a positive number of metres, got "
-                             f"{self.known_height_m}")
+        if self.known_height_m is not None:
+            check_camera_height(self.known_height_m, "plane.known_height_m")
         if not (math.isfinite(self.known_height_sd) and self.known_height_sd > 0):
             raise InputError(f"known_height_sd must be > 0, got {self.known_height_sd}")
 
@@ -223,9 +221,8 @@ class AgentPlane:
 
     def with_camera_height(self, height_m: float, source: str,
                            std_m: float = float("nan")) -> "AgentPlane":
-        if not (math.isfinite(height_m) and height_m > 0):
-            raise InputError(f"camera height must be positive, got {height_m}")
-        return replace(self, camera_height_m=float(height_m), camera_height_source=source,
+        height_m = check_camera_height(height_m, f"the camera height ({source})")
+        return replace(self, camera_height_m=height_m, camera_height_source=source,
                        camera_height_std_m=float(std_m))
 
     def to_dict(self) -> dict[str, Any]:
@@ -266,7 +263,8 @@ class AgentPlane:
                        int(d.get("n_observations", 0)),
                        float(unc.get("normal_std_deg") or float("nan")),
                        float(unc.get("d_over_agent_height_std") or float("nan")),
-                       None if h is None else float(h), d.get("camera_height_source"),
+                       None if h is None else check_camera_height(h, "camera_height_m", source),
+                       d.get("camera_height_source"),
                        {"extents": d["extents"]} if "extents" in d else {},
                        float(unc.get("camera_height_std_m") or float("nan")),
                        {k: float(unc[k]) for k in UNCERTAINTY_PARTS if unc.get(k) is not None})

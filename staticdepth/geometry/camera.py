@@ -173,6 +173,32 @@ def pitch_roll_from_normal(n) -> tuple[float, float]:
     return pitch, roll
 
 
+MAX_CAMERA_HEIGHT_M = 1000.0
+
+
+def check_camera_height(value: Any, what: str = "camera height",
+                        path: str | os.PathLike | None = None) -> float:
+    """``value`` as a camera height in metres (a float), the one check of every place that takes
+    one: a finite number in (0, :data:`MAX_CAMERA_HEIGHT_M`]. A fixed camera more than 1 km above
+    the scene does not watch agents on a ground plane (a person would be a pixel or two tall), so a
+    larger value is a mistake (a unit, a typo) that would only give nonsense downstream.
+
+    Otherwise one :class:`InputError` naming ``what`` (the option or key), the value and the range,
+    with ``path`` (the file it came from) where there is one.
+    """
+    try:
+        h, got = float(value), None
+    except (TypeError, ValueError):
+        h, got = float("nan"), repr(value)
+    if isinstance(value, bool):       # not a number, though float() reads it
+        got = repr(value)
+    if got is not None or not (math.isfinite(h) and 0 < h <= MAX_CAMERA_HEIGHT_M):
+        got = h if got is None else got
+        raise InputError(f"{what} must be a height in metres in (0, {MAX_CAMERA_HEIGHT_M:g}], "
+                         f"got {got}", path)
+    return h
+
+
 @dataclass(frozen=True, eq=False)
 class Mounting:
     """Where the camera sits over the ground: the plane ``normal . P = height_m`` (camera frame)."""
@@ -186,9 +212,8 @@ class Mounting:
         if n.shape != (3,) or not np.all(np.isfinite(n)) or np.linalg.norm(n) < 1e-12:
             raise InputError("mounting normal must be a finite non-zero 3-vector")
         object.__setattr__(self, "normal", _arr(n / np.linalg.norm(n), (3,), "normal"))
-        if not (math.isfinite(self.height_m) and self.height_m > 0):
-            raise InputError(f"camera height must be positive, got {self.height_m}")
-        object.__setattr__(self, "height_m", float(self.height_m))
+        object.__setattr__(self, "height_m", check_camera_height(self.height_m,
+                                                                 "mounting height_m"))
 
     @classmethod
     def from_pitch_roll(cls, height_m: float, pitch_deg: float, roll_deg: float = 0.0,
@@ -210,9 +235,10 @@ class Mounting:
     @classmethod
     def from_dict(cls, d: Mapping[str, Any], source: str | None = None) -> "Mounting":
         try:
+            h = check_camera_height(d["height_m"], "mounting height_m", source)
             if "normal" in d:
-                return cls(float(d["height_m"]), d["normal"], d.get("source", "unknown"))
-            return cls.from_pitch_roll(float(d["height_m"]), float(d["pitch_deg"]),
+                return cls(h, d["normal"], d.get("source", "unknown"))
+            return cls.from_pitch_roll(h, float(d["pitch_deg"]),
                                        float(d.get("roll_deg", 0.0)), d.get("source", "unknown"))
         except KeyError as e:
             raise InputError(f"mounting is missing the key {e.args[0]!r}", source) from None

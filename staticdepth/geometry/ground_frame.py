@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from staticdepth.errors import InputError
+from staticdepth.geometry.camera import check_camera_height
 from staticdepth.geometry.projection import rays_from_pixels
 
 
@@ -29,9 +30,7 @@ def _plane(n, d: float) -> tuple[np.ndarray, float]:
     s = np.linalg.norm(n)
     if not (np.all(np.isfinite(n)) and s > 1e-12):
         raise InputError(f"the ground normal must be a finite non-zero 3-vector, got {n}")
-    if not (np.isfinite(d) and d > 0):
-        raise InputError(f"the camera height must be positive, got {d}")
-    return n / s, float(d)
+    return n / s, check_camera_height(d, "the camera height")
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from staticdepth.errors import InputError
+from staticdepth.geometry.camera import check_camera_height
 from staticdepth.geometry.projection import rays_from_pixels
 
 
@@ -23,10 +24,10 @@ def anchor_pixel(width: int, height: int) -> tuple[float, float]:
 def anchor_depth(K: np.ndarray, normal, camera_height_m: float, u: float, v: float) -> float:
     """Depth (m) of the ground seen at pixel (u, v): ``H_c / (n . K^-1 [u, v, 1])``.
 
-    Raises when the pixel looks above the horizon (n . r <= 0) or the height is not positive.
+    Raises when the pixel looks above the horizon (n . r <= 0) or the height is not one
+    (:func:`~staticdepth.geometry.camera.check_camera_height`).
     """
-    if not camera_height_m > 0:
-        raise InputError(f"camera height must be positive, got {camera_height_m}")
+    camera_height_m = check_camera_height(camera_height_m)
     nr = float(rays_from_pixels(K, u, v) @ np.asarray(normal, dtype=np.float64))
     if nr <= 1e-9:
         raise InputError(f"the anchor pixel ({u:g}, {v:g}) looks above the ground's horizon")
@@ -36,8 +37,7 @@ def anchor_depth(K: np.ndarray, normal, camera_height_m: float, u: float, v: flo
 def anchor_depth_parallel(K: np.ndarray, camera_height_m: float, v: float) -> float:
     """The parallel-camera baseline ``f_y H_c / (v - c_y)``; raises for v <= c_y."""
     K = np.asarray(K, dtype=np.float64)
-    if not camera_height_m > 0:
-        raise InputError(f"camera height must be positive, got {camera_height_m}")
+    camera_height_m = check_camera_height(camera_height_m)
     if v <= K[1, 2]:
         raise InputError(f"row {v:g} is not below the principal point (c_y = {K[1, 2]:g}): a "
                          "parallel camera sees no ground there")
