@@ -268,9 +268,14 @@ def test_dotted_settings_and_fail_fast(tmp_path, clip, tiny, capsys):
              (["--set", "tracking.min_heigt_px=8"], "did you mean 'tracking.min_height_px'?"),
              (["--set", "detector_model=x.onnx"], "did you mean 'detector.model'?"),
              (["--epochs", "-1"], "finetune.epochs must be a finite number >= 0, got -1"),
-             (["--camera-height", "0"], "camera height must be a positive number"),
-             (["--camera-height", "-2"], "camera height must be a positive number"),
-             (["--camera-height", "nan"], "scale.camera_height_m': NaN is no value"),
+             (["--camera-height", "0"], "--camera-height must be a height in metres in "
+                                         "(0, 1000], got 0.0"),
+             (["--camera-height", "-2"], "--camera-height must be a height in metres in "
+                                          "(0, 1000], got -2.0"),
+             (["--camera-height", "5000"], "--camera-height must be a height in metres in "
+                                            "(0, 1000], got 5000.0"),
+             (["--camera-height", "nan"], "--camera-height must be a height in metres in "
+                                           "(0, 1000], got nan"),
              (["--set", "finetune.layers=neck"], "has no layer group 'neck'"),
              (["--detector", "yolox"], "weights were not found"),
              (["--set", "detector.name=yolo"], "unknown detector 'yolo'"),
