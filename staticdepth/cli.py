@@ -227,6 +227,12 @@ OUTPUT_DESTS = ("out", "json", "camera_out", "disparity_out", "summary_json", "b
 # read and written on purpose: ``mount --rig rig.json --out rig.json`` adds the mount to the rig
 IN_PLACE = {("mount", "out", "rig")}
 NEITHER = ("checkpoint", "func", "command", "set", "var")   # resumed from and written; not paths
+# the outputs that are HDF5 files (sequences): no other output replaces an existing HDF5 file,
+# even with --overwrite (``metrics --json seq.h5 --overwrite`` replaced a sequence with JSON)
+HDF5_OUTPUTS = {("synth", "out"), ("pack", "out"), ("import-kitti", "out"),
+                ("import-carla", "out"), ("import-video", "out"), ("stereo", "out")}
+# a sequence's companions, read with it: its prediction store and adapt's stage files
+COMPANIONS = (".pred", ".adapt")
 
 
 def _flag(dest: str) -> str:
@@ -245,11 +251,35 @@ def _same(a: str, b: str) -> bool:
         return os.path.realpath(a) == os.path.realpath(b)
 
 
+def _companion(out: str, seq: str) -> str | None:
+    """The companion folder (``SEQ.pred``, ``SEQ.adapt``) of the file ``seq`` that holds the
+    path ``out``, else None."""
+    if not os.path.isfile(seq):
+        return None
+    real = os.path.realpath(out)
+    for suffix in COMPANIONS:
+        folder = os.path.realpath(seq) + suffix
+        if real == folder or real.startswith(folder + os.sep):
+            return os.fspath(seq) + suffix + os.sep
+    return None
+
+
+def _is_hdf5(path: str) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(8) == b"\x89HDF\r\n\x1a\n"
+    except OSError:                     # a folder, or unreadable: the command says what is wrong
+        return False
+
+
 def refuse_output_over_input(args: argparse.Namespace) -> None:
     """Refuse, before any work, an output that is also one of the command's inputs or another
     output (``evaluate seq.h5 --json seq.h5 --overwrite`` replaced the sequence with JSON): one
     line naming the file and both options. Existing files are compared with ``samefile`` (links,
-    relative paths), names not yet written by their real path."""
+    relative paths), names not yet written by their real path. Also refused: an output inside an
+    input sequence's prediction store or stage folder (``evaluate SEQ --json
+    SEQ.pred/base.h5``), and an existing HDF5 file under any output but a sequence writer's
+    (``metrics --json other.h5`` replaced a sequence the command does not read)."""
     outs = [(d, p) for d in OUTPUT_DESTS for p in _path_values(getattr(args, d, None))]
     ins = [(d, p) for d, v in vars(args).items()
            if d not in OUTPUT_DESTS and d not in NEITHER for p in _path_values(v)
@@ -258,6 +288,12 @@ def refuse_output_over_input(args: argparse.Namespace) -> None:
         for other, p in outs[k + 1:]:
             if _same(out, p):
                 raise InputError(f"{_flag(dest)} and {_flag(other)} name the same file", out)
+        for src, p in ins:
+            folder = _companion(out, p)
+            if folder:
+                raise InputError(f"{_flag(dest)} lies in {folder}, a folder of this "
+                                 f"command's input ({src.replace('_', '-')}) that it reads: "
+                                 "choose another output", out)
         if not os.path.exists(out):
             continue
         for src, p in ins:
@@ -265,6 +301,10 @@ def refuse_output_over_input(args: argparse.Namespace) -> None:
                 raise InputError(f"{_flag(dest)} names this command's input "
                                  f"({src.replace('_', '-')}): writing it would destroy the input; "
                                  "choose another output", out)
+        if (args.command, dest) not in HDF5_OUTPUTS and _is_hdf5(out):
+            raise InputError(f"{_flag(dest)} names an HDF5 file (a sequence or a prediction?), "
+                             "which this command does not write: even with --overwrite it is "
+                             "not replaced; choose another output", out)
 
 
 def _add_trust_model_arguments(parser: argparse.ArgumentParser) -> None:

@@ -211,3 +211,37 @@ def test_evaluate_refuses_to_write_its_json_over_the_sequence(tmp_path, capsys):
         assert main([*cmd, "--json", str(seq), "--overwrite"]) == 2
         assert "names this command's input" in capsys.readouterr().err
     assert seq.read_bytes() == before
+
+
+def test_no_output_replaces_a_sequences_files_even_with_overwrite(tmp_path, capsys):
+    """``evaluate SEQ --json SEQ.pred/base.h5 --overwrite`` replaced a stored prediction (an input
+    the command reads through the sequence) with JSON, and ``metrics --json other.h5
+    --overwrite`` a sequence it does not even read: an output in a sequence input's own folders,
+    or over an HDF5 file of a command that writes none, is refused in one line, the file kept.
+    A sequence writer still replaces its own kind of file with --overwrite."""
+    from staticdepth.dataset.h5 import add_prediction
+
+    seq, other = tmp_path / "s.h5", tmp_path / "o.h5"
+    for p in (seq, other):
+        assert main(["synth", "--preset", "c1", "--frames", "3", "--adapt-frames", "1", "--set",
+                     "width=96", "--set", "height=48", "--out", str(p)]) == 0
+    add_prediction(seq, "base", [np.ones((48, 96), np.float32)] * 3)
+    base = tmp_path / "s.h5.pred" / "base.h5"
+    (tmp_path / "s.h5.adapt").mkdir()
+    np.save(tmp_path / "p.npy", np.ones((4, 4), np.float32))
+    np.save(tmp_path / "g.npy", np.full((4, 4), 2.0, np.float32))
+    cases = [(["evaluate", str(seq), "--json", str(base)], base, "a folder of this command's input (sequence)"),
+             (["evaluate", str(seq), "--json", str(tmp_path / "s.h5.adapt" / "e.json")],
+              tmp_path / "s.h5.adapt" / "e.json", "a folder of this command's input (sequence)"),
+             (["metrics", "--pred", str(tmp_path / "p.npy"), "--gt", str(tmp_path / "g.npy"),
+               "--json", str(other)], other, "names an HDF5 file")]
+    for argv, victim, msg in cases:
+        before = victim.read_bytes() if victim.exists() else None
+        capsys.readouterr()
+        assert main([*argv, "--overwrite"]) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and msg in err and str(victim) in err, err
+        assert (victim.read_bytes() if victim.exists() else None) == before
+    assert main(["evaluate", str(seq)]) == 0                       # the prediction still reads
+    assert main(["synth", "--preset", "c1", "--frames", "2", "--adapt-frames", "1", "--set",
+                 "width=64", "--set", "height=32", "--out", str(other), "--overwrite"]) == 0
