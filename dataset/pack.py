@@ -30,7 +30,7 @@ import numpy as np
 from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
 from staticdepth.errors import InputError
 # the toolkit's one image reader; the importers import it from here too
-from staticdepth.fileio import read_image, read_rgb  # noqa: F401
+from staticdepth.fileio import read_image, read_rgb, sorted_frames  # noqa: F401
 from staticdepth.progress import progress
 
 
@@ -54,11 +54,12 @@ def read_left_right(left_path: str | os.PathLike, right_path: str | os.PathLike 
 
 
 def list_frames(folder: str | os.PathLike, ext: str = ".png") -> list[str]:
-    """Sorted file names (not paths) with extension ``ext`` in ``folder`` (which must exist)."""
+    """File names (not paths) with extension ``ext`` in ``folder`` (which must exist), in frame
+    order (:func:`~staticdepth.fileio.sorted_frames`: ``2.png`` before ``10.png``)."""
     folder = os.fspath(folder)
     if not os.path.isdir(folder):
         raise InputError("folder not found", folder)
-    return sorted(n for n in os.listdir(folder) if n.lower().endswith(ext))
+    return sorted_frames(n for n in os.listdir(folder) if n.lower().endswith(ext))
 
 
 def match_streams(streams: Mapping[str, Sequence[str]], where: str) -> list[str]:
@@ -68,10 +69,10 @@ def match_streams(streams: Mapping[str, Sequence[str]], where: str) -> list[str]
     missing frame so that a user can find it.
     """
     stems = {k: [os.path.splitext(n)[0] for n in v] for k, v in streams.items()}
-    common = sorted(set.intersection(*(set(s) for s in stems.values())))
+    common = sorted_frames(set.intersection(*(set(s) for s in stems.values())))
     for k, s in stems.items():
         if len(s) != len(common):
-            extra = sorted(set(s) - set(common))
+            extra = sorted_frames(set(s) - set(common))
             raise InputError(f"mismatched frame counts: {k} has {len(s)} frames, the frames common "
                              f"to all streams are {len(common)} (e.g. {extra[0]!r} has no partner)",
                              where)

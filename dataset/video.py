@@ -31,7 +31,7 @@ from typing import Iterator
 import numpy as np
 
 from staticdepth.errors import InputError
-from staticdepth.fileio import IMAGE_EXTS
+from staticdepth.fileio import IMAGE_EXTS, sorted_frames
 DEFAULT_FOV_DEG = 60.0
 
 
@@ -64,8 +64,8 @@ def _to_rgb(img: np.ndarray, where: str) -> np.ndarray:
 
 
 def image_files(folder: str) -> list[str]:
-    files = sorted(f for f in glob.glob(os.path.join(folder, "*"))
-                   if f.lower().endswith(IMAGE_EXTS) and os.path.isfile(f))
+    files = sorted_frames(f for f in glob.glob(os.path.join(glob.escape(folder), "*"))
+                          if f.lower().endswith(IMAGE_EXTS) and os.path.isfile(f))
     if not files:
         raise InputError(f"no images ({', '.join(IMAGE_EXTS)}) in the folder", folder)
     return files

@@ -17,6 +17,8 @@ Every command that writes a file goes through here:
   :class:`InputError` naming it) and :func:`read_rgb` gives an 8-bit colour image as RGB; every
   command reads images through these two (the dataset importers, ``stereo``, ``calibrate``,
   ``capture``'s replay, masks).
+- :func:`sorted_frames` is the one order of frame files listed from a folder (numbers by value:
+  ``2.png`` before ``10.png``).
 - :func:`os_error` turns an ``OSError`` into an :class:`InputError` naming the path and the
   problem (disk full, read-only, permission denied, is a folder, ...).
 """
@@ -52,6 +54,25 @@ _PROBLEMS = {
 # the file names the toolkit reads as images and as videos (folders, globs, inputs)
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm", ".webp")
 VIDEO_EXTS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v")
+
+_DIGITS_RE = re.compile(r"(\d+)")
+
+
+def frame_order_key(name: str) -> tuple:
+    """The sort key of frame files: numbers inside a name compare by value, the rest as text.
+
+    ``1.png, 2.png, 10.png`` keep that order (plain ``sorted`` gives 1, 10, 2); zero-padded names
+    (``00000009.png, 00000010.png``, what ``capture`` writes) keep theirs. The key is a total
+    order: text and numbers alternate at fixed positions (``re.split`` with a group), so keys
+    always compare, and equal values (``7`` and ``007``) fall back to the text of the number."""
+    parts = _DIGITS_RE.split(os.fspath(name))
+    return tuple((int(p), p) if i % 2 else p for i, p in enumerate(parts))
+
+
+def sorted_frames(names) -> list:
+    """The one frame order: ``names`` (file names or paths) sorted by :func:`frame_order_key`.
+    Every listing of frames from a folder or a glob goes through it."""
+    return sorted(names, key=frame_order_key)
 
 
 def os_error(e: OSError, path: str | os.PathLike | None = None) -> InputError:

@@ -218,3 +218,14 @@ def test_synthetic_source_validates_and_can_be_lost():
         SyntheticSource(8, 8)
     with SyntheticSource(32, 16, lost_after=2) as s, pytest.raises(SourceLost):
         list(s.frames())
+
+
+def test_replay_folder_pairs_unpadded_numbers_in_numeric_order(tmp_path):
+    """left/1.png, 2.png, 10.png replay as frames 1, 2, 10 (plain sorting gave 1, 10, 2)."""
+    for side in ("left", "right"):
+        (tmp_path / side).mkdir()
+        for i in (10, 1, 2):
+            cv2.imwrite(str(tmp_path / side / f"{i}.png"), np.full((4, 6), i, np.uint8))
+    with open_replay(tmp_path) as rs:
+        got = [int(f.left[0, 0].max()) for f in rs.frames()]
+    assert got == [1, 2, 10]

@@ -143,3 +143,21 @@ def test_write_image_is_the_one_image_writer(tmp_path):
     assert r.returncode == 2 and "file too large" in r.stdout, r.stdout + r.stderr
     assert out.read_bytes() == b"old"
     assert sorted(os.listdir(tmp_path)) == ["a.png", "big.png", "d.png"]
+
+
+def test_frames_are_listed_in_numeric_order_deterministically():
+    """One frame order (sorted_frames): numbers by value, zero padding kept, any names ordered."""
+    import random
+
+    from staticdepth.fileio import sorted_frames
+
+    assert sorted_frames(["10.png", "2.png", "1.png"]) == ["1.png", "2.png", "10.png"]
+    padded = [f"{i:08d}.png" for i in (0, 9, 10, 99, 100, 12345)]
+    assert sorted_frames(reversed(padded)) == padded                 # what capture writes
+    assert sorted_frames(["d/f_10.png", "d/f_9.png", "d/f_007.png"]) == [
+        "d/f_007.png", "d/f_9.png", "d/f_10.png"]                    # padded and unpadded mixed
+    names = ["b.png", "a.png", "007.png", "7.png", "x2y10.png", "x2y9.png", "x.png", "A.png", ""]
+    want = ["", "007.png", "7.png", "A.png", "a.png", "b.png", "x2y9.png", "x2y10.png", "x.png"]
+    for seed in range(5):                                            # a total order: no ties
+        random.Random(seed).shuffle(names)
+        assert sorted_frames(names) == want

@@ -1,5 +1,7 @@
 """Packing stereo recordings: stored depth equals the stereo pipeline's, executors agree, resume."""
 
+import os
+
 import cv2
 import numpy as np
 import pytest
@@ -279,3 +281,19 @@ def test_pack_accepts_the_skip_rectification_check_its_error_suggests(swapped_re
     assert not (tmp_path / "T.h5").exists()
     assert main(argv + ["--skip-rectification-check"]) == 0
     assert "wrote 2 frames" in capsys.readouterr().out
+
+
+def test_plain_recording_frames_are_in_numeric_order(tmp_path):
+    """left/1.png, 2.png, 10.png are packed as frames 1, 2, 10 (plain sorting gave 1, 10, 2),
+    paired with their timestamps in that order."""
+    from staticdepth.dataset.pack import recording_tasks
+
+    for side in ("left", "right"):
+        (tmp_path / side).mkdir()
+        for i in (10, 1, 2):
+            (tmp_path / side / f"{i}.png").write_bytes(b"")
+    (tmp_path / "timestamps.csv").write_text("frame,timestamp_s\n1,0.1\n2,0.2\n10,1.0\n")
+    tasks, labels, _ = recording_tasks(tmp_path)
+    assert labels == ["1", "2", "10"]
+    assert [os.path.basename(t.left) for t in tasks] == ["1.png", "2.png", "10.png"]
+    assert [t.timestamp for t in tasks] == [0.1, 0.2, 1.0]

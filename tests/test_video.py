@@ -254,3 +254,14 @@ def test_ctrl_c_names_the_partial_and_how_to_resume(tmp_path, monkeypatch, capsy
     assert main(["import-video", str(src), "--out", str(out), "--resume"]) == 0
     with SequenceReader(out) as r:
         assert len(r) == 12
+
+
+def test_a_folder_of_unpadded_numbers_is_read_in_numeric_order(tmp_path):
+    """1.png, 2.png, 10.png are frames 1, 2, 10 (plain sorting read 1, 10, 2)."""
+    d = tmp_path / "imgs"
+    d.mkdir()
+    for i in (1, 2, 10, 11, 3):
+        cv2.imwrite(str(d / f"{i}.png"), np.full((48, 64, 3), 20 * i, np.uint8))
+    import_video(str(d), str(tmp_path / "f.h5"), fov_deg=60.0, fps=1.0)
+    with SequenceReader(tmp_path / "f.h5") as r:
+        assert [int(r.left(k).mean()) for k in range(len(r))] == [20, 40, 60, 200, 220]

@@ -3,7 +3,7 @@
 So that everything downstream of capture runs on recorded data:
 - :class:`RecordingSource`: a folder written by ``staticdepth capture`` (timestamps and rig kept);
 - :class:`FolderSource`: two image folders or glob patterns (``left/``, ``right/``, or
-  ``DIR/left*.png`` and ``DIR/right*.png``), paired by sorted name, stamped ``k / fps``;
+  ``DIR/left*.png`` and ``DIR/right*.png``), paired in frame order, stamped ``k / fps``;
 - :class:`VideoSource`: two video files, or one side-by-side video (left half, right half).
 Use lossless inputs for stereo matching; a lossy video replays, but its artefacts reach matching.
 :func:`open_replay` picks the right one for a path.
@@ -25,7 +25,7 @@ from staticdepth.capture.sources.base import SourceError, StereoFrame, StereoSou
 from staticdepth.errors import InputError
 from staticdepth.geometry.camera import StereoRig
 
-IMAGE_EXTENSIONS = (".png", ".pgm", ".ppm", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg")
+IMAGE_EXTENSIONS = fileio.IMAGE_EXTS   # the toolkit's one list of image suffixes
 DEFAULT_FPS = 30.0
 
 
@@ -86,11 +86,11 @@ def _list_images(spec: str | os.PathLike) -> list[str]:
                  if n.lower().endswith(IMAGE_EXTENSIONS)]
     else:
         files = [f for f in glob.glob(spec) if f.lower().endswith(IMAGE_EXTENSIONS)]
-    return sorted(files)
+    return fileio.sorted_frames(files)   # 2.png before 10.png
 
 
 class FolderSource(StereoSource):
-    """Two image folders (or glob patterns), paired by sorted file name, stamped ``k / fps``."""
+    """Two image folders (or glob patterns), paired in frame order (numbers in names by value), stamped ``k / fps``."""
 
     kind = "folder"
 
