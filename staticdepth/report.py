@@ -254,15 +254,18 @@ def _pairs(items: Sequence[str]) -> dict[str, str]:
     return out
 
 
-def report_outputs(scenes: Sequence[str], out_dir: str | os.PathLike) -> list[str]:
-    """The files a report of ``scenes`` writes into ``out_dir`` that are there already: the tables
-    (``tables.md``, ``tables_N.csv``) and each scene's HTML."""
+def report_outputs(out_dir: str | os.PathLike) -> list[str]:
+    """The report files in ``out_dir`` already: the tables (``tables.md``, ``tables_N.csv``) and
+    every scene's HTML (``report_*.html``). A folder holds one report: those of an earlier run
+    are refused without ``--overwrite`` and, with it, replaced or removed (a page of a scene no
+    longer reported, or tables a run without ground truth does not write, would be read as this
+    run's)."""
     import glob
 
-    out_dir = os.fspath(out_dir)
+    out_dir = glob.escape(os.fspath(out_dir))
     paths = [os.path.join(out_dir, "tables.md"),
-             *sorted(glob.glob(os.path.join(glob.escape(out_dir), "tables_*.csv"))),
-             *(os.path.join(out_dir, f"report_{_file_stem(s)}.html") for s in scenes)]
+             *sorted(glob.glob(os.path.join(out_dir, "tables_*.csv"))),
+             *sorted(glob.glob(os.path.join(out_dir, "report_*.html")))]
     return [p for p in paths if os.path.lexists(p)]
 
 
@@ -271,8 +274,8 @@ def _report_cmd(args: argparse.Namespace) -> int:
     from staticdepth.geometry.camera import read_json
 
     seqs = _pairs(args.sequences)
-    if os.path.isdir(args.out):
-        refuse_existing(*report_outputs(list(seqs), args.out), overwrite=args.overwrite)
+    earlier = report_outputs(args.out) if os.path.isdir(args.out) else []
+    refuse_existing(*earlier, overwrite=args.overwrite)
     summaries = {scene: read_json(p) for scene, p in _pairs(args.summary).items()}
     res = build_report(seqs, args.out, summaries)
     for t in res["tables"]:
@@ -280,4 +283,9 @@ def _report_cmd(args: argparse.Namespace) -> int:
         print()
     for p in res["paths"]:
         print(f"wrote {p}")
+    written = {os.path.realpath(p) for p in res["paths"]}
+    for p in earlier:
+        if os.path.realpath(p) not in written and os.path.lexists(p):
+            os.remove(p)
+            print(f"removed {p} (an earlier report's)")
     return 0

@@ -66,3 +66,26 @@ def test_no_ground_truth_says_why_there_are_no_tables(tmp_path, capsys):
     notes = [ln for ln in capsys.readouterr().out.splitlines() if "no tables" in ln]
     assert len(notes) == 1 and "ground truth" in notes[0], notes
     assert sorted(p.name for p in out.iterdir()) == ["report_site.html"]
+
+
+def test_a_report_folder_holds_one_report(tmp_path, capsys):
+    """``report --overwrite`` into a folder left an earlier run's pages of other scenes and, when
+    the new run wrote no tables (no ground truth), the earlier run's tables beside its own page.
+    Every earlier report file is refused without --overwrite and replaced or removed with it."""
+    a, b = _sequence(tmp_path / "a.h5"), _sequence(tmp_path / "b.h5", gt=False)
+    out = tmp_path / "R"
+    assert main(["report", f"D1={a}", "--out", str(out)]) == 0
+    first = sorted(p.name for p in out.iterdir())
+    assert first == ["report_D1.html", "tables.md", "tables_1.csv", "tables_2.csv",
+                     "tables_3.csv", "tables_4.csv"]
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    capsys.readouterr()
+    assert main(["report", f"S={b}", "--out", str(out)]) == 2          # another scene: refused
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "exists already; pass --overwrite" in err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert main(["report", f"S={b}", "--out", str(out), "--overwrite"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["report_S.html"]
+    (out / "notes.txt").write_text("mine")                      # not a report file: kept
+    assert main(["report", f"D2={a}", "--out", str(out), "--overwrite"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt", "report_D2.html", *first[1:]]
