@@ -11,8 +11,9 @@ from staticdepth.geometry.camera import check_camera_height
 
 def _writer_options(p: argparse.ArgumentParser, executors: bool = True) -> None:
     p.add_argument("--out", required=True, help="output sequence file (.h5)")
-    p.add_argument("--adapt-frames", type=int, default=0,
-                   help="the first N frames form the adaptation split, the rest the evaluation")
+    p.add_argument("--adapt-frames", type=int, default=None,
+                   help="the first N >= 1 frames form the adaptation split, the rest the "
+                        "evaluation (default: none, every frame is for evaluation)")
     p.add_argument("--skip-bad", action="store_true",
                    help="skip unreadable frames (listed and counted) instead of stopping")
     p.add_argument("--resume", action="store_true",
@@ -22,7 +23,8 @@ def _writer_options(p: argparse.ArgumentParser, executors: bool = True) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="replace outputs that exist already (refused otherwise)")
     if executors:
-        p.add_argument("--workers", type=int, default=1, help="local worker processes")
+        p.add_argument("--workers", type=int, default=1,
+                       help="local worker processes (1 to 256)")
         p.add_argument("--executor", default="serial", choices=("serial", "process", "ray"),
                        help="where frames are processed (same file either way)")
         p.add_argument("--address", default=None,
@@ -108,17 +110,19 @@ def register(sub) -> None:
 
 
 def _write_with_executor(args: argparse.Namespace, write, *pos, **kw) -> int:
-    """Run a writer (``import_kitti``, ``import_carla``, ``pack_recording``) with the executor the
-    options ask for, close the executor, print the report."""
+    """Check the writer options (before any work), run a writer (``import_kitti``,
+    ``import_carla``, ``pack_recording``) with the executor they ask for, close the executor,
+    print the report."""
     from staticdepth.dataset.executors import make_executor
     from staticdepth.dataset.pack import format_report
 
     if args.resume and args.restart:
         raise InputError("give --resume or --restart, not both")
-    ex = make_executor(args.executor, args.workers, args.address)
+    schema.check_adapt_frames(args.adapt_frames, schema.ADAPT_NONE)
+    ex = make_executor(args.executor, args.workers, args.address)    # checks --workers
     try:
         rep = write(*pos, skip_bad=args.skip_bad, resume=args.resume, overwrite=args.overwrite,
-                    executor=ex, restart=args.restart, **kw)
+                    executor=ex, restart=args.restart, adapt_frames=args.adapt_frames or 0, **kw)
     finally:
         ex.close()
     print(format_report(rep))
@@ -131,7 +135,7 @@ def _import_kitti(args: argparse.Namespace) -> int:
     check_camera_height(args.camera_height, "--camera-height")     # before any heavy work
     schema.check_name(args.name)
     return _write_with_executor(args, import_kitti, args.root, args.drives, args.out,
-                                name=args.name, adapt_frames=args.adapt_frames, right=args.right,
+                                name=args.name, right=args.right,
                                 depth_maps=args.depth_maps, camera_height_m=args.camera_height)
 
 
@@ -140,7 +144,7 @@ def _import_carla(args: argparse.Namespace) -> int:
 
     schema.check_name(args.name)
     return _write_with_executor(args, import_carla, args.dir, args.out, name=args.name,
-                                adapt_frames=args.adapt_frames, legacy_tags=args.legacy_tags)
+                                legacy_tags=args.legacy_tags)
 
 
 def _pack(args: argparse.Namespace) -> int:
@@ -151,8 +155,7 @@ def _pack(args: argparse.Namespace) -> int:
         check_camera_height(args.camera_height, "--camera-height")
     schema.check_name(args.name)
     return _write_with_executor(args, pack_recording, args.recording, args.rig, args.out,
-                                camera_height_m=args.camera_height,
-                                adapt_frames=args.adapt_frames, matcher=args.matcher,
+                                camera_height_m=args.camera_height, matcher=args.matcher,
                                 model=args.model, overrides=parse_overrides(args.set),
                                 store_right=not args.no_right, name=args.name,
                                 check_rectification=not args.skip_rectification_check)

@@ -20,6 +20,15 @@ from typing import Any, Callable, Iterator, Sequence
 from staticdepth.errors import InputError
 
 EXECUTORS = ("serial", "process", "ray")
+#: the most workers a run may ask for (more than a machine has cores only queue and use memory)
+MAX_WORKERS = 256
+
+
+def check_workers(workers: int) -> None:
+    """Before any work: the one ``--workers`` rule (every executor, serial included)."""
+    if not 1 <= workers <= MAX_WORKERS:
+        raise InputError(f"--workers must be within 1..{MAX_WORKERS} (local worker processes), "
+                         f"got {workers}")
 
 
 def _apply(fn: Callable[[Any], Any], x: Any) -> Any:
@@ -102,8 +111,7 @@ class ProcessExecutor:
     name = "process"
 
     def __init__(self, workers: int, window: int | None = None):
-        if workers < 1:
-            raise InputError(f"--workers must be >= 1, got {workers}")
+        check_workers(workers)
         self.workers = workers
         self.window = window or 2 * workers
         self._pool: ProcessPoolExecutor | None = None
@@ -192,6 +200,7 @@ class RayExecutor:
 
 def make_executor(kind: str = "serial", workers: int = 1, address: str | None = None):
     """The executor named ``kind`` (serial, process, ray); serial with workers > 1 is process."""
+    check_workers(workers)
     if kind not in EXECUTORS:
         raise InputError(f"unknown executor {kind!r} (choose from {', '.join(EXECUTORS)})")
     if kind == "ray":

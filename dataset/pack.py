@@ -150,7 +150,7 @@ def write_frames(out: str | os.PathLike, meta: SequenceMeta, streams: Sequence[s
     if not tasks:
         raise InputError("no frames to write", out)
     if meta.adapt_frames > len(tasks):  # before writing; the writer checks the frames written
-        raise InputError(f"--adapt-frames must be within 0..{len(tasks)} (the input's frames), "
+        raise InputError(f"--adapt-frames must be within 1..{len(tasks)} (the input's frames), "
                          f"got {meta.adapt_frames}")
     executor = executor or SerialExecutor()
     w = SequenceWriter(out, meta, streams, resume=resume, overwrite=overwrite,

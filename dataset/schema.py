@@ -78,3 +78,18 @@ def check_name(name: str | None) -> None:
 
     if name is not None and not str(name).isprintable():
         raise InputError(f"--name must be one line of printable text, got {name!r}")
+
+
+#: what leaving ``--adapt-frames`` out means for the importers with ground truth
+ADAPT_NONE = "none: every frame is for evaluation"
+
+
+def check_adapt_frames(value: int | None, left_out: str) -> None:
+    """Before any work: the one ``--adapt-frames`` rule of every importer (import-video,
+    import-kitti, import-carla, pack): left out (None), or N >= 1 first frames. 0 is refused in
+    the same words everywhere; ``left_out`` says what leaving the option out means."""
+    from staticdepth.errors import InputError
+
+    if value is not None and value < 1:
+        raise InputError(f"--adapt-frames must be >= 1 (the first frames, which adapt learns "
+                         f"from; leave it out for {left_out}), got {value}")

@@ -284,12 +284,10 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
     from staticdepth.fileio import exclusive_lock
     from staticdepth.progress import progress
 
-    from staticdepth.dataset.schema import check_name
+    from staticdepth.dataset.schema import check_adapt_frames, check_name
 
     check_name(name)
-    if adapt_frames is not None and adapt_frames < 1:
-        raise InputError(f"--adapt-frames must be >= 1 (the first frames, which adapt learns "
-                         f"from; leave it out for all of them), got {adapt_frames}")
+    check_adapt_frames(adapt_frames, "all of them")
     if width is not None and not 16 <= width <= MAX_WIDTH:
         raise InputError(f"--width must lie in [16, {MAX_WIDTH}], got {width}")
     if resume and restart:

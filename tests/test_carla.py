@@ -250,7 +250,7 @@ def test_default_name_is_the_outputs_stem_and_adapt_frames_is_checked_first(tmp_
     assert main(["import-carla", str(src), "--adapt-frames", "5", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].endswith(
-        "--adapt-frames must be within 0..4 (the input's frames), got 5")
+        "--adapt-frames must be within 1..4 (the input's frames), got 5")
     assert not out.exists() and not (tmp_path / "C1.h5.partial").exists()
     assert main(["import-carla", str(src), "--out", str(out)]) == 0
     assert main(["import-carla", str(src), "--name", "site 3", "--out", str(tmp_path / "C2.h5")]

@@ -318,7 +318,7 @@ def test_adapt_frames_beyond_the_input_is_refused_before_writing(kitti_root, tmp
     argv = ["import-kitti", "--root", str(kitti_root), "--drives", DRIVE, "--out", str(out)]
     assert main(argv + ["--adapt-frames", "5"]) == 2
     assert _one_error_line(capsys).endswith(
-        "--adapt-frames must be within 0..3 (the input's frames), got 5")
+        "--adapt-frames must be within 1..3 (the input's frames), got 5")
     assert sorted(os.listdir(tmp_path)) == []  # no partial, nothing to resume or restart
     assert main(argv + ["--adapt-frames", "3"]) == 0
     with SequenceReader(out) as r:

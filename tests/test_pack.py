@@ -155,7 +155,7 @@ def test_executors_keep_order():
         ex.close()
     with pytest.raises(InputError, match="unknown executor"):
         make_executor("dask")
-    with pytest.raises(InputError, match="--workers must be >= 1"):
+    with pytest.raises(InputError, match="--workers must be within 1..256"):
         make_executor("process", 0)
     with pytest.raises(InputError, match="only used with --executor ray"):
         make_executor("serial", 1, "ray://x:10001")
@@ -297,3 +297,40 @@ def test_plain_recording_frames_are_in_numeric_order(tmp_path):
     assert labels == ["1", "2", "10"]
     assert [os.path.basename(t.left) for t in tasks] == ["1.png", "2.png", "10.png"]
     assert [t.timestamp for t in tasks] == [0.1, 0.2, 1.0]
+
+
+_WRITERS = {"pack": ["pack", "--recording", "{d}/rec"], "import-kitti": [
+    "import-kitti", "--root", "{d}/kitti", "--drives", "2011_09_26_drive_0001"],
+    "import-carla": ["import-carla", "{d}/carla"]}
+
+
+@pytest.mark.parametrize("command", sorted(_WRITERS))
+@pytest.mark.parametrize("workers, executor", [("0", "serial"), ("-5", "serial"),
+                                               ("100000", "serial"), ("0", "process"),
+                                               ("300", "ray")])
+def test_workers_rule_is_one_line_before_any_work(command, workers, executor, tmp_path, capsys):
+    """--workers 0, -5 ran serially and 100000 was taken; one rule for every executor, checked
+    before the input is even looked at (the inputs here do not exist)."""
+    args = [a.format(d=tmp_path) for a in _WRITERS[command]]
+    assert main(args + ["--out", str(tmp_path / "o.h5"), "--workers", workers,
+                        "--executor", executor]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith(
+        f"--workers must be within 1..256 (local worker processes), got {workers}"), err
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize("command", sorted(_WRITERS) + ["import-video"])
+@pytest.mark.parametrize("n", ["0", "-3"])
+def test_adapt_frames_rule_is_the_same_for_every_importer(command, n, tmp_path, capsys):
+    """import-kitti/-carla and pack took --adapt-frames 0 (and -3) where import-video refused
+    it: one rule, one wording (only what leaving it out means differs), before any work."""
+    args = ([a.format(d=tmp_path) for a in _WRITERS[command]] if command in _WRITERS
+            else ["import-video", str(tmp_path / "v.avi")])
+    assert main(args + ["--out", str(tmp_path / "o.h5"), "--adapt-frames", n]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    left_out = "all of them" if command == "import-video" else "none: every frame is for evaluation"
+    assert len(err) == 1 and err[0].endswith(
+        f"--adapt-frames must be >= 1 (the first frames, which adapt learns from; leave it out "
+        f"for {left_out}), got {n}"), err
+    assert os.listdir(tmp_path) == []
