@@ -110,10 +110,17 @@ def test_resume_refuses_other_settings_or_geometry(tmp_path):
         train(seq, tmp_path / "c.pt", preset("tiny", {**MICRO, "epochs": 1, "lr": 0.1}), "cpu")
     other = write_sequence(tmp_path / "o.h5", n_frames=4, adapt_frames=4,
                            cam=camera(focal=120.0))
-    with pytest.raises(InputError, match="another stereo geometry"):
+    with pytest.raises(InputError, match="trained on another sequence"):
         train(other, tmp_path / "c.pt", conf, "cpu")
+    # the geometry is checked too: a checkpoint that records no sequence (an older one), or
+    # another sequence's used on purpose
+    state = load_checkpoint(tmp_path / "c.pt")
+    del state["sequence_id"]
+    train_mod.save_checkpoint(str(tmp_path / "old.pt"), {**state, "config": conf.to_dict()})
+    with pytest.raises(InputError, match="another stereo geometry"):
+        train(other, tmp_path / "old.pt", conf, "cpu")
     with pytest.raises(InputError, match="trained with focal"):
-        predict_sequence(other, tmp_path / "c.pt")
+        predict_sequence(other, tmp_path / "c.pt", any_sequence=True)
     with pytest.raises(InputError, match="batch size"):
         predict_sequence(seq, tmp_path / "c.pt", batch_size=0)
     assert train(other, tmp_path / "c.pt", conf, "cpu", overwrite=True)["steps"] == 2

@@ -17,7 +17,9 @@ def register(sub) -> None:
 
     t = bsub.add_parser("train", help="train on the adaptation split's stereo pairs",
                         description="Train on the adaptation split's rectified stereo pairs. "
-                                    "Resumes an unfinished checkpoint with the same settings.",
+                                    "Resumes an unfinished checkpoint with the same settings "
+                                    "and sequence; one trained on another sequence (the file "
+                                    "replaced since) is refused unless --overwrite.",
                         epilog="example:\n  staticdepth baseline train c1.h5 --preset tiny "
                                "--set epochs=8")
     t.add_argument("sequence", help="sequence file (.h5) with left and right images")
@@ -34,7 +36,8 @@ def register(sub) -> None:
     t.add_argument("--checkpoint-every", type=int, default=200, metavar="STEPS",
                    help="write the resumable checkpoint every STEPS (>= 1) optimisation steps, "
                         "and at the end of every epoch")
-    t.add_argument("--overwrite", action="store_true", help="start again, replacing the checkpoint")
+    t.add_argument("--overwrite", action="store_true",
+                   help="start again, replacing the checkpoint (never the sequence or --weights)")
     add_device_argument(t)
     t.set_defaults(func=_train)
 
@@ -50,6 +53,9 @@ def register(sub) -> None:
     q.add_argument("--name", default="stereo-baseline",
                    help="prediction name: the file SEQ.h5.pred/NAME.h5 (default stereo-baseline)")
     q.add_argument("--batch-size", type=int, default=4, help="frames per forward pass")
+    q.add_argument("--any-sequence", action="store_true",
+                   help="predict with a checkpoint trained on another sequence (refused "
+                        "otherwise: a stale SEQ.baseline.pt of a sequence since replaced)")
     add_overwrite_argument(q, help="replace the prediction SEQ.h5.pred/NAME.h5 if it exists "
                                    "(refused otherwise)")
     add_device_argument(q)
@@ -58,10 +64,13 @@ def register(sub) -> None:
 
 def _train(args: argparse.Namespace) -> int:
     from staticdepth.baseline.config import preset
-    from staticdepth.baseline.train import check_checkpoint_every, default_checkpoint_path, train
+    from staticdepth.baseline.train import (check_checkpoint_every, check_checkpoint_path,
+                                            default_checkpoint_path, train)
     from staticdepth.cli import parse_overrides, resolve_device
 
     check_checkpoint_every(args.checkpoint_every)
+    ckpt = args.checkpoint or default_checkpoint_path(args.sequence)
+    check_checkpoint_path(ckpt, {"sequence": args.sequence, "weights": args.weights})
     overrides = parse_overrides(args.set)
     if args.weights:
         overrides["imagenet_weights"] = args.weights
@@ -75,12 +84,13 @@ def _train(args: argparse.Namespace) -> int:
         print(f"scene fit: {conf.width}x{conf.height}, depth {conf.min_depth:.2f}-"
               f"{conf.max_depth:.0f} m")
     device = resolve_device(args.device)
-    ckpt = args.checkpoint or default_checkpoint_path(args.sequence)
     info = train(args.sequence, ckpt, conf, device, overwrite=args.overwrite,
                  checkpoint_every=args.checkpoint_every, log=print)
     loss = info["epoch_loss"]
-    print(f"trained {info['epochs']} epochs ({info['steps']} steps, {info['frames']} frames, "
-          f"baseline {info['baseline_m']:.3f} m) -> {ckpt}"
+    what = (f"{ckpt} kept, from an earlier run: {info['epochs']} epochs" if info["already_trained"]
+            else f"trained {info['epochs']} epochs")        # nothing was trained now
+    print(f"{what} ({info['steps']} steps, {info['frames']} frames, baseline "
+          f"{info['baseline_m']:.3f} m)" + ("" if info["already_trained"] else f" -> {ckpt}")
           + (f"; loss {loss[0]:.4f} -> {loss[-1]:.4f}" if loss else ""))
     return 0
 
@@ -92,7 +102,8 @@ def _predict(args: argparse.Namespace) -> int:
 
     ckpt = args.checkpoint or default_checkpoint_path(args.sequence)
     info = predict_sequence(args.sequence, ckpt, resolve_device(args.device), name=args.name,
-                            batch_size=args.batch_size, overwrite=args.overwrite)
+                            batch_size=args.batch_size, overwrite=args.overwrite,
+                            any_sequence=args.any_sequence, log=print)
     from staticdepth.dataset.predictions import prediction_path
 
     print(f"stored prediction {info['name']!r} ({info['frames']} frames, metric) -> "

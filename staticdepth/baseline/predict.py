@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import os
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import torch
@@ -60,17 +60,22 @@ def _depth_maps(sequence_path: str, model: DepthNet, conf: BaselineConfig, batch
 
 def predict_sequence(sequence_path: str | os.PathLike, checkpoint_path: str | os.PathLike,
                      device: torch.device | str = "cpu", *, name: str = DEFAULT_NAME,
-                     batch_size: int = 4, overwrite: bool = False) -> dict[str, Any]:
+                     batch_size: int = 4, overwrite: bool = False, any_sequence: bool = False,
+                     log: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Predict every frame of the sequence and store it with ``add_prediction`` as
     ``<SEQ>.h5.pred/<name>.h5``; an existing prediction ``name`` is refused before any work
     unless ``overwrite``.
 
     The sequence must have the camera the network was trained with (same focal length at the
-    network's width), else its metric scale would not hold.
+    network's width), else its metric scale would not hold. A checkpoint trained on another
+    sequence (another identity: a stale ``SEQ.baseline.pt`` of a file since replaced, or another
+    scene's) is refused unless ``any_sequence``; one that records no identity (written before it
+    was stored) is used with a ``log`` warning. The prediction records ``trained_on_id``.
     """
     from staticdepth.dataset.h5 import SequenceReader, add_prediction
     from staticdepth.dataset.predictions import prediction_path
 
+    log = log or (lambda s: None)
     seq = os.fspath(sequence_path)
     if batch_size < 1:
         raise InputError(f"batch size must be >= 1, got {batch_size}")
@@ -81,7 +86,8 @@ def predict_sequence(sequence_path: str | os.PathLike, checkpoint_path: str | os
     conf: BaselineConfig = state["config"]
     with SequenceReader(seq) as r:
         focal = r.camera.fx * conf.width / r.camera.width
-        n = len(r)
+        n, seq_id = len(r), r.sequence_id()
+    _check_trained_on(state, os.fspath(checkpoint_path), seq, seq_id, any_sequence, log)
     if abs(focal - state["focal_px"]) > 1e-3 * state["focal_px"]:
         raise InputError(f"the network was trained with focal {state['focal_px']:.2f} px at "
                          f"width {conf.width}, this sequence has {focal:.2f} px: its metric "
@@ -95,7 +101,20 @@ def predict_sequence(sequence_path: str | os.PathLike, checkpoint_path: str | os
     attrs = {"method": "stereo self-supervised baseline (MonoDepth2 S)", "metric": 1,
              "checkpoint": os.path.abspath(os.fspath(checkpoint_path)),
              "baseline_m": float(state["baseline_m"]), "trained_on": str(state["sequence"]),
+             "trained_on_id": str(state.get("sequence_id") or "unknown"),
              "config": json.dumps(conf.to_dict())}
     add_prediction(seq, name, _depth_maps(seq, model, conf, batch_size), attrs,
                    overwrite=overwrite)
     return {"name": name, "frames": n}
+
+
+def _check_trained_on(state: dict[str, Any], ckpt: str, seq: str, seq_id: str, any_sequence: bool,
+                      log: Callable[[str], None]) -> None:
+    trained_on = state.get("sequence_id")
+    if trained_on is None:
+        log(f"warning: {ckpt} does not record which sequence it was trained on (an older "
+            f"checkpoint); predicting {seq} with it")
+    elif trained_on != seq_id and not any_sequence:
+        raise InputError(f"the network was trained on another sequence ({state['sequence']!r}, "
+                         f"id {trained_on}) than {seq} (id {seq_id}); train on this sequence, or "
+                         "pass --any-sequence to predict with it anyway", ckpt)

@@ -54,17 +54,49 @@ def save_checkpoint(path: str, state: dict[str, Any]) -> None:
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
-    """Read a baseline checkpoint (tensors and plain values only); errors name the file."""
+    """Read a baseline checkpoint (tensors and plain values only); errors name the file.
+
+    :func:`save_checkpoint` writes torch's zip format: a file that is no zip archive (truncated,
+    empty, another format) is refused in one line before torch reads it."""
+    import zipfile
+
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise InputError("checkpoint not found (train first: staticdepth baseline train)", path)
+    if not zipfile.is_zipfile(path):
+        raise InputError("not a readable checkpoint (truncated or not a torch file)", path)
     from staticdepth.models.trust import torch_load
-    state = torch_load(path, what="checkpoint")  # tensors and plain values only (weights_only)
+    try:
+        state = torch_load(path, what="checkpoint")  # tensors and plain values only
+    except InputError as e:
+        if not e.problem.startswith("not a readable"):
+            raise                                  # e.g. a file that would run code
+        raise InputError("not a readable checkpoint (a damaged torch file or another zip "
+                         "archive)", path) from None
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         raise InputError(f"not a stereo-baseline checkpoint (expected format "
                          f"{CHECKPOINT_FORMAT!r})", path)
     state["config"] = config_from_dict(state["config"], path)
     return state
+
+
+def check_checkpoint_path(checkpoint_path: str | os.PathLike,
+                          inputs: Mapping[str, str | os.PathLike | None]) -> None:
+    """Refuse a checkpoint (written by training) that names one of the command's ``inputs``
+    (role -> path; the sequence, the ImageNet weights), through links and relative paths, even
+    with ``--overwrite``: the checkpoint would replace the input."""
+    ckpt = os.fspath(checkpoint_path)
+    for role, path in inputs.items():
+        if path and _same_file(ckpt, os.fspath(path)):
+            raise InputError(f"--checkpoint names this command's input ({role}): writing it would "
+                             "destroy the input; choose another --checkpoint", ckpt)
+
+
+def _same_file(a: str, b: str) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:                                # one of them does not exist (yet)
+        return os.path.realpath(a) == os.path.realpath(b)
 
 
 def check_checkpoint_every(steps: int) -> None:
@@ -87,27 +119,33 @@ def train(sequence_path: str | os.PathLike, checkpoint_path: str | os.PathLike,
     (nothing to do) unless ``overwrite``; one with other settings is an error. Checkpoints are
     written every ``checkpoint_every`` (>= 1) steps and at the end of every epoch; ``log`` lines
     are printed above the progress bar.
-    Returns a summary: epochs, steps, per-epoch mean losses, seconds, images per second.
+    The checkpoint records the sequence's identity (``SequenceReader.sequence_id``); one trained
+    on another sequence (the file replaced since) is refused unless ``overwrite``. A checkpoint
+    that names the sequence or the ImageNet weights is refused even with ``overwrite``.
+    Returns a summary: epochs, steps, per-epoch mean losses, seconds, images per second, and
+    ``already_trained`` (a finished checkpoint kept: the summary is of that earlier training).
     """
     from staticdepth.dataset.h5 import SequenceReader
 
     check_checkpoint_every(checkpoint_every)
     log = log or (lambda s: None)
     seq, ckpt = os.fspath(sequence_path), os.fspath(checkpoint_path)
+    check_checkpoint_path(ckpt, {"sequence": seq, "imagenet weights": conf.imagenet_weights})
     device = torch.device(device)
+    resume = os.path.exists(ckpt) and not overwrite
     with SequenceReader(seq) as r:
         geo = stereo_geometry(r, conf)
+        seq_name, seq_id = r.meta.name, r.sequence_id()
+        state = load_checkpoint(ckpt) if resume else None
+        if state is not None:                     # refused before the frames are read
+            _check_compatible(state, conf, geo, ckpt, seq, seq_id, log)
         left, right = load_pairs(r, r.split("adapt"), conf)
-        seq_name = r.meta.name
-    resume = os.path.exists(ckpt) and not overwrite
-    state = load_checkpoint(ckpt) if resume else None
-    if state is not None:
-        _check_compatible(state, conf, geo, ckpt)
     torch.manual_seed(conf.seed)
     model = build_model(conf, load_weights=not resume).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=conf.lr)
     sched = torch.optim.lr_scheduler.StepLR(opt, conf.lr_step_epochs, conf.lr_gamma)
     epoch, batch0, step, history = 0, 0, 0, []
+    already_trained = state is not None and state["epoch"] >= conf.epochs
     if state is not None:
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
@@ -125,6 +163,7 @@ def train(sequence_path: str | os.PathLike, checkpoint_path: str | os.PathLike,
         return {"format": CHECKPOINT_FORMAT, "config": conf.to_dict(), "model": model.state_dict(),
                 "optimizer": opt.state_dict(), "scheduler": sched.state_dict(), "epoch": e,
                 "batch": b, "step": step, "history": history, "sequence": seq_name,
+                "sequence_id": seq_id,
                 "baseline_m": geo.baseline_m, "focal_px": geo.focal_px,
                 "focal_px_full": geo.focal_px_full, "sequence_size": list(geo.sequence_size)}
 
@@ -167,7 +206,7 @@ def train(sequence_path: str | os.PathLike, checkpoint_path: str | os.PathLike,
     return {"checkpoint": ckpt, "epochs": conf.epochs, "steps": step, "epoch_loss": epoch_loss,
             "seconds": seconds, "images_per_s": n_images / seconds if n_images else 0.0,
             "frames": len(left), "baseline_m": geo.baseline_m, "focal_px": geo.focal_px,
-            "self_check": collapse}
+            "self_check": collapse, "already_trained": already_trained}
 
 
 @torch.no_grad()
@@ -185,7 +224,15 @@ def _self_check(model: DepthNet, left: torch.Tensor, conf: BaselineConfig, devic
 
 
 def _check_compatible(state: Mapping[str, Any], conf: BaselineConfig, geo: StereoGeometry,
-                      path: str) -> None:
+                      path: str, seq: str, seq_id: str, log: Callable[[str], None]) -> None:
+    trained_on = state.get("sequence_id")
+    if trained_on is None:                          # written before identities were stored
+        log(f"warning: {path} does not record which sequence it was trained on (an older "
+            f"checkpoint); taken as {seq}'s")
+    elif trained_on != seq_id:
+        raise InputError(f"checkpoint was trained on another sequence ({state['sequence']!r}, id "
+                         f"{trained_on}) than {seq} holds now (id {seq_id}); use --overwrite to "
+                         "retrain or another --checkpoint", path)
     old: BaselineConfig = state["config"]
     diff = sorted(k for k, v in conf.to_dict().items() if old.to_dict()[k] != v)
     if diff:
