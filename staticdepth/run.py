@@ -14,9 +14,14 @@ A recipe is YAML::
 
 ``args`` become the command's options (``key: value`` -> ``--key value``, lists -> several values,
 ``true`` -> a bare flag, ``false``/null -> omitted, ``_`` -> positionals). A stage is skipped when
-its outputs exist and the state file records the same hash of its settings and of the hash
-recorded for the stage before it (so of every earlier stage's, as their outputs were made);
-``--force`` reruns everything.
+its outputs exist and the state file records the same hash of its settings, of its input files
+as they are (size and modification time of each file an argument names, folders walked), of the
+value recorded for the stage before it (so of every earlier stage's) and of its outputs as it
+left them: input data changed in place, a stage run again (``--only``, ``--force``) or an output
+another command replaced make it, and every stage after it, run again. ``--force`` reruns
+everything. A stage that was interrupted is continued, not started over: it runs again with
+``--resume`` where the command has it, and without ``--overwrite`` where that would discard its
+progress (``baseline train``'s checkpoint).
 """
 from __future__ import annotations
 
@@ -35,6 +40,10 @@ RECIPE_KEYS = {"name", "out_dir", "vars", "stages", "description", "paper"}
 STAGE_KEYS = {"command", "args", "outputs", "description"}
 STATE_FILE = "recipe_state.json"
 PLACEHOLDER = r"\{([A-Za-z_][A-Za-z0-9_]*)\}"
+STARTED = "@started"          # state key suffix: the hash a stage ran with until it completed
+# commands whose --overwrite starts over where, without it, they continue an interrupted run
+RESUME_WITHOUT_OVERWRITE = {"baseline train"}
+MAX_FINGERPRINT_FILES = 200_000
 
 
 def _subst(value: Any, env: Mapping[str, str], where: str) -> Any:
@@ -138,6 +147,49 @@ def _accepts(argv: list[str], flag: str) -> bool:
             break
         parser = sub.choices[word]
     return any(flag in a.option_strings for a in parser._actions)
+def _fingerprint(paths) -> list:
+    """[path, size, mtime_ns] of every file at or under ``paths`` (folders walked in order, up
+    to MAX_FINGERPRINT_FILES files; lock files, which readers create, left out)."""
+    out: list = []
+    for p in sorted(set(paths)):
+        if os.path.isfile(p):
+            st = os.stat(p)
+            out.append([p, st.st_size, st.st_mtime_ns])
+            continue
+        for root, dirs, files in os.walk(p):
+            dirs.sort()
+            for f in sorted(files):
+                if f.endswith(".lock") or len(out) >= MAX_FINGERPRINT_FILES:
+                    continue
+                q = os.path.join(root, f)
+                try:
+                    st = os.stat(q)
+                except OSError:
+                    continue
+                out.append([q, st.st_size, st.st_mtime_ns])
+    return out
+
+
+def _input_paths(st: Mapping[str, Any]) -> list[str]:
+    """The files and folders a stage's arguments name that exist, less its outputs: plain paths,
+    ``LABEL=path`` and ``scheme:path`` (model specs)."""
+    from staticdepth.cli import NEITHER, OUTPUT_DESTS
+
+    outs = {os.path.realpath(p) for p in st["outputs"]}
+    found = []
+    for k, v in st["args"].items():
+        if k in OUTPUT_DESTS or k in NEITHER or isinstance(v, dict):
+            continue
+        for x in (v if isinstance(v, list) else [v]):
+            if not isinstance(x, str) or not x:
+                continue
+            for cand in (x, x.partition("=")[2], x.partition(":")[2]):
+                if cand and os.path.exists(cand) and os.path.realpath(cand) not in outs:
+                    found.append(cand)
+                    break
+    return found
+
+
 def _read_state(state_path: str) -> dict[str, str]:
     """The stage hashes of earlier runs; a corrupt state file is an error naming it."""
     if not os.path.exists(state_path):
@@ -169,23 +221,29 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
         raise InputError(f"--only: no stage(s) {unknown}; the recipe's: "
                          f"{', '.join(recipe['stages'])}", recipe["path"])
     prev = ""
-    fresh = ""   # the chain as a full run would compute it (what the next --dry-run checks)
+    fresh = ""   # the value as a full run would leave it (what the next --dry-run checks)
     status: dict[str, str] = {}
     for name, st in recipe["stages"].items():
-        # a stage's hash chains the hash recorded for the stage before it (what its outputs were
-        # made with), so a stage whose inputs were remade since - or were made with other
-        # settings when it ran under --only - runs again
-        chain = config_hash({"prev": prev, "command": st["command"], "args": st["args"]})
-        fresh_chain = config_hash({"prev": fresh, "command": st["command"], "args": st["args"]})
-        fresh = fresh_chain
+        # a stage's hash chains the value recorded for the stage before it (what its outputs
+        # were made with, and those outputs as it left them), so a stage whose inputs were remade
+        # since - or were made with other settings when it ran under --only - runs again
+        inputs = _fingerprint(_input_paths(st))
+        chain = config_hash({"prev": prev, "command": st["command"], "args": st["args"],
+                             "inputs": inputs})
+        fresh_chain = config_hash({"prev": fresh, "command": st["command"],
+                                   "args": st["args"], "inputs": inputs})
         argv = argv_from_args(st["command"], st["args"])
         outputs_there = bool(st["outputs"]) and all(os.path.exists(p) for p in st["outputs"])
-        done = state.get(name) == chain and outputs_there
+        made = _fingerprint(st["outputs"]) if outputs_there else None
+        done = outputs_there and state.get(name) == config_hash({"chain": chain, "out": made})
+        full = outputs_there and state.get(name) == config_hash({"chain": fresh_chain,
+                                                                  "out": made})
+        fresh = state.get(name, "") if full else "runs again: " + fresh_chain
         if (only and name not in only) or (done and not force):
             status[name] = "skipped"
             # "up to date" only when a full run would skip it too: an unselected stage after
             # one that ran (or is out of date) is stale even when its own recorded hash matches
-            if state.get(name) == fresh_chain and outputs_there:
+            if full:
                 why = "up to date"
             elif only and name not in only:
                 why = "out of date, not selected"
@@ -194,13 +252,24 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
             log(f"[{recipe['name']}] {name}: {why}, skipped")
             prev = state.get(name, "not run")
             continue
-        if any(os.path.exists(p) for p in st["outputs"]) and _accepts(argv, "--overwrite"):
+        # the same stage with the same inputs was interrupted: continue it
+        resume = not force and state.get(name + STARTED) == chain
+        if "--restart" not in argv and "--resume" not in argv:
+            # otherwise an interrupted attempt with other settings or inputs is discarded
+            flag = "--resume" if resume else "--restart"
+            if _accepts(argv, flag):
+                argv.append(flag)
+        keep = resume and st["command"] in RESUME_WITHOUT_OVERWRITE
+        if (any(os.path.exists(p) for p in st["outputs"]) and not keep
+                and _accepts(argv, "--overwrite")):
             argv.append("--overwrite")   # a stage that runs again replaces its own outputs
         log(f"[{recipe['name']}] {name}: staticdepth {' '.join(argv)}")
         if dry_run:
             status[name] = "dry-run"
-            prev = chain                # as if it ran: the stages after it would run too
+            prev = "runs again: " + chain   # as if it ran: the stages after it would run too
             continue
+        state[name + STARTED] = chain
+        atomic_write_json(state_path, state)
         t0, c0 = time.perf_counter(), time.process_time()
         rc = cli_main(argv, recipe=recipe["path"])
         if rc != 0:
@@ -209,7 +278,10 @@ def run_recipe(recipe: Mapping[str, Any], *, force: bool = False, only: list[str
         missing = [p for p in st["outputs"] if not os.path.exists(p)]
         if missing:
             raise InputError(f"stage {name!r} did not produce {missing}", recipe["path"])
-        state[name] = prev = chain
+        state[name] = prev = config_hash({"chain": chain, "out": _fingerprint(st["outputs"])})
+        if chain == fresh_chain:
+            fresh = prev
+        state.pop(name + STARTED, None)
         atomic_write_json(state_path, state)
         status[name] = "ran"
         log(f"[{recipe['name']}] {name}: done in {time.perf_counter() - t0:.1f} s "

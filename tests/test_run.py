@@ -143,3 +143,95 @@ def test_unknown_stages_and_variables_are_refused(tmp_path, capsys):
     assert main([*base, "--var", "protocl=median"]) == 2
     err = capsys.readouterr().err
     assert "unknown variable(s) ['protocl']" in err and "protocol" in err and "base" in err
+
+
+def test_changed_inputs_reruns_and_replaced_outputs_rerun(tmp_path):
+    """A stage was up to date as long as its settings were: input data changed in place, a
+    stage forced again under --only, or an output another command replaced were not seen."""
+    gt = np.random.default_rng(0).uniform(1, 30, (2, 8, 8))
+    np.save(tmp_path / "gt.npy", gt)
+    np.save(tmp_path / "pred.npy", gt * 2)
+    rp = tmp_path / "r.yaml"
+    rp.write_text(CHAIN)
+    r = load_recipe(rp, {"base": str(tmp_path)})
+    log = [].append
+    assert run_recipe(r, log=log) == {"first": "ran", "second": "ran"}
+    assert run_recipe(r, log=log) == {"first": "skipped", "second": "skipped"}
+    np.save(tmp_path / "pred.npy", gt * 3)                    # the data changed in place
+    assert run_recipe(r, log=log) == {"first": "ran", "second": "ran"}
+    a = json.loads((tmp_path / "out" / "a.json").read_text())["abs_rel"]
+    assert a > 1.5                                             # 1.0 before: the new data's
+    assert run_recipe(r, only=["first"], force=True, log=log) == {"first": "ran",
+                                                                   "second": "skipped"}
+    assert run_recipe(r, log=log) == {"first": "skipped", "second": "ran"}   # was: skipped
+    (tmp_path / "out" / "b.json").write_text("{}")           # another command replaced it
+    assert run_recipe(r, log=log) == {"first": "skipped", "second": "ran"}
+    assert run_recipe(r, log=log) == {"first": "skipped", "second": "skipped"}
+
+
+SYNTH = """
+name: S
+out_dir: "{base}/out"
+vars: {frames: "3"}
+stages:
+  render:
+    command: synth
+    args: {preset: c1, frames: "{frames}", adapt_frames: 1, set: {width: 64, height: 32},
+           out: "{out_dir}/s.h5"}
+    outputs: ["{out_dir}/s.h5"]
+  train:
+    command: baseline train
+    args: {_: ["{out_dir}/s.h5"], checkpoint: "{out_dir}/s.pt"}
+    outputs: ["{out_dir}/s.pt"]
+"""
+
+
+def test_an_interrupted_stage_is_continued_not_started_over(tmp_path, monkeypatch):
+    """After Ctrl-C, run passed --overwrite to the interrupted stage: `baseline train
+    --overwrite` starts over and threw the resumable checkpoint away, and an importer's partial
+    file stopped the run ("--resume continues it, --restart starts over"). The same stage with
+    the same inputs now gets --resume (or no --overwrite for baseline train); a stage with other
+    settings gets --restart. The commands' own behaviour is tested with them; here: their
+    command lines."""
+    import staticdepth.cli as cli
+
+    rp = tmp_path / "r.yaml"
+    rp.write_text(SYNTH)
+    calls: list[list[str]] = []
+    stop = {"render": False, "train": False}
+    real = cli.main
+
+    def fake(argv, recipe=None):
+        calls.append(list(argv))
+        if argv[0] == "synth":
+            if stop["render"]:
+                raise KeyboardInterrupt
+            return real(argv, recipe=recipe)
+        open(argv[argv.index("--checkpoint") + 1], "wb").write(b"a checkpoint")
+        if stop["train"]:
+            raise KeyboardInterrupt
+        return 0
+
+    monkeypatch.setattr(cli, "main", fake)
+    r = load_recipe(rp, {"base": str(tmp_path)})
+    log = [].append
+    assert run_recipe(r, log=log) == {"render": "ran", "train": "ran"}
+    assert "--restart" in calls[0] and "--overwrite" not in calls[0]
+    assert "--overwrite" not in calls[1]
+    stop["train"] = True
+    r4 = load_recipe(rp, {"base": str(tmp_path), "frames": "4"})
+    with pytest.raises(KeyboardInterrupt):
+        run_recipe(r4, log=log)
+    assert {"--restart", "--overwrite"} <= set(calls[2])       # other settings: started over
+    assert "--overwrite" in calls[3]                            # its input was remade
+    stop["train"] = False
+    assert run_recipe(r4, log=log) == {"render": "skipped", "train": "ran"}
+    assert "--overwrite" not in calls[4]                        # continued, not restarted
+    stop["render"] = True
+    r5 = load_recipe(rp, {"base": str(tmp_path), "frames": "5"})
+    with pytest.raises(KeyboardInterrupt):
+        run_recipe(r5, log=log)
+    stop["render"] = False
+    assert run_recipe(r5, log=log) == {"render": "ran", "train": "ran"}
+    assert "--resume" in calls[6] and "--restart" not in calls[6]
+    assert "--overwrite" in calls[7]
