@@ -156,7 +156,9 @@ def write_frames(out: str | os.PathLike, meta: SequenceMeta, streams: Sequence[s
     w = SequenceWriter(out, meta, streams, resume=resume, overwrite=overwrite,
                        aux={a.name: a.dtype for a in aux}, restart=restart,
                        settings={"loader": callable_identity(load), **dict(settings or {})},
-                       inputs=[task_identity(t) for t in tasks], labels=labels)
+                       inputs=[task_identity(t) for t in tasks], labels=labels,
+                       resume_how="--resume continues it (add --skip-bad to pass a bad frame "
+                                  "that stopped it)")
     try:
         skipped: list[dict[str, str]] = json.loads(w.get_attr("skipped", "[]")) if len(w) else []
         done_skips = {s["frame"] for s in skipped}

@@ -80,10 +80,11 @@ class SequenceWriter:
                  overwrite: bool = False, aux: Mapping[str, Any] | None = None,
                  restart: bool = False, settings: Mapping[str, Any] | None = None,
                  inputs: Sequence[str] | None = None, labels: Sequence[str] | None = None,
-                 warn=print):
+                 warn=print, resume_how: str = "--resume continues it"):
         """``settings``: what else changes the output (beside ``meta``); ``inputs``: one identity
         per input frame (:func:`staticdepth.dataset.resume.task_identity`), ``labels`` their names;
-        both are stored and a ``resume`` with others is refused (see :mod:`.resume`)."""
+        both are stored and a ``resume`` with others is refused (see :mod:`.resume`).
+        ``resume_how``: how this command continues a leftover partial (said when it is found)."""
         from staticdepth.fileio import exclusive_lock, remove_stale_temporaries
 
         self.path = os.fspath(path)
@@ -119,8 +120,9 @@ class SequenceWriter:
             self._install_sigterm()
             remove_stale_temporaries(self.path)
             if os.path.exists(self.partial) and not (resume or restart):
-                raise InputError("an interrupted run left this file: --resume continues it, "
-                                 "--restart starts over", self.partial)
+                raise InputError("an earlier run stopped before finishing (interrupted, or by a "
+                                 f"bad input) and left this file: {resume_how}, --restart "
+                                 "starts over", self.partial)
             opened = rs.open_partial(self.partial, warn) if resume and os.path.exists(
                 self.partial) else None
             with self._writing():

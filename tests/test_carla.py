@@ -162,6 +162,11 @@ def test_bad_input(tmp_path, capsys):
     assert main(["import-carla", str(src), "--out", str(out)]) == 2
     assert "instance/000001.png: corrupt or unreadable image" in capsys.readouterr().err
     assert not out.exists()
+    assert main(["import-carla", str(src), "--out", str(out)]) == 2      # nothing was interrupted
+    assert capsys.readouterr().err.strip().endswith(
+        "an earlier run stopped before finishing (interrupted, or by a bad input) and left this "
+        "file: --resume continues it (add --skip-bad to pass a bad frame that stopped it), "
+        "--restart starts over")
     assert main(["import-carla", str(src), "--out", str(out), "--skip-bad", "--resume"]) == 0
     assert "skipped 1 bad frame" in capsys.readouterr().out
     with SequenceReader(out) as r:

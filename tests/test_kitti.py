@@ -406,6 +406,12 @@ def test_skip_bad_skips_a_frame_whose_scan_is_missing(kitti_root, tmp_path, caps
     assert main(argv) == 2
     assert _one_error_line(capsys) == f"staticdepth import-kitti: error: {scan}: file not found"
     assert not out.exists()
+    # the rerun does not call the stopped run interrupted, and says how to pass the bad frame
+    assert main(argv) == 2
+    assert _one_error_line(capsys).endswith(
+        f"{out}.partial: an earlier run stopped before finishing (interrupted, or by a bad input) "
+        "and left this file: --resume continues it (add --skip-bad to pass a bad frame that "
+        "stopped it), --restart starts over")
     assert main(argv + ["--skip-bad", "--resume"]) == 0
     text = capsys.readouterr().out
     assert "wrote 2 frames" in text and "skipped 1 bad frame(s):" in text

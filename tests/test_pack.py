@@ -173,6 +173,11 @@ def test_pack_bad_input(plain_recording, tmp_path, capsys):
     (rec / "right" / "0002.png").write_bytes(b"broken")
     assert _pack(rec, out) == 2
     assert "right/0002.png: corrupt or unreadable image" in capsys.readouterr().err
+    assert _pack(rec, out) == 2                                         # nothing was interrupted
+    assert capsys.readouterr().err.strip().endswith(
+        f"{out}.partial: an earlier run stopped before finishing (interrupted, or by a bad input) "
+        "and left this file: --resume continues it (add --skip-bad to pass a bad frame that "
+        "stopped it), --restart starts over")
     assert _pack(rec, out, "--skip-bad", "--resume") == 0
     assert "skipped 1 bad frame" in capsys.readouterr().out
     with SequenceReader(out) as r:

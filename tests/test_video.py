@@ -116,9 +116,12 @@ def test_folder_import_resumes_after_a_broken_image(tmp_path, capsys):
     (d / "005.png").write_bytes(b"not a png")
     out = tmp_path / "f.h5"
     assert main(["import-video", str(d), "--out", str(out), "--fps", "2"]) == 2
+    assert "005.png: corrupt or unreadable image" in capsys.readouterr().err
     assert not out.exists() and (tmp_path / "f.h5.partial").exists()
     assert main(["import-video", str(d), "--out", str(out), "--fps", "2"]) == 2   # neither flag
-    assert "--resume" in capsys.readouterr().err
+    assert capsys.readouterr().err.strip().endswith(
+        "an earlier run stopped before finishing (interrupted, or by a bad input) and left this "
+        "file: --resume continues it, --restart starts over")          # not "interrupted run"
     (d / "005.png").write_bytes(good)
     assert main(["import-video", str(d), "--out", str(out), "--fps", "3", "--resume"]) == 2
     assert "fps" in capsys.readouterr().err                  # another setting: refused
