@@ -152,13 +152,17 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
             for name in names:
                 pred = r.prediction(name, i)
                 n_missing[name] += int((~np.isfinite(pred) & vm).sum())
+                # pixels with a depth (+inf: beyond the range, scored at max_depth)
+                has = vm & (np.isfinite(pred) | np.isposinf(pred))
                 bands = confidence_masks(r.prediction(conf_of[name], i)) if name in conf_of \
                     else {}
                 for prot in prot_of[name]:
+                    if prot != "metric" and not (has & np.isfinite(pred) & (pred > 0)).any():
+                        continue    # nothing to scale by in this frame: its pixels are missing
                     # one scale per image from all valid pixels; regions are evaluated with it
                     scaled, s = apply_protocol(pred, gt, prot, vm)
                     for reg, m in {**masks, **bands}.items():
-                        if not (vm & m).any():
+                        if not (has & m).any():
                             continue
                         res = depth_metrics(scaled, gt, min_depth=min_depth, max_depth=max_depth,
                                             mask=m)
@@ -169,6 +173,13 @@ def evaluate_sequence(path: str | os.PathLike, names: Sequence[str] | None = Non
             raise InputError(f"no frame of split {split!r} ({len(frames)} frames) has ground truth "
                              f"between {min_depth:g} and {max_depth:g} m: nothing to evaluate",
                              r.path)
+        for name in names:
+            if not any(k[0] == name for k in per):
+                from staticdepth.dataset.predictions import prediction_path
+
+                raise InputError(f"the prediction has no depth (NaN) at any of the {n_valid} "
+                                 f"pixels of split {split!r} with valid ground truth: nothing "
+                                 "to evaluate", prediction_path(r.path, name))
     results: dict[str, Any] = {}
     for (name, prot, reg), rows in per.items():
         avg = average(rows)

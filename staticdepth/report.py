@@ -24,10 +24,11 @@ from staticdepth.metrics import apply_protocol, valid_mask
 from staticdepth.tables import Table, table1, table2, table3, table_regions, write_tables
 
 def error_map(pred: np.ndarray, gt: np.ndarray, vmax: float = 0.5) -> np.ndarray:
-    """|pred - gt| / gt coloured from black (0) through red to yellow (>= vmax); no gt = grey."""
+    """|pred - gt| / gt coloured from black (0) through red to yellow (>= vmax); no gt, or no
+    prediction there (NaN: a hole), = grey."""
     import cv2
 
-    ok = valid_mask(gt)
+    ok = valid_mask(gt) & ~np.isnan(pred)
     rel = np.zeros(gt.shape)
     rel[ok] = np.abs(pred[ok] - gt[ok]) / gt[ok]
     t = (np.clip(rel / vmax, 0, 1) * 255).astype(np.uint8)

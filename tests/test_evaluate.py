@@ -144,3 +144,31 @@ def test_evaluate_without_ground_truth_in_the_split_is_an_error(tmp_path, capsys
     assert "no frame of split 'eval' (2 frames) has ground truth between 0.001 and 80 m" in err
     assert main(["evaluate", str(p), "--split", "adapt"]) == 0
     assert "(1 frames)" in capsys.readouterr().out
+
+
+def test_a_frame_or_region_without_depth_is_left_out_and_a_prediction_without_any_named(
+        tmp_path, capsys):
+    """A prediction NaN over one whole frame (a stereo matcher that failed on it) stopped
+    evaluate and report with 'no valid ground-truth pixel to evaluate' / 'median scaling: no
+    valid pixel', naming neither the prediction nor the file. Now that frame's pixels count as
+    missing; a prediction with no depth anywhere is one line naming its file."""
+    from staticdepth.report import error_map
+
+    p, ground, _ = _sequence_with_ground(tmp_path)
+    gone = np.full_like(ground, np.nan)
+    add_prediction(p, "gap", [ground * 2.0, gone, ground * 2.0])       # eval frames: 1, 2
+    res = evaluate_sequence(p)
+    valid = int((np.isfinite(ground) & (ground > 1e-3) & (ground < 80)).sum())
+    assert res["missing"]["gap"]["pixels"] == valid
+    assert res["results"]["gap"]["median"]["all"]["pixels"] == valid
+    assert res["results"]["gap"]["median"]["all"]["abs_rel"] < 1e-6
+    add_prediction(p, "none", [gone] * 3)
+    capsys.readouterr()
+    for argv in (["evaluate", str(p)], ["report", str(p), "--out", str(tmp_path / "r")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and str(tmp_path / "s.h5.pred" / "none.h5") in err, err
+        assert "no depth (NaN) at any of the" in err
+    with np.errstate(all="raise"):                    # was: invalid value encountered in cast
+        rgb = error_map(gone, ground)
+    assert (rgb == 90).all()                          # a hole is grey, as missing ground truth
