@@ -163,11 +163,15 @@ TRUST_MODEL_COMMANDS = ("adapt", "run", "baseline train", "baseline predict", "p
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse exits 2 on usage errors already; keep its one-line message."""
+    """A usage error is one line and exit code 2 (argparse printed the whole usage block above
+    it: 7 lines for adapt, more inside a recipe's run); ``--help`` shows the usage."""
 
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("formatter_class", _Formatter)
         super().__init__(*args, **kwargs)
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 def _top_parser():
@@ -363,7 +367,10 @@ def main(argv: Sequence[str] | None = None, *, recipe: str | None = None) -> int
     """Run one command; ``recipe`` names the recipe whose stage this is (it cannot trust models)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv)
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as e:              # --help, --version, or a usage error (said already)
+        return e.code if isinstance(e.code, int) else 2
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -88,3 +88,24 @@ def test_onnx_sessions_log_errors_only(tmp_path):
     (tmp_path / "junk.onnx").write_bytes(b"not a model")
     with pytest.raises(InputError, match="junk.onnx: onnxruntime cannot load the ONNX model"):
         onnx_session(tmp_path / "junk.onnx")
+
+
+def test_a_usage_error_is_one_line_and_a_recipe_names_its_stage(tmp_path, capsys):
+    """argparse printed the command's whole usage block (7 lines for adapt) above its error,
+    and inside `run`/`demo` its SystemExit passed the runner's line naming the stage by."""
+    from staticdepth.cli import main
+
+    assert main(["adapt", "x.h5", "--epochs", "nan"]) == 2
+    err = capsys.readouterr().err
+    assert err == ("staticdepth adapt: error: argument --epochs: invalid int value: 'nan' "
+                   "(see staticdepth adapt --help)\n")
+    assert main(["nosuch"]) == 2 and capsys.readouterr().err.count("\n") == 1
+    assert main(["adapt", "--help"]) == 0
+    assert "usage: staticdepth adapt" in capsys.readouterr().out
+    rp = tmp_path / "r.yaml"
+    rp.write_text("name: T\nout_dir: " + str(tmp_path / "o") + "\nstages:\n  fit:\n"
+                  "    command: adapt\n    args: {_: [x.h5], epochs: nan}\n")
+    assert main(["run", str(rp)]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 2 and "invalid int value: 'nan'" in err[0], err
+    assert "stage 'fit' failed (exit 2): staticdepth adapt x.h5 --epochs nan" in err[1]
