@@ -363,9 +363,17 @@ def parse_overrides(items: Sequence[str] | None, option: str = "--set") -> dict[
     return parse_set(items, option)
 
 
+LIBRARY_LOG_LEVELS = {"OPENCV_LOG_LEVEL": "ERROR", "DEPTHAI_LEVEL": "error"}
+
+
 def main(argv: Sequence[str] | None = None, *, recipe: str | None = None) -> int:
     """Run one command; ``recipe`` names the recipe whose stage this is (it cannot trust models)."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    # OpenCV's and DepthAI's warnings ('[ WARN:0@0.07] global cap_v4l.cpp ... can't open camera
+    # by index') came before our one error line; their errors still print (the environment's
+    # own setting wins)
+    for key, level in LIBRARY_LOG_LEVELS.items():
+        os.environ.setdefault(key, level)
     parser = build_parser(argv)
     try:
         args = parser.parse_args(argv)

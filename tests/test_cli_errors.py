@@ -109,3 +109,21 @@ def test_a_usage_error_is_one_line_and_a_recipe_names_its_stage(tmp_path, capsys
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 2 and "invalid int value: 'nan'" in err[0], err
     assert "stage 'fit' failed (exit 2): staticdepth adapt x.h5 --epochs nan" in err[1]
+
+
+def test_a_camera_that_does_not_open_is_one_line(tmp_path):
+    """OpenCV printed its own warnings ('[ WARN:0@0.07] global cap_v4l.cpp:915 open ... can't
+    open camera by index', one per backend tried) above our error line."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "OPENCV_LOG_LEVEL"}
+    out = subprocess.run([sys.executable, "-c", "import sys; from staticdepth.cli import main; "
+                          "sys.exit(main())", "capture", "--source", "uvc",
+                          "--device", "98,99", "--out", str(tmp_path / "rec")],
+                         capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 2
+    assert out.stderr.splitlines() == [
+        "staticdepth capture: error: camera 98 does not open (is it connected, and not in use "
+        "by another program?)"], out.stderr
