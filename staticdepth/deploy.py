@@ -27,7 +27,8 @@ Keys read from the adapt summary: ``plane.normal`` (or ``planes.agents.normal``)
 older summary without it: ``eq2``), ``config.align.snap_rel``, the upright mode's
 ``config.align.shape/jump_rel/recede_min/recede_max/fill/max_pull/contact_range/recede_push/
 walked_ratio/plane_bound/step_occlude/colour_foot``, and
-``ground_polygon`` when present
+``sequence``, ``size``, ``frames`` (checked against ``--sequence``: another scene's summary is
+refused, :func:`staticdepth.locate.check_summary_of`), ``ground_polygon`` when present
 (the ground region's vertices in pixels; otherwise the feet hull is rebuilt from the sequence's
 agents or by running the summary's detector again).
 """
@@ -51,9 +52,11 @@ def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str 
     from staticdepth.adaptation.align import align_image, upright_options
     from staticdepth.dataset.h5 import SequenceReader
     from staticdepth.geometry.camera import read_json
-    from staticdepth.locate import plane_from_summary
+    from staticdepth.locate import check_summary_of, plane_from_summary
 
     s = read_json(summary_path)
+    with SequenceReader(seq_path) as r:
+        check_summary_of(s, summary_path, r)      # another scene's plane and scale: refused
     check_sees_ground(s, summary_path)
     n_g, h_c = plane_from_summary(s, summary_path)
     scale = (s.get("scale") or {}).get("ft-align") if isinstance(s.get("scale"), dict) else None
@@ -213,12 +216,17 @@ def export_model(model_spec: str, summary_path: str, seq_path: str, out: str, *,
                  ground_mask_png: str | None = None, check_frames: int = 5, opset: int = 17,
                  log=print) -> dict[str, Any]:
     """Write the ONNX file ``out`` and check it against :func:`metric_depth_reference` on
-    ``check_frames`` frames of the sequence; returns the constants and the check's figures."""
+    ``check_frames`` frames of the sequence; returns the constants and the check's figures.
+    Every option and ``out``'s folder are checked before any work; the file is written to a
+    temporary, checked there and renamed onto ``out`` only when the check has run (a failure
+    leaves nothing at ``out``)."""
     import torch
 
-    from staticdepth.fileio import atomic_path
+    from staticdepth.fileio import atomic_path, check_writable
     from staticdepth.models import TorchDepthModel, load_model
 
+    check_export_options(out, check_frames, opset)
+    check_writable(out)
     model = load_model(model_spec)
     if not isinstance(model, TorchDepthModel):
         raise InputError(f"export needs a torch model (builtin:, torch:, hf:), got {model_spec!r}")
@@ -229,21 +237,52 @@ def export_model(model_spec: str, summary_path: str, seq_path: str, out: str, *,
             "an image-only model cannot: agents keep the aligned network depth")
     graph = metric_graph(model, c)
     dummy = torch.zeros((c["height"], c["width"], 3), dtype=torch.uint8)
-    with atomic_path(out, "onnx") as tmp, warnings.catch_warnings():
-        warnings.simplefilter("ignore")              # tracer notes on the fixed sizes
-        with torch.no_grad():
-            kw = {"dynamo": False} if "dynamo" in torch.onnx.export.__code__.co_varnames else {}
-            torch.onnx.export(graph, (dummy,), tmp, input_names=["image"],
-                              output_names=["depth_m"], opset_version=opset, **kw)
-        meta = export_metadata(c, model_spec, summary_path)
-        with open(tmp, "ab") as f:
-            f.write(_onnx_metadata_bytes(meta))
     info = {k: c[k] for k in ("width", "height", "camera_height_m", "scale", "ground_from",
                               "mode")}
     info["normal"] = np.asarray(c["normal"]).tolist()
     info["path"] = out
-    info.update(check_export(out, model, c, seq_path, check_frames))
+    with atomic_path(out, "onnx") as tmp:
+        with warnings.catch_warnings(), torch.no_grad():
+            warnings.simplefilter("ignore")              # tracer notes on the fixed sizes
+            kw = {"dynamo": False} if "dynamo" in torch.onnx.export.__code__.co_varnames else {}
+            try:
+                torch.onnx.export(graph, (dummy,), tmp, input_names=["image"],
+                                  output_names=["depth_m"], opset_version=opset, **kw)
+            except torch.onnx.errors.OnnxExporterError as e:
+                raise InputError(f"--opset {opset}: the graph cannot be exported at this opset "
+                                 f"({str(e).splitlines()[0]})", out) from None
+        meta = export_metadata(c, model_spec, summary_path)
+        with open(tmp, "ab") as f:
+            f.write(_onnx_metadata_bytes(meta))
+        info.update(check_export(tmp, model, c, seq_path, check_frames))
     return info
+
+
+#: Opsets the exported graph is written in: bicubic resizing needs 11, and onnxruntime's CPU
+#: Clip of opset 11 does not take the graph's types; the top is the installed torch's.
+MIN_OPSET = 12
+
+
+def max_opset() -> int:
+    """The newest opset the installed torch's exporter writes."""
+    try:
+        from torch.onnx import _constants
+    except ImportError:                 # pragma: no cover (a torch without the module)
+        return 17
+    return int(getattr(_constants, "ONNX_MAX_OPSET", 17))
+
+
+def check_export_options(out: str, check_frames: int, opset: int) -> None:
+    """Refuse, before any work, an output not named ``.onnx``, ``check_frames`` under 1 (the
+    export is always checked) and an opset outside :data:`MIN_OPSET`..:func:`max_opset`."""
+    if not str(out).lower().endswith(".onnx"):
+        raise InputError("export-model writes an ONNX graph: name the file .onnx", out)
+    if isinstance(check_frames, bool) or not isinstance(check_frames, int) or check_frames < 1:
+        raise InputError(f"--check-frames must be at least 1 (the export is checked against the "
+                         f"torch/numpy pipeline), got {check_frames}")
+    top = max_opset()
+    if isinstance(opset, bool) or not isinstance(opset, int) or not MIN_OPSET <= opset <= top:
+        raise InputError(f"--opset must be from {MIN_OPSET} to {top}, got {opset}")
 
 
 def export_metadata(c: dict[str, Any], model_spec: str, summary_path: str) -> dict[str, str]:
@@ -391,8 +430,7 @@ def register(sub) -> None:
 def _run_export(args) -> int:
     from staticdepth.cli import refuse_existing
 
-    if not args.out.lower().endswith(".onnx"):
-        raise InputError("export-model writes an ONNX graph: name the file .onnx", args.out)
+    check_export_options(args.out, args.check_frames, args.opset)
     refuse_existing(args.out, overwrite=args.overwrite)
     info = export_model(args.model, args.summary, args.sequence, args.out,
                         ground_mask_png=args.ground_mask, check_frames=args.check_frames,

@@ -183,21 +183,47 @@ def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
             max_frames: int | None = None, device: str = "auto", log=print) -> dict[str, Any]:
     """Stream every ``every``-th frame of ``source`` (at most ``max_frames``) through a model into
     ``out_dir``, files named by the frame's index in the source; returns frames, their first and
-    last source index, fps (model, overall; ``video_fps`` for mp4) and the kind."""
-    import cv2
-
-    from staticdepth.fileio import atomic_path, atomic_write_bytes
-    from staticdepth.progress import progress
-
+    last source index, fps (model, overall; ``video_fps`` for mp4) and the kind. ``out_dir``
+    is made once the source has given a frame; a failed run removes the folders it made and
+    left empty."""
     if fmt not in ("png16", "npy", "mp4"):
         raise InputError(f"--format must be png16, npy or mp4, got {fmt!r}")
     if every < 1:
         raise InputError(f"--every must be >= 1, got {every}")
     if max_frames is not None and max_frames < 1:
         raise InputError(f"--max-frames must be >= 1, got {max_frames}")
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise InputError("is a file, not a folder (give the output folder)", out_dir)
     fn, kind, desc = make_predictor(model, summary, sequence, log=log, device=device)
     log(f"model: {desc}")
-    os.makedirs(out_dir, exist_ok=True)
+    made = _missing_folders(out_dir)
+    try:
+        return _predict_into(fn, kind, source, out_dir, fmt, every, max_frames, log)
+    except BaseException:
+        for d in made:              # the folders this run made, left empty: removed
+            if os.path.isdir(d) and not os.listdir(d):
+                os.rmdir(d)
+        raise
+
+
+def _missing_folders(path: str) -> list[str]:
+    """``path`` and those of its parents that do not exist yet, deepest first."""
+    out, p = [], os.path.abspath(path)
+    while not os.path.exists(p) and os.path.dirname(p) != p:
+        out.append(p)
+        p = os.path.dirname(p)
+    return out
+
+
+def _predict_into(fn, kind: str, source: str, out_dir: str, fmt: str, every: int,
+                  max_frames: int | None, log) -> dict[str, Any]:
+    """:func:`predict`'s loop; ``out_dir`` is made once the source has given its first frame and
+    the model its first depth."""
+    import cv2
+
+    from staticdepth.fileio import atomic_path, atomic_write_bytes
+    from staticdepth.progress import progress
+
     unit = "m" if kind == "metric" else "relative"
     writer, tmp_ctx, rng, bar, video_fps = None, None, None, None, None
     n, first, last, t_model, t0 = 0, None, None, 0.0, time.perf_counter()
@@ -207,6 +233,8 @@ def predict(model: str, source: str, out_dir: str, fmt: str = "png16", *,
             t = time.perf_counter()
             depth = np.asarray(fn(img), dtype=np.float32)
             t_model += time.perf_counter() - t
+            if n == 0:
+                os.makedirs(out_dir, exist_ok=True)   # the input opened and gave a depth
             if fmt == "npy":
                 buf = io.BytesIO()
                 np.save(buf, depth)

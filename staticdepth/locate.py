@@ -18,7 +18,8 @@ Where a position comes from (column ``source``):
 Agents: the sequence's own instances (synthetic scenes, CARLA) or a detector (``motion``,
 ``yolox``), tracked by box overlap (:func:`staticdepth.tracking.link_tracks`). The plane and the
 camera height: the adapt summary (``SEQ.adapt.json``; keys ``plane.normal``, ``camera_height_m``,
-or ``planes.agents.{normal, d}``), or ``--plane plane.json`` (``staticdepth ground-plane``) with
+or ``planes.agents.{normal, d}``; one written for another sequence is refused,
+:func:`check_summary_of`), or ``--plane plane.json`` (``staticdepth ground-plane``) with
 ``--camera-height``.
 """
 from __future__ import annotations
@@ -73,6 +74,49 @@ def plane_from_summary(summary: dict[str, Any], where: str) -> tuple[np.ndarray,
     return np.asarray(n, dtype=np.float64), check_camera_height(h, "camera_height_m", where)
 
 
+def check_summary_of(summary: dict[str, Any], summary_path: str, reader) -> None:
+    """Refuse an adapt summary written for another sequence than ``reader``'s (its plane and
+    scale are that scene's), in one line naming both files. The proof, first that applies: the
+    summary's ``sequence_id`` against the sequence's; its ``size`` [W, H] and ``frames``; its
+    recorded ``sequence`` path: an existing file that is neither this one nor a copy of it (same
+    identity) is another sequence; a missing one (a run folder moved as a whole) passes when its
+    file name is this one's (as ``report``'s check_summaries). A summary recording none passes."""
+    seq = reader.path
+    recorded = summary.get("sequence")
+    other = recorded if isinstance(recorded, str) else "another sequence"
+    sid, size, frames = summary.get("sequence_id"), summary.get("size"), summary.get("frames")
+    why = None
+    if isinstance(sid, str) and sid != reader.sequence_id():
+        why = "another sequence identity"
+    elif (isinstance(size, list) and len(size) == 2
+          and all(isinstance(v, (int, float)) for v in size)
+          and list(size) != [reader.width, reader.height]):
+        why = f"{size[0]}x{size[1]}, this one is {reader.width}x{reader.height}"
+    elif isinstance(frames, int) and frames != reader.n_frames:
+        why = f"{frames} frames, this one has {reader.n_frames}"
+    elif isinstance(recorded, str):
+        if os.path.exists(recorded):
+            if not os.path.samefile(recorded, seq) and not _same_identity(recorded, reader):
+                why = "another file"
+        elif os.path.basename(recorded) != os.path.basename(seq):
+            why = "another file name"
+    if why is not None:
+        raise InputError(f"this adapt summary was written for {other} ({why}), not for {seq}: "
+                         f"its plane and scale are that sequence's; give {seq}'s own summary",
+                         summary_path)
+
+
+def _same_identity(path: str, reader) -> bool:
+    """Whether the sequence file ``path`` is a copy of ``reader``'s (same identity)."""
+    from staticdepth.dataset.h5 import SequenceReader
+
+    try:
+        with SequenceReader(path) as r:
+            return r.sequence_id() == reader.sequence_id()
+    except InputError:
+        return False
+
+
 def load_plane(summary_path: str | None, plane_path: str | None, camera_height: float | None,
                seq_path: str) -> tuple[np.ndarray, float, str]:
     """(normal, camera height, what it came from); ``--camera-height`` overrides the summary's."""
@@ -95,7 +139,12 @@ def load_plane(summary_path: str | None, plane_path: str | None, camera_height: 
     if not os.path.isfile(path):
         raise InputError("no adapt summary (run `staticdepth adapt` first, or give --summary, or "
                          "--plane with --camera-height)", path)
-    n, h = plane_from_summary(read_json(path), path)
+    from staticdepth.dataset.h5 import SequenceReader
+
+    summary = read_json(path)
+    with SequenceReader(seq_path) as r:
+        check_summary_of(summary, path, r)
+    n, h = plane_from_summary(summary, path)
     return n, (camera_height if camera_height is not None else h), f"summary {path}"
 
 
@@ -342,7 +391,8 @@ def speed_summary(pos: np.ndarray, min_track_s: float = 2.0) -> dict[str, float]
 
 # -- command line ----------------------------------------------------------------------------------
 def register(sub) -> None:
-    p = sub.add_parser("locate", help="agents' positions in metres, speeds, distances between people",
+    p = sub.add_parser("locate",
+                       help="agents' positions in metres, speeds, distances between people",
                        description="Per frame and agent: the ground contact in the camera and "
                                    "ground frames (from the agents' plane and the camera height; "
                                    "the adapted depth map where the contact is hidden), distance, "
@@ -381,11 +431,17 @@ def _run(args) -> int:
     from staticdepth import locate_draw
     from staticdepth.cli import refuse_existing
 
+    from staticdepth.dataset.h5 import SequenceReader
+    from staticdepth.fileio import check_writable
+
+    # every option and every output before any work and before any file is written: a refusal
+    # after the table was written left it behind, and the corrected rerun was 'exists already'
     for path in (args.out, args.pairs):
         check_table_path(path)          # before the work: a .parquet path without pyarrow
-    refuse_existing(args.out, args.pairs, args.bev, args.annotate,
-                    args.annotate and locate_draw.sheet_path(args.annotate),
-                    overwrite=args.overwrite)
+    if args.annotate:
+        locate_draw.check_annotate_path(args.annotate)
+    if args.bev:
+        locate_draw.check_image_path(args.bev, "--bev")
     if not args.close_m > 0:
         raise InputError(f"--close-m must be positive, got {args.close_m}")
     if not 0 <= args.person_radius <= MAX_PERSON_RADIUS_M:
@@ -393,6 +449,13 @@ def _run(args) -> int:
                          f"{MAX_PERSON_RADIUS_M:g} m, got {args.person_radius:g}")
     if args.annotate_frames < 1:
         raise InputError(f"--annotate-frames must be at least 1, got {args.annotate_frames}")
+    outputs = [p for p in (args.out, args.pairs, args.bev, args.annotate,
+                           args.annotate and locate_draw.sheet_path(args.annotate)) if p]
+    refuse_existing(*outputs, overwrite=args.overwrite)
+    for path in outputs:
+        check_writable(path)            # its folder exists, a file can be created there
+    with SequenceReader(args.sequence):
+        pass                            # a damaged sequence is said as such, before its summary
     n, h, src = load_plane(args.summary, args.plane, args.camera_height, args.sequence)
     detector, model = args.detector, args.detector_model
     if detector is None and not args.plane:

@@ -61,13 +61,15 @@ def bev_image(pos: np.ndarray, size_px: int = 800, margin_px: int = 60,
 
     img = np.full((size_px, size_px, 3), 255, np.uint8)
     step = _nice_step(span)
-    for k in range(int(math.floor((cx - span / 2) / step)), int(math.ceil((cx + span / 2) / step)) + 1):
+    for k in range(int(math.floor((cx - span / 2) / step)),
+                   int(math.ceil((cx + span / 2) / step)) + 1):
         px, _ = to_px(k * step, 0)
         if margin_px <= px <= size_px - margin_px:
             cv2.line(img, (int(px), margin_px), (int(px), size_px - margin_px), (225, 225, 225), 1)
             cv2.putText(img, f"{k * step:g}", (int(px) - 10, size_px - margin_px + 18), FONT, 0.4,
                         (60, 60, 60), 1, cv2.LINE_AA)
-    for k in range(int(math.floor((cy - span / 2) / step)), int(math.ceil((cy + span / 2) / step)) + 1):
+    for k in range(int(math.floor((cy - span / 2) / step)),
+                   int(math.ceil((cy + span / 2) / step)) + 1):
         _, py = to_px(0, k * step)
         if margin_px <= py <= size_px - margin_px:
             cv2.line(img, (margin_px, int(py)), (size_px - margin_px, int(py)), (225, 225, 225), 1)
@@ -121,14 +123,16 @@ def annotate_frame(image: np.ndarray, pos_frame: np.ndarray, pairs_frame: list) 
         pa, pb = (int(a["u"]), int(a["v"])), (int(b["u"]), int(b["v"]))
         cv2.line(img, pa, pb, RED, 2, cv2.LINE_AA)
         mid = ((pa[0] + pb[0]) // 2, (pa[1] + pb[1]) // 2 - 4)
-        cv2.putText(img, f"{pr['distance_m']:.1f}m", mid, FONT, 0.4, (255, 255, 255), 3, cv2.LINE_AA)
+        cv2.putText(img, f"{pr['distance_m']:.1f}m", mid, FONT, 0.4, (255, 255, 255), 3,
+                    cv2.LINE_AA)
         cv2.putText(img, f"{pr['distance_m']:.1f}m", mid, FONT, 0.4, RED, 1, cv2.LINE_AA)
     for p in pos_frame:
         col = RED if int(p["track"]) in close_tracks else track_colour(int(p["track"]))
         l, r, t, b = p["left"], p["right"], p["top_v"], p["v"]
         if np.all(np.isfinite([l, r, t])):
             cv2.rectangle(img, (int(l), int(t)), (int(r), int(b)), col, 2 if col == RED else 1)
-        label = f"{int(p['track'])}: {p['distance_m']:.1f}m" + ("*" if p["source"] == "depth" else "")
+        label = (f"{int(p['track'])}: {p['distance_m']:.1f}m"
+                 + ("*" if p["source"] == "depth" else ""))
         org = (int(p["u"]) - 20, int(b) + 12)
         cv2.putText(img, label, org, FONT, 0.38, (0, 0, 0), 3, cv2.LINE_AA)
         cv2.putText(img, label, org, FONT, 0.38, col, 1, cv2.LINE_AA)
@@ -149,6 +153,18 @@ def write_bev(path: str, pos: np.ndarray, close: list | None = None) -> None:
     write_image(path, bev_image(pos, close=close))
 
 
+def check_annotate_path(path: str) -> None:
+    """Refuse annotated frames named other than ``.gif`` or ``.mp4``."""
+    if os.path.splitext(path)[1].lower() not in (".gif", ".mp4"):
+        raise InputError("annotated frames are written as .gif or .mp4", path)
+
+
+def check_image_path(path: str, option: str) -> None:
+    """Refuse an image output whose suffix OpenCV cannot encode (none: PNG, as write_image)."""
+    if os.path.splitext(path)[1] and not cv2.haveImageWriter(path):
+        raise InputError(f"{option}: cannot write an image of this kind (name it .png)", path)
+
+
 def write_annotated(path: str, seq_path: str, pos: np.ndarray, pairs: list, k: int = 12,
                     fps: float = 2.0) -> str:
     """Annotated frames as ``path`` (.gif or .mp4) and ``<path stem>_sheet.png``; returns the
@@ -158,9 +174,8 @@ def write_annotated(path: str, seq_path: str, pos: np.ndarray, pairs: list, k: i
     from staticdepth.dataset.h5 import SequenceReader
     from staticdepth.fileio import atomic_path
 
+    check_annotate_path(path)
     ext = os.path.splitext(path)[1].lower()
-    if ext not in (".gif", ".mp4"):
-        raise InputError("annotated frames are written as .gif or .mp4", path)
     frames = []
     with SequenceReader(seq_path) as r:
         for f in pick_frames(pos, k):

@@ -300,11 +300,19 @@ def test_riders_on_a_synthetic_scene(tmp_path):
     (["--person-radius", "50"], "--person-radius must be a body radius from 0 to 1 m, got 50"),
     (["--depth", "base"], "prediction 'base' is not metric depth (metric ones: ft-align-metric;"),
     # a table path of another kind got CSV under its name
-    (["--pairs", "pairs.json"], "pairs.json: a table is written as .csv or .parquet")])
+    (["--pairs", "pairs.json"], "pairs.json: a table is written as .csv or .parquet"),
+    # refused only after the table was written: the corrected rerun was 'exists already'
+    (["--annotate", "a.png"], "a.png: annotated frames are written as .gif or .mp4"),
+    (["--annotate", "nodir/a.gif"], "nodir/a.gif: its folder does not exist"),
+    (["--bev", "nodir/bev.png"], "nodir/bev.png: its folder does not exist"),
+    (["--bev", "bev.xyz"], "bev.xyz: --bev: cannot write an image of this kind"),
+    (["--pairs", "nodir/q.csv"], "nodir/q.csv: its folder does not exist")])
 def test_locate_refuses_bad_options_before_writing(tmp_path, capsys, monkeypatch, extra, msg):
     """--annotate-frames 0 (crashed in pick_frames after the CSV was written), a body radius out
-    of range (-1 and 50 m ran) and a relative --depth map (base, used as metres) are refused in
-    one line, exit 2, before any output; the metric map and a radius of 0 are taken."""
+    of range (-1 and 50 m ran), a relative --depth map (base, used as metres) and outputs that
+    cannot be written (another kind, a missing folder: refused after the CSV was written) are
+    refused in one line, exit 2, before any output; the metric map and a radius of 0 are
+    taken."""
     from staticdepth.dataset.h5 import add_prediction
 
     monkeypatch.chdir(tmp_path)
@@ -321,5 +329,7 @@ def test_locate_refuses_bad_options_before_writing(tmp_path, capsys, monkeypatch
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and msg in err[0], err
     assert not out.exists() and not (tmp_path / "a.gif").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bench.h5", "bench.h5.lock",
+                                                          "bench.h5.pred", "plane.json"]
     assert main(base + ["--depth", "ft-align-metric", "--person-radius", "0"]) == 0
     assert "depth" in {r["source"] for r in csv.DictReader(out.open())}   # the bench's feet
