@@ -105,7 +105,10 @@ def load_recipe(path: str | os.PathLike, variables: Mapping[str, str] | None = N
             raise InputError(f"recipe is missing {k!r}", src)
     if not isinstance(r["stages"], dict) or not r["stages"]:
         raise InputError("'stages' must be a non-empty mapping", src)
-    env = {"name": str(r["name"]), "data": os.environ.get("STATICDEPTH_DATA", "../shared/data")}
+    # the shared data folder: $STATICDEPTH_DATA, else ../shared/data from the current folder,
+    # made absolute so that --dry-run shows where it points
+    env = {"name": str(r["name"]),
+           "data": os.path.abspath(os.environ.get("STATICDEPTH_DATA", "../shared/data"))}
     # a variable is one the recipe declares or uses as a placeholder
     used = set(re.findall(PLACEHOLDER, json.dumps([r.get("vars"), r.get("out_dir"),
                                                    r["stages"]], default=str)))
@@ -119,6 +122,13 @@ def load_recipe(path: str | os.PathLike, variables: Mapping[str, str] | None = N
     for k in list(env):  # vars may refer to each other and to {name}, {data}
         env[k] = str(_subst(env[k], env, f"{src} vars"))
     env["out_dir"] = str(_subst(r.get("out_dir", f"runs/{r['name']}"), env, src))
+    given = "data" in (variables or {}) or "data" in (r.get("vars") or {})
+    if not given and not os.path.isdir(env["data"]) and "data" in used | set(
+            re.findall(PLACEHOLDER, json.dumps(r.get("vars"), default=str))):
+        how = ("$STATICDEPTH_DATA" if "STATICDEPTH_DATA" in os.environ
+               else "../shared/data from the current folder")
+        raise InputError(f"{{data}} is {env['data']} ({how}), which does not exist: set "
+                         "STATICDEPTH_DATA or pass --var data=FOLDER", src)
     stages = {}
     for name, st in r["stages"].items():
         if not isinstance(st, dict) or "command" not in st:

@@ -235,3 +235,21 @@ def test_an_interrupted_stage_is_continued_not_started_over(tmp_path, monkeypatc
     assert run_recipe(r5, log=log) == {"render": "ran", "train": "ran"}
     assert "--resume" in calls[6] and "--restart" not in calls[6]
     assert "--overwrite" in calls[7]
+
+
+def test_the_data_folder_is_absolute_and_a_missing_one_is_said(tmp_path, monkeypatch):
+    """{data} defaulted to ../shared/data relative to wherever run was started: outside the
+    repository the detector path pointed nowhere, said only when the stage ran."""
+    rp = tmp_path / "r.yaml"
+    rp.write_text("name: T\nstages:\n  a: {command: metrics, args: {pred: '{data}/p.npy'}}\n")
+    work = tmp_path / "deep" / "cwd"
+    work.mkdir(parents=True)
+    monkeypatch.chdir(work)
+    monkeypatch.delenv("STATICDEPTH_DATA", raising=False)
+    with pytest.raises(InputError, match=r"\{data\} is .*shared/data \(../shared/data from the "
+                                         r"current folder\), which does not exist"):
+        load_recipe(rp)
+    (tmp_path / "deep" / "shared" / "data").mkdir(parents=True)
+    r = load_recipe(rp)
+    assert r["stages"]["a"]["args"]["pred"] == str(tmp_path / "deep" / "shared" / "data" / "p.npy")
+    assert load_recipe(rp, {"data": "/d"})["stages"]["a"]["args"]["pred"] == "/d/p.npy"
