@@ -95,7 +95,8 @@ def adapt(seq_path: str | os.PathLike, conf=None, *, device=None,
 
     W, H, K, Hc = ws.width, ws.height, ws.K, plane.camera_height_m
     u_a, v_a = anchor_pixel(W, H)
-    summary = {"sequence": seq_path, "config": dataclasses.asdict(conf),
+    summary = {"sequence": seq_path, "sequence_id": ws.identity,
+               "config": dataclasses.asdict(conf),
                "config_hash": h["scale"], "stage_hashes": h, "frames": ws.n,
                "adapt_frames": len(ws.adapt_split), "size": [W, H],
                "pseudo_label_agent_pixels": n_agent_px, "plane": plane.to_dict(),

@@ -63,6 +63,8 @@ def test_adapt_writes_every_stage_and_is_reproducible(tmp_path, sequence, tiny_m
         assert ra.prediction_attrs("ft")["config_hash"] == s["stage_hashes"]["ft"]
         assert not np.array_equal(ra.prediction("ft", 3), base)       # fine-tuning changed it
     saved = json.load(open(s["summary_path"]))
+    with SequenceReader(a) as ra:      # what locate/export-model check a summary against
+        assert saved["sequence_id"] == ra.sequence_id()
     assert saved["camera_height_m"] == pytest.approx(5.4)              # the sequence's height
     assert saved["camera_height_source"] == "sequence"
     assert len(saved["finetune"]) == 1 and saved["finetune"][0]["seconds"] > 0
