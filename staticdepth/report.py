@@ -247,11 +247,17 @@ def register(sub) -> None:
     p.set_defaults(func=_report_cmd)
 
 
-def _pairs(items: Sequence[str]) -> dict[str, str]:
+def _pairs(items: Sequence[str], summaries: bool = False) -> dict[str, str]:
+    """``LABEL=PATH`` items by label; a bare path's label is its file stem (a summary's,
+    ``SCENE.adapt.json``, is ``SCENE``, as adapt names it beside ``SCENE.h5``)."""
     out = {}
     for it in items:
         scene, _, path = it.rpartition("=")
-        out[scene or os.path.splitext(os.path.basename(path))[0]] = path
+        if not scene:
+            name = os.path.basename(path)
+            scene = (name[:-len(".adapt.json")] if summaries and name.endswith(".adapt.json")
+                     else os.path.splitext(name)[0])
+        out[scene] = path
     return out
 
 
@@ -277,7 +283,7 @@ def _report_cmd(args: argparse.Namespace) -> int:
     seqs = _pairs(args.sequences)
     earlier = report_outputs(args.out) if os.path.isdir(args.out) else []
     refuse_existing(*earlier, overwrite=args.overwrite)
-    summaries = {scene: read_json(p) for scene, p in _pairs(args.summary).items()}
+    summaries = {scene: read_json(p) for scene, p in _pairs(args.summary, True).items()}
     res = build_report(seqs, args.out, summaries)
     for t in res["tables"]:
         print(t.text())

@@ -89,3 +89,14 @@ def test_a_report_folder_holds_one_report(tmp_path, capsys):
     (out / "notes.txt").write_text("mine")                      # not a report file: kept
     assert main(["report", f"D2={a}", "--out", str(out), "--overwrite"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt", "report_D2.html", *first[1:]]
+
+
+def test_a_bare_summary_path_goes_with_its_sequence(tmp_path, capsys):
+    """`report site.h5 --summary site.adapt.json` was refused ('no sequence labelled
+    'site.adapt''): a bare sequence got its file stem as label, its summary a stem adapt never
+    gives. Table 2 now shows the summary's anchor depth."""
+    s = _sequence(tmp_path / "site.h5")
+    summ = _summary(tmp_path / "site.adapt.json", s)
+    assert main(["report", str(s), "--summary", str(summ), "--out", str(tmp_path / "R")]) == 0
+    table2 = (tmp_path / "R" / "tables_2.csv").read_text().splitlines()
+    assert "5.0" in table2[1] and table2[1].startswith("site,"), table2
