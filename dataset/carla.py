@@ -223,7 +223,8 @@ def carla_tasks(folder: str | os.PathLike, *, legacy_tags: bool = False
                 ) -> tuple[list[CarlaTask], list[str], CarlaSensor]:
     folder = os.fspath(folder)
     if not os.path.isdir(folder):
-        raise InputError("folder not found", folder)
+        raise InputError("is a file, not a CARLA export folder (rgb/, depth/, instance/, "
+                         "sensor.json)" if os.path.exists(folder) else "folder not found", folder)
     sensor = CarlaSensor.load(os.path.join(folder, "sensor.json"))
     has_right = os.path.isdir(os.path.join(folder, "right"))
     stems = [os.path.splitext(n)[0] for n in list_frames(os.path.join(folder, "rgb"))]

@@ -52,7 +52,9 @@ def register(sub) -> None:
 def _synth(args: argparse.Namespace) -> int:
     from staticdepth.cli import parse_overrides
     from staticdepth.dataset.synth_io import render_to_file
+    from staticdepth.dataset.writer import check_sequence_output
 
+    check_sequence_output(args.out)
     info = render_to_file(args.out, preset_name=args.preset, n_frames=args.frames,
                           adapt_frames=args.adapt_frames, seed=args.seed,
                           overrides=parse_overrides(args.set), overwrite=args.overwrite,

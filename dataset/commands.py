@@ -115,9 +115,11 @@ def _write_with_executor(args: argparse.Namespace, write, *pos, **kw) -> int:
     print the report."""
     from staticdepth.dataset.executors import make_executor
     from staticdepth.dataset.pack import format_report
+    from staticdepth.dataset.writer import check_sequence_output
 
     if args.resume and args.restart:
         raise InputError("give --resume or --restart, not both")
+    check_sequence_output(args.out)
     schema.check_adapt_frames(args.adapt_frames, schema.ADAPT_NONE)
     ex = make_executor(args.executor, args.workers, args.address)    # checks --workers
     try:

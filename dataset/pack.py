@@ -62,6 +62,19 @@ def list_frames(folder: str | os.PathLike, ext: str = ".png") -> list[str]:
     return sorted_frames(n for n in os.listdir(folder) if n.lower().endswith(ext))
 
 
+def no_frames_error(folder: str | os.PathLike, ext: str = ".png") -> InputError:
+    """The error for a stream folder without ``ext`` frames, saying what it holds instead
+    (``holds no .png files (it holds 4 .jpg files)``), not the output's "no frames to write"."""
+    from collections import Counter
+
+    folder = os.fspath(folder)
+    kinds = Counter(os.path.splitext(n)[1].lower() or "extensionless" for n in os.listdir(folder))
+    held = ", ".join(f"{k} {e}" for e, k in kinds.most_common(3)) + (
+        ", ..." if len(kinds) > 3 else "")
+    return InputError(f"holds no {ext} files ({f'it holds {held} files' if kinds else 'empty'})",
+                      folder)
+
+
 def match_streams(streams: Mapping[str, Sequence[str]], where: str) -> list[str]:
     """Frame stems present in every stream; an :class:`InputError` when the streams disagree.
 
@@ -225,6 +238,9 @@ def recording_tasks(folder: str | os.PathLike) -> tuple[list[StereoTask], list[s
         return tasks, [f"{f.frame:08d}" for f in rec.frames], rec.rig
     names = {os.path.join(folder, s): list_frames(os.path.join(folder, s))
              for s in ("left", "right")}
+    for sub, found in names.items():
+        if not found:
+            raise no_frames_error(sub)
     stems = match_streams(names, folder)
     ts: list[float | None] = [None] * len(stems)
     csv_path = os.path.join(folder, "timestamps.csv")

@@ -143,16 +143,22 @@ def publish(files: Sequence[str | os.PathLike], out: str | os.PathLike, *,
             export: bool = True, overwrite: bool = False) -> dict[str, Any]:
     """Build the release folder ``out`` (atomically: beside it, then renamed)."""
     from staticdepth.dataset.export import check_replaceable
-    from staticdepth.fileio import exclusive_lock
+    from staticdepth.fileio import check_output_parent, exclusive_lock
 
     out = os.fspath(out)
+    check_output_parent(out)
     check_replaceable(out, overwrite, is_release, "a staticdepth release folder")
     if not files:
         raise InputError("publish needs at least one sequence file")
     stems = [os.path.splitext(os.path.basename(os.fspath(f)))[0] for f in files]
-    dup = sorted({s for s in stems if stems.count(s) > 1})
-    if dup:
-        raise InputError(f"two input files share the name {dup[0]!r}")
+    for i, stem in enumerate(stems):
+        if stem in stems[:i]:
+            first = os.fspath(files[stems.index(stem)])
+            if os.path.realpath(first) == os.path.realpath(os.fspath(files[i])):
+                raise InputError("is given twice (each sequence once)", files[i])
+            raise InputError(f"two input files share the name {stem!r}: {first} and "
+                             f"{os.fspath(files[i])} (a release names its sequences by file "
+                             "name: rename one)")
     with exclusive_lock(out, what="writing"):
         return _publish(files, stems, out, title, licence, citation, export, overwrite)
 

@@ -281,7 +281,7 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
     import cv2
 
     from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
-    from staticdepth.fileio import exclusive_lock
+    from staticdepth.fileio import check_output_parent, exclusive_lock
     from staticdepth.progress import progress
 
     from staticdepth.dataset.schema import check_adapt_frames, check_name
@@ -306,6 +306,7 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
                         provenance={"input": source, "intrinsics": how, "every": every,
                                     "max_frames": max_frames, "resized_from": [w0, h0]})
     settings, inputs, labels = _identity(source, every, max_frames, width, fps)
+    check_output_parent(out)             # before its lock (a missing folder is the output's)
     with exclusive_lock(out):
         w = SequenceWriter(out, meta, streams=("left",), overwrite=overwrite, resume=resume,
                            restart=restart, settings=settings, inputs=inputs, labels=labels)
@@ -405,6 +406,9 @@ def register(sub) -> None:
 
 
 def _run(args) -> int:
+    from staticdepth.dataset.writer import check_sequence_output
+
+    check_sequence_output(args.out)
     rep = import_video(args.source, args.out, camera_json=args.camera, fov_deg=args.fov_deg,
                        every=args.every, max_frames=args.max_frames,
                        adapt_frames=args.adapt_frames, width=args.width, fps=args.fps,
@@ -412,7 +416,7 @@ def _run(args) -> int:
                        restart=args.restart)
     print(f"intrinsics: {rep['intrinsics']}")
     if rep["resumed_from"]:
-        print(f"resumed after the {rep['resumed_from']} frames of the interrupted import")
+        print(f"resumed after the {rep['resumed_from']} frames of the earlier import")
     note = " (clipped to the frames read)" if rep["adapt_clipped"] else ""
     if rep["ended_early"]:
         print(f"warning: {args.source}: {rep['ended_early']}")

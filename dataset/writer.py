@@ -65,6 +65,18 @@ def check_replaceable_sequence(path: str) -> None:
                          "is left untouched (move it away yourself)", path)
 
 
+def check_sequence_output(path: str | os.PathLike) -> None:
+    """Before any work: the one rule for the ``--out`` of every sequence writer (import-video,
+    import-kitti, import-carla, pack, synth): a sequence file's name ends in ``.h5`` (an HDF5
+    file named ``x.png`` was written without a word). A file that is there already and is no
+    sequence is said to be left untouched first (what ``--overwrite`` onto it says)."""
+    path = os.fspath(path)
+    if not path.endswith(".h5"):
+        if os.path.lexists(path):
+            check_replaceable_sequence(path)
+        raise InputError("a sequence file's name must end in .h5 (--out)", path)
+
+
 class SequenceWriter:
     """Append frames to a new sequence file; finish atomically.
 
@@ -85,7 +97,8 @@ class SequenceWriter:
         per input frame (:func:`staticdepth.dataset.resume.task_identity`), ``labels`` their names;
         both are stored and a ``resume`` with others is refused (see :mod:`.resume`).
         ``resume_how``: how this command continues a leftover partial (said when it is found)."""
-        from staticdepth.fileio import exclusive_lock, remove_stale_temporaries
+        from staticdepth.fileio import (check_output_parent, exclusive_lock,
+                                        remove_stale_temporaries)
 
         self.path = os.fspath(path)
         self.partial = self.path + PARTIAL_SUFFIX
@@ -103,9 +116,7 @@ class SequenceWriter:
         self._replaced = os.path.lexists(self.path)
         if self._replaced:
             check_replaceable_sequence(self.path)
-        parent = os.path.dirname(os.path.abspath(self.path))
-        if not os.path.isdir(parent):
-            raise InputError("output folder does not exist", parent)
+        check_output_parent(self.path)
         self._f: h5py.File | None = None
         self._io = None  # the partial's UndoableFile (see resume.py)
         self.n = 0

@@ -111,6 +111,17 @@ def temporary_path(path: str | os.PathLike, tag: str = "") -> str:
     return f"{os.fspath(path)}.tmp-{os.getpid()}-{tag}"
 
 
+def check_output_parent(path: str | os.PathLike) -> None:
+    """Before any work: the folder that is to hold the output ``path`` (a file or a folder)
+    exists. The one line for a missing one, naming it, for the sequence writers, ``export`` and
+    ``publish`` (taking the output's lock first said "no such file or folder")."""
+    parent = os.path.dirname(os.path.abspath(os.fspath(path)))
+    if not os.path.isdir(parent):
+        raise InputError("output's parent does not exist (create that folder first)"
+                         if not os.path.lexists(parent) else
+                         "output's parent is not a folder", parent)
+
+
 def _check_output_path(path: str) -> None:
     if os.path.isdir(path):
         raise InputError("is a folder, not a file (give a file name)", path)

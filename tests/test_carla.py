@@ -285,3 +285,14 @@ def test_legacy_tags_on_newer_data_warn_in_one_line(tmp_path, capsys):
     with SequenceReader(tmp_path / "L.h5") as r:
         assert len(r.agents()) == 9
         assert r.meta.provenance["legacy_tags_check"]["agents_legacy"] == 9
+
+
+def test_a_file_given_as_the_export_folder_is_said_to_be_a_file(tmp_path, capsys):
+    """import-carla vtest.avi said 'folder not found' though the path exists (as a file)."""
+    f = tmp_path / "clip.avi"
+    f.write_bytes(b"x")
+    assert main(["import-carla", str(f), "--out", str(tmp_path / "c.h5")]) == 2
+    assert capsys.readouterr().err.strip().endswith(
+        f"error: {f}: is a file, not a CARLA export folder (rgb/, depth/, instance/, sensor.json)")
+    assert main(["import-carla", str(tmp_path / "none"), "--out", str(tmp_path / "c.h5")]) == 2
+    assert capsys.readouterr().err.strip().endswith("none: folder not found")

@@ -339,3 +339,22 @@ def test_adapt_frames_rule_is_the_same_for_every_importer(command, n, tmp_path, 
         f"--adapt-frames must be >= 1 (the first frames, which adapt learns from; leave it out "
         f"for {left_out}), got {n}"), err
     assert os.listdir(tmp_path) == []
+
+
+def test_a_recording_without_png_pairs_names_its_folder_and_what_it_holds(tmp_path, capsys):
+    """A folder of .jpg pairs gave 'R1.h5: no frames to write', naming the output."""
+    for side in ("left", "right"):
+        (tmp_path / "rec" / side).mkdir(parents=True)
+    out = tmp_path / "R1.h5"
+    assert main(["pack", "--recording", str(tmp_path / "rec"), "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip().endswith(
+        f"error: {tmp_path / 'rec' / 'left'}: holds no .png files (empty)")
+    for side in ("left", "right"):
+        for i in range(2):
+            cv2.imwrite(str(tmp_path / "rec" / side / f"{i}.jpg"), np.zeros((8, 8), np.uint8))
+    (tmp_path / "rec" / "left" / "notes.txt").write_text("x")
+    assert main(["pack", "--recording", str(tmp_path / "rec"), "--out", str(out)]) == 2
+    assert capsys.readouterr().err.strip().endswith(
+        f"error: {tmp_path / 'rec' / 'left'}: holds no .png files (it holds 2 .jpg, 1 .txt "
+        "files)")
+    assert not out.exists()

@@ -166,3 +166,69 @@ def test_importers_refuse_a_name_of_more_than_one_line(argv, tmp_path, capsys):
     assert len(err) == 1 and err[0].endswith(
         "error: --name must be one line of printable text, got 'evil\\n# injected'")
     assert os.listdir(tmp_path) == []
+
+
+def test_one_file_given_twice_is_named_and_a_shared_name_names_both_files(tmp_path, capsys):
+    """'two input files share the name k' named no file, even when one file was given twice."""
+    make_sequence(tmp_path / "A.h5", n=2, adapt=1)
+    (tmp_path / "x").mkdir()
+    make_sequence(tmp_path / "x" / "A.h5", n=2, adapt=1)
+    a = str(tmp_path / "A.h5")
+    assert main(["publish", a, a, "--out", str(tmp_path / "rel")]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"staticdepth publish: error: {a}: is given twice (each sequence once)")
+    b = str(tmp_path / "x" / "A.h5")
+    assert main(["publish", a, b, "--out", str(tmp_path / "rel")]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"staticdepth publish: error: two input files share the name 'A': {a} and {b} (a release "
+        "names its sequences by file name: rename one)")
+    assert not (tmp_path / "rel").exists()
+
+
+@pytest.mark.parametrize("argv", [["publish", "{d}/A.h5"], ["export", "{d}/A.h5"],
+                                  ["import-video", "{d}/v"], ["import-carla", "{d}/C"],
+                                  ["synth", "--frames", "1"]])
+def test_a_missing_output_folder_is_said_in_one_wording(argv, tmp_path, capsys):
+    """publish and import-video said 'no such file or folder' (their lock's error), export
+    "output folder's parent does not exist", the sequence writer "output folder does not
+    exist": now one line from fileio.check_output_parent, naming the missing folder."""
+    import cv2
+
+    make_sequence(tmp_path / "A.h5", n=2, adapt=1)
+    (tmp_path / "v").mkdir()
+    cv2.imwrite(str(tmp_path / "v" / "0.png"), np.zeros((16, 16, 3), np.uint8))
+    from test_carla import _export
+
+    _export(tmp_path / "C", n=1)
+    out = tmp_path / "nodir" / ("R" if argv[0] in ("publish", "export") else "s.h5")
+    args = [a.format(d=tmp_path) for a in argv] + ["--out", str(out)]
+    if argv[0] == "import-video":
+        args += ["--fov-deg", "60"]
+    before = sorted(os.listdir(tmp_path))
+    assert main(args) == 2
+    assert capsys.readouterr().err.strip().endswith(
+        f"error: {tmp_path / 'nodir'}: output's parent does not exist (create that folder first)")
+    assert sorted(os.listdir(tmp_path)) == before
+
+
+@pytest.mark.parametrize("argv", [["import-kitti", "--root", "R", "--drives", "x"],
+                                  ["import-carla", "C"], ["pack", "--recording", "P"],
+                                  ["import-video", "V"], ["synth"]])
+@pytest.mark.parametrize("name", ["x.png", "x", "x.h5.partial"])
+def test_every_sequence_writer_refuses_an_out_not_ending_in_h5(argv, name, tmp_path, capsys):
+    """import-kitti --out x.png wrote an HDF5 file named x.png."""
+    out = tmp_path / name
+    assert main(argv + ["--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith(
+        f"error: {out}: a sequence file's name must end in .h5 (--out)"), err
+    assert os.listdir(tmp_path) == []
+
+
+def test_an_out_not_ending_in_h5_that_is_a_foreign_file_is_said_to_be_left_untouched(tmp_path,
+                                                                                      capsys):
+    notes = tmp_path / "notes.txt"
+    notes.write_text("precious")
+    assert main(["synth", "--out", str(notes), "--overwrite"]) == 2
+    assert "is not a readable HDF5 file" in capsys.readouterr().err
+    assert notes.read_text() == "precious"

@@ -90,7 +90,8 @@ def _list_images(spec: str | os.PathLike) -> list[str]:
 
 
 class FolderSource(StereoSource):
-    """Two image folders (or glob patterns), paired in frame order (numbers in names by value), stamped ``k / fps``."""
+    """Two image folders (or glob patterns), paired in frame order (numbers in names by value:
+    ``2.png`` before ``10.png``), stamped ``k / fps``."""
 
     kind = "folder"
 
