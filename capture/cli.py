@@ -12,6 +12,9 @@ from typing import Iterator
 
 from staticdepth.errors import InputError
 
+# no stereo camera or replay runs faster (1e9 recorded 3 frames, reported as 1.8 million missing)
+MAX_FPS = 1000.0
+
 SOURCES = ("depthai", "uvc", "sbs", "replay", "synthetic")
 
 
@@ -94,8 +97,9 @@ CAMERA_OPTIONS = (("size", "--size"), ("color", "--color"), ("device", "--device
 
 def check_options(args: argparse.Namespace) -> None:
     """Refuse impossible numbers and options the source would ignore, before anything starts."""
-    if args.fps is not None and not (math.isfinite(args.fps) and args.fps > 0):
-        raise InputError(f"--fps must be a positive number of frames per second, got {args.fps}")
+    if args.fps is not None and not (math.isfinite(args.fps) and 0 < args.fps <= MAX_FPS):
+        raise InputError(f"--fps must be a number of frames per second in (0, {MAX_FPS:g}], got "
+                         f"{args.fps}")
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise InputError(f"--duration must be a positive number of seconds, got {args.duration}")
     if args.frames is not None and args.frames < 1:
