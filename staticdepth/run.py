@@ -194,7 +194,9 @@ def _input_paths(st: Mapping[str, Any]) -> list[str]:
             if not isinstance(x, str) or not x:
                 continue
             for cand in (x, x.partition("=")[2], x.partition(":")[2]):
-                if cand and os.path.exists(cand) and os.path.realpath(cand) not in outs:
+                # a name (name: C1, detector: gt) is no path, even where cwd holds such a file
+                named = cand and (os.sep in cand or "." in os.path.basename(cand))
+                if named and os.path.exists(cand) and os.path.realpath(cand) not in outs:
                     found.append(cand)
                     break
     return found

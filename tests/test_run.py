@@ -253,3 +253,17 @@ def test_the_data_folder_is_absolute_and_a_missing_one_is_said(tmp_path, monkeyp
     r = load_recipe(rp)
     assert r["stages"]["a"]["args"]["pred"] == str(tmp_path / "deep" / "shared" / "data" / "p.npy")
     assert load_recipe(rp, {"data": "/d"})["stages"]["a"]["args"]["pred"] == "/d/p.npy"
+
+
+def test_a_name_is_not_taken_for_an_input_folder(tmp_path, monkeypatch):
+    """`name: C1` beside a folder C1 in the current folder (the CARLA export itself, often) was
+    walked as an input, and any change there reran the stage."""
+    from staticdepth.run import _input_paths
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "C1").mkdir()
+    (tmp_path / "C1" / "x.png").write_bytes(b"x")
+    (tmp_path / "a.h5").write_bytes(b"x")
+    st = {"args": {"name": "C1", "_": ["a.h5", f"S={tmp_path / 'C1'}"], "model": "builtin",
+                   "out": "o.h5"}, "outputs": ["o.h5"]}
+    assert _input_paths(st) == ["a.h5", str(tmp_path / "C1")]
