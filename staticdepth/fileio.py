@@ -12,7 +12,11 @@ Every command that writes a file goes through here:
 - :func:`exclusive_lock` takes an exclusive, non-blocking ``fcntl`` lock on ``<out>.lock`` for the
   whole time a process writes ``out`` (or adds to it); a second writer gets one clear error line.
   The kernel drops the lock when the process dies (also on SIGKILL), so a crash never leaves a
-  stale lock behind; the lock file itself is left in place (removing it would race).
+  stale lock behind. A run whose output does not exist at the end (refused, failed,
+  interrupted) removes the lock file, while it still holds the lock; every locker checks, once
+  it holds a lock, that the file it locked is still the one at ``<out>.lock`` (else it opens
+  the path again), so a removal never lets two processes hold "the" lock. Beside an output that
+  exists the (empty) lock file stays.
 - :func:`read_image` decodes an image file (missing, empty or undecodable: one
   :class:`InputError` naming it) and :func:`read_rgb` gives an 8-bit colour image as RGB; every
   command reads images through these two (the dataset importers, ``stereo``, ``calibrate``,
@@ -313,7 +317,8 @@ def exclusive_lock(path: str | os.PathLike, *, what: str = "writing") -> Iterato
     """Hold an exclusive lock on ``<path>.lock`` for the block; fail at once if another holds it.
 
     Re-entrant within one process for the same path (a command that locks an output and then
-    calls a library function that locks it again does not deadlock itself).
+    calls a library function that locks it again does not deadlock itself). When ``path`` does
+    not exist at the end, the lock file is removed (see the module doc for why that is safe).
     """
     import fcntl
 
@@ -326,21 +331,8 @@ def exclusive_lock(path: str | os.PathLike, *, what: str = "writing") -> Iterato
             _HELD[path] -= 1
         return
     lock = path + ".lock"
+    fd = _lock_file(lock, path, what)
     try:
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError as e:
-        # the user named the output, not its lock: a missing folder is the output's problem
-        raise os_error(e, path if e.errno == errno.ENOENT else lock) from None
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            try:
-                holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
-            except OSError:
-                holder = "?"
-            raise OutputLocked(f"another staticdepth process (pid {holder}) is {what} this file; "
-                               "wait for it to finish or stop it", path) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, str(os.getpid()).encode(), 0)
         _HELD[path] = 1
@@ -349,13 +341,48 @@ def exclusive_lock(path: str | os.PathLike, *, what: str = "writing") -> Iterato
         finally:
             del _HELD[path]
             with contextlib.suppress(OSError):
-                os.ftruncate(fd, 0)
+                if os.path.lexists(path):
+                    os.ftruncate(fd, 0)
+                else:   # nothing was made: no lock file beside a missing output. Removed while
+                    os.unlink(lock)     # held: a waiting locker finds its file gone and retries
             fcntl.flock(fd, fcntl.LOCK_UN)
     finally:
         os.close(fd)
 
 
 _HELD: dict[str, int] = {}
+
+
+def _lock_file(lock: str, path: str, what: str) -> int:
+    """Open ``lock`` and take its exclusive lock; the descriptor. Another holder is an
+    :class:`OutputLocked`. A lock taken on a file that its holder removed in the meantime (see
+    :func:`exclusive_lock`) is no lock: then the path is opened again."""
+    import fcntl
+
+    for _ in range(100):
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            # the user named the output, not its lock: a missing folder is the output's problem
+            raise os_error(e, path if e.errno == errno.ENOENT else lock) from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            try:
+                holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+            except OSError:
+                holder = "?"
+            os.close(fd)
+            raise OutputLocked(f"another staticdepth process (pid {holder}) is {what} this file; "
+                               "wait for it to finish or stop it", path) from None
+        try:
+            if os.path.samestat(os.fstat(fd), os.stat(lock)):
+                return fd
+        except FileNotFoundError:
+            pass
+        os.close(fd)                    # closing drops the lock on the removed file
+    raise OutputLocked(f"its lock file {lock} keeps being replaced; another process is {what} "
+                       "this file", path)
 
 
 def check_writable(path: str | os.PathLike) -> None:

@@ -161,3 +161,53 @@ def test_frames_are_listed_in_numeric_order_deterministically():
     for seed in range(5):                                            # a total order: no ties
         random.Random(seed).shuffle(names)
         assert sorted_frames(names) == want
+
+
+def test_no_lock_file_is_left_beside_an_output_that_was_not_made(tmp_path):
+    """A refused, failed or interrupted run left OUT.lock beside an OUT that never existed."""
+    out = tmp_path / "REL4"
+    with pytest.raises(RuntimeError):
+        with exclusive_lock(out):
+            assert (tmp_path / "REL4.lock").exists()
+            raise RuntimeError("refused")
+    with pytest.raises(KeyboardInterrupt):
+        with exclusive_lock(out):
+            raise KeyboardInterrupt
+    assert os.listdir(tmp_path) == []
+    with exclusive_lock(out):                   # made: its (empty) lock file stays beside it
+        out.mkdir()
+    assert sorted(os.listdir(tmp_path)) == ["REL4", "REL4.lock"]
+    assert (tmp_path / "REL4.lock").read_text() == ""
+
+
+def test_a_lock_taken_on_a_removed_lock_file_is_not_kept(tmp_path, monkeypatch):
+    """The race that removing lock files opens: B opens OUT.lock while A holds it, A ends (the
+    file is removed while A still holds it), B then locks the removed file. B must notice and
+    lock the file at the path, so that a third process C is refused while B holds it."""
+    import fcntl
+
+    out = tmp_path / "seq.h5"
+    lock = str(out) + ".lock"
+    with exclusive_lock(out):                                    # A
+        stale = os.open(lock, os.O_RDWR)                         # B's open, before A ends
+    assert not os.path.exists(lock)
+    real_open = os.open
+    calls = []
+
+    def b_open(p, *a, **k):                                      # B's first open is that one
+        if p == lock and not calls:
+            calls.append(p)
+            return stale
+        return real_open(p, *a, **k)
+
+    monkeypatch.setattr(os, "open", b_open)
+    with exclusive_lock(out):                                    # B
+        monkeypatch.setattr(os, "open", real_open)
+        assert os.path.exists(lock)
+        c = os.open(lock, os.O_RDWR)                             # C
+        try:
+            with pytest.raises(BlockingIOError):
+                fcntl.flock(c, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        finally:
+            os.close(c)
+    assert calls and not os.path.exists(lock)

@@ -232,3 +232,12 @@ def test_an_out_not_ending_in_h5_that_is_a_foreign_file_is_said_to_be_left_untou
     assert main(["synth", "--out", str(notes), "--overwrite"]) == 2
     assert "is not a readable HDF5 file" in capsys.readouterr().err
     assert notes.read_text() == "precious"
+
+
+def test_a_failed_publish_or_export_leaves_no_lock_file(tmp_path, capsys):
+    """REL.lock stayed beside a release that was never made (and after a failed export)."""
+    (tmp_path / "bad.h5").write_bytes(b"nope")
+    assert main(["publish", str(tmp_path / "bad.h5"), "--out", str(tmp_path / "REL")]) == 2
+    assert main(["export", str(tmp_path / "bad.h5"), "--out", str(tmp_path / "E")]) == 2
+    assert "not a readable HDF5 file" in capsys.readouterr().err
+    assert os.listdir(tmp_path) == ["bad.h5"]
