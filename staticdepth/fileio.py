@@ -117,8 +117,9 @@ def temporary_path(path: str | os.PathLike, tag: str = "") -> str:
 
 def check_output_parent(path: str | os.PathLike) -> None:
     """Before any work: the folder that is to hold the output ``path`` (a file or a folder)
-    exists. The one line for a missing one, naming it, for the sequence writers, ``export`` and
-    ``publish`` (taking the output's lock first said "no such file or folder")."""
+    exists. The one line for a missing one, naming it, for every output (the atomic writer's
+    files, the sequence writers, ``export``, ``publish``; taking the output's lock first said "no
+    such file or folder", the atomic writer "its folder does not exist")."""
     parent = os.path.dirname(os.path.abspath(os.fspath(path)))
     if not os.path.isdir(parent):
         raise InputError("output's parent does not exist (create that folder first)"
@@ -129,9 +130,7 @@ def check_output_parent(path: str | os.PathLike) -> None:
 def _check_output_path(path: str) -> None:
     if os.path.isdir(path):
         raise InputError("is a folder, not a file (give a file name)", path)
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
-        raise InputError("its folder does not exist", path)
+    check_output_parent(path)
 
 
 @contextlib.contextmanager

@@ -15,7 +15,7 @@ import numpy as np
 from staticdepth.errors import InputError
 # the toolkit's one image reader, and its names for images and videos
 from staticdepth.fileio import (IMAGE_EXTS, VIDEO_EXTS, read_image, read_npy,  # noqa: F401
-                                read_rgb)
+                                read_rgb, sorted_frames)
 
 
 def check_image_headers(files: list[str], size: tuple[int, int] | None = None) -> None:
@@ -49,7 +49,7 @@ def expand_images(pattern: str) -> list[str]:
         files = glob.glob(pattern)
     else:
         files = [pattern] if os.path.exists(pattern) else []
-    files = sorted(files)
+    files = sorted_frames(files)      # 2.png before 10.png, as every frame listing
     if not files:
         raise InputError("no images found", pattern)
     return files

@@ -127,7 +127,7 @@ def test_a_moved_or_copied_run_folder_keeps_its_summary(site, tmp_path):
     (["--check-frames", "-1"], "--check-frames must be at least 1"),
     (["--opset", "5"], "--opset must be from 12 to"),
     (["--opset", "99"], "--opset must be from 12 to"),
-    (["--out", "nodir/e.onnx"], "nodir/e.onnx: its folder does not exist")])
+    (["--out", "nodir/e.onnx"], "nodir: output's parent does not exist")])
 def test_export_refuses_options_before_any_work(site, tmp_path, capsys, monkeypatch, extra, msg):
     """Was: --check-frames 0 a traceback after the export, leaving a complete .onnx that the
     rerun called 'exists already'; -1 and --opset 5/99 tracebacks; a missing folder refused

@@ -211,3 +211,15 @@ def test_a_lock_taken_on_a_removed_lock_file_is_not_kept(tmp_path, monkeypatch):
         finally:
             os.close(c)
     assert calls and not os.path.exists(lock)
+
+
+def test_stereo_lists_a_folder_and_a_glob_in_the_one_frame_order(tmp_path):
+    """`stereo --left FOLDER` (and calibrate's board pairs) sorted names plainly: 1, 10, 2, so
+    left and right pairs kept their pairing but the frames' order was not the capture's."""
+    from staticdepth.stereo.io import expand_images
+
+    for n in (1, 2, 10):
+        (tmp_path / f"{n}.png").write_bytes(b"")
+    want = [str(tmp_path / f"{n}.png") for n in (1, 2, 10)]
+    assert expand_images(str(tmp_path)) == want
+    assert expand_images(str(tmp_path / "*.png")) == want

@@ -303,10 +303,10 @@ def test_riders_on_a_synthetic_scene(tmp_path):
     (["--pairs", "pairs.json"], "pairs.json: a table is written as .csv or .parquet"),
     # refused only after the table was written: the corrected rerun was 'exists already'
     (["--annotate", "a.png"], "a.png: annotated frames are written as .gif or .mp4"),
-    (["--annotate", "nodir/a.gif"], "nodir/a.gif: its folder does not exist"),
-    (["--bev", "nodir/bev.png"], "nodir/bev.png: its folder does not exist"),
+    (["--annotate", "nodir/a.gif"], "nodir: output's parent does not exist"),
+    (["--bev", "nodir/bev.png"], "nodir: output's parent does not exist"),
     (["--bev", "bev.xyz"], "bev.xyz: --bev: cannot write an image of this kind"),
-    (["--pairs", "nodir/q.csv"], "nodir/q.csv: its folder does not exist")])
+    (["--pairs", "nodir/q.csv"], "nodir: output's parent does not exist")])
 def test_locate_refuses_bad_options_before_writing(tmp_path, capsys, monkeypatch, extra, msg):
     """--annotate-frames 0 (crashed in pick_frames after the CSV was written), a body radius out
     of range (-1 and 50 m ran), a relative --depth map (base, used as metres) and outputs that
