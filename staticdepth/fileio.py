@@ -330,6 +330,7 @@ def exclusive_lock(path: str | os.PathLike, *, what: str = "writing") -> Iterato
             _HELD[path] -= 1
         return
     lock = path + ".lock"
+    check_output_parent(path)      # the one line for a missing folder ('no such file or folder')
     fd = _lock_file(lock, path, what)
     try:
         os.ftruncate(fd, 0)

@@ -60,7 +60,8 @@ def test_a_missing_output_folder_names_the_output_not_its_lock(tmp_path):
     out = tmp_path / "nodir" / "x.h5"
     with pytest.raises(InputError) as e, exclusive_lock(out):
         pass
-    assert str(e.value) == f"{out}: no such file or folder"
+    assert str(e.value) == (f"{tmp_path / 'nodir'}: output's parent does not exist (create that "
+                            "folder first)")
 
 
 @pytest.mark.parametrize("exc", [TypeError("bad operand"), IndexError("list index"),
