@@ -251,15 +251,25 @@ class VideoFrames(Sequence):
         self.close()
 
 
-def camera_for(width: int, height: int, camera_json: str | None, fov_deg: float | None):
-    """(Camera, provenance text): the calibrated camera (scaled to the frame size) or a FOV guess."""
+def camera_for(width: int, height: int, camera_json: str | None, fov_deg: float | None,
+               native: tuple[int, int] | None = None):
+    """(Camera, provenance text): the calibrated camera (scaled to the frame size) or a FOV guess.
+    ``native``: the source's own frame size (before ``--width``); a camera calibrated at another
+    size is scaled, and the text says so."""
     from staticdepth.geometry.camera import Camera, load_camera
 
     if camera_json and fov_deg is not None:
         raise InputError("give either --camera or --fov-deg, not both")
     if camera_json:
-        cam = load_camera(camera_json).fitted_to(width, height, "the frames", camera_json)
-        return cam, f"camera JSON {os.path.abspath(camera_json)}"
+        calibrated = load_camera(camera_json)
+        cam = calibrated.fitted_to(width, height, "the frames", camera_json)
+        how = f"camera JSON {os.path.abspath(camera_json)}"
+        w0, h0 = native or (width, height)
+        if abs(calibrated.width - w0) > 1 or abs(calibrated.height - h0) > 1:
+            how += (f", calibrated at {calibrated.width}x{calibrated.height}, the source is "
+                    f"{w0}x{h0}: scaled (right for a resize of that image, not for a crop of the "
+                    "sensor)")
+        return cam, how
     fov = DEFAULT_FOV_DEG if fov_deg is None else float(fov_deg)
     if not 1.0 <= fov <= 179.0:
         raise InputError(f"--fov-deg must lie in [1, 179], got {fov}")
@@ -300,7 +310,7 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
     first = next(frames)
     h0, w0 = first.rgb.shape[:2]
     size = (w0, h0) if width is None else (int(width), int(round(h0 * width / w0)))
-    cam, how = camera_for(size[0], size[1], camera_json, fov_deg)
+    cam, how = camera_for(size[0], size[1], camera_json, fov_deg, native=(w0, h0))
     label = name or os.path.splitext(os.path.basename(source.rstrip("/")))[0] or "video"
     meta = SequenceMeta(name=label, camera=cam, gt_kind="none", source="video", adapt_frames=0,
                         provenance={"input": source, "intrinsics": how, "every": every,

@@ -56,6 +56,11 @@ def test_folder_with_camera_json_scaled(tmp_path):
         assert abs(r.camera.fx - 100.0) < 1e-9                     # calibrated at twice the size
         assert np.allclose(r.timestamps(), np.arange(5) / 2.0)
         assert "camera JSON" in r.meta.provenance["intrinsics"]
+        # said, not silent: a crop of the sensor (another field of view) would be wrong
+        assert ("calibrated at 128x96, the source is 64x48: scaled (right for a resize of that "
+                "image, not for a crop" in r.meta.provenance["intrinsics"])
+    # a camera of the source's own size, the frames resized by --width: nothing to say
+    assert camera_for(32, 24, str(cam), None, native=(128, 96))[1] == f"camera JSON {cam}"
     cam.write_text(json.dumps({"fx": 200.0, "fy": 200.0, "cx": 63.5, "cy": 47.5,
                                "width": 128, "height": 128}))
     with pytest.raises(InputError, match="not a uniform resize"):
