@@ -55,9 +55,9 @@ def deployment_constants(summary_path: str, seq_path: str, ground_mask_png: str 
     from staticdepth.locate import check_summary_of, plane_from_summary
 
     s = read_json(summary_path)
+    check_sees_ground(s, summary_path)            # the summary alone refuses it
     with SequenceReader(seq_path) as r:
         check_summary_of(s, summary_path, r)      # another scene's plane and scale: refused
-    check_sees_ground(s, summary_path)
     n_g, h_c = plane_from_summary(s, summary_path)
     scale = (s.get("scale") or {}).get("ft-align") if isinstance(s.get("scale"), dict) else None
     scale = float(scale) if scale else h_c
