@@ -333,7 +333,7 @@ def refuse_other_runs(seq: str, conf) -> None:
 
 
 def run(args) -> int:
-    from staticdepth.cli import refuse_existing, resolve_device
+    from staticdepth.cli import refuse_existing, refuse_foreign_kind, resolve_device
     from staticdepth.config import format_config
 
     conf, extras = config_from_args(args)
@@ -343,8 +343,9 @@ def run(args) -> int:
     seq = extras.get("sequence")
     if not seq:
         raise InputError("no sequence given (a positional SEQ.h5 or 'sequence:' in the recipe)")
-    refuse_existing(extras.get("summary") or default_summary_path(seq), extras.get("save_model"),
-                    overwrite=args.overwrite)
+    summary = extras.get("summary") or default_summary_path(seq)
+    refuse_foreign_kind(summary, "--summary", "adapt", "summary")
+    refuse_existing(summary, extras.get("save_model"), overwrite=args.overwrite)
     if not args.overwrite:
         refuse_other_runs(seq, conf)
     device = resolve_device(extras.get("device", args.device))

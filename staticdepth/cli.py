@@ -231,10 +231,15 @@ OUTPUT_DESTS = ("out", "json", "camera_out", "disparity_out", "summary_json", "b
 # read and written on purpose: ``mount --rig rig.json --out rig.json`` adds the mount to the rig
 IN_PLACE = {("mount", "out", "rig")}
 NEITHER = ("checkpoint", "func", "command", "set", "var")   # resumed from and written; not paths
-# the outputs that are HDF5 files (sequences): no other output replaces an existing HDF5 file,
-# even with --overwrite (``metrics --json seq.h5 --overwrite`` replaced a sequence with JSON)
+# the outputs that are HDF5 files (sequences) or images: no other output replaces an existing
+# file of those kinds, even with --overwrite (``metrics --json seq.h5 --overwrite`` replaced a
+# sequence with JSON, ``train-builtin --out photo.png --overwrite`` a photo with weights)
 HDF5_OUTPUTS = {("synth", "out"), ("pack", "out"), ("import-kitti", "out"),
                 ("import-carla", "out"), ("import-video", "out"), ("stereo", "out")}
+IMAGE_OUTPUTS = {("locate", "bev"), ("inspect", "sheet"), ("stereo", "disparity_out")}
+KINDS = ((b"\x89HDF\r\n\x1a\n", "an HDF5 file (a sequence or a prediction?)", HDF5_OUTPUTS),
+         (b"\x89PNG\r\n\x1a\n", "a PNG image", IMAGE_OUTPUTS),
+         (b"\xff\xd8\xff", "a JPEG image", IMAGE_OUTPUTS))
 # a sequence's companions, read with it: its prediction store and adapt's stage files
 COMPANIONS = (".pred", ".adapt")
 
@@ -268,12 +273,19 @@ def _companion(out: str, seq: str) -> str | None:
     return None
 
 
-def _is_hdf5(path: str) -> bool:
+def refuse_foreign_kind(path: str, option: str, command: str, dest: str) -> None:
+    """An existing ``path`` that holds a file of a kind the output does not write (a sequence,
+    a prediction, an image) is refused in one line, even with --overwrite: --overwrite replaces
+    an earlier output, not the user's data."""
     try:
         with open(path, "rb") as f:
-            return f.read(8) == b"\x89HDF\r\n\x1a\n"
+            head = f.read(8)
     except OSError:                     # a folder, or unreadable: the command says what is wrong
-        return False
+        return
+    for magic, kind, writers in KINDS:
+        if head.startswith(magic) and (command, dest) not in writers:
+            raise InputError(f"{option} names {kind}, which this command does not write: even "
+                             "with --overwrite it is not replaced; choose another output", path)
 
 
 def refuse_output_over_input(args: argparse.Namespace) -> None:
@@ -282,8 +294,9 @@ def refuse_output_over_input(args: argparse.Namespace) -> None:
     line naming the file and both options. Existing files are compared with ``samefile`` (links,
     relative paths), names not yet written by their real path. Also refused: an output inside an
     input sequence's prediction store or stage folder (``evaluate SEQ --json
-    SEQ.pred/base.h5``), and an existing HDF5 file under any output but a sequence writer's
-    (``metrics --json other.h5`` replaced a sequence the command does not read)."""
+    SEQ.pred/base.h5``), and an existing HDF5 file or image under any output but one that writes
+    such files (:func:`refuse_foreign_kind`; ``metrics --json other.h5`` replaced a sequence
+    the command does not read)."""
     outs = [(d, p) for d in OUTPUT_DESTS for p in _path_values(getattr(args, d, None))]
     ins = [(d, p) for d, v in vars(args).items()
            if d not in OUTPUT_DESTS and d not in NEITHER for p in _path_values(v)
@@ -305,10 +318,7 @@ def refuse_output_over_input(args: argparse.Namespace) -> None:
                 raise InputError(f"{_flag(dest)} names this command's input "
                                  f"({src.replace('_', '-')}): writing it would destroy the input; "
                                  "choose another output", out)
-        if (args.command, dest) not in HDF5_OUTPUTS and _is_hdf5(out):
-            raise InputError(f"{_flag(dest)} names an HDF5 file (a sequence or a prediction?), "
-                             "which this command does not write: even with --overwrite it is "
-                             "not replaced; choose another output", out)
+        refuse_foreign_kind(out, _flag(dest), args.command, dest)
 
 
 def _add_trust_model_arguments(parser: argparse.ArgumentParser) -> None:

@@ -245,3 +245,26 @@ def test_no_output_replaces_a_sequences_files_even_with_overwrite(tmp_path, caps
     assert main(["evaluate", str(seq)]) == 0                       # the prediction still reads
     assert main(["synth", "--preset", "c1", "--frames", "2", "--adapt-frames", "1", "--set",
                  "width=64", "--set", "height=32", "--out", str(other), "--overwrite"]) == 0
+
+
+def test_overwrite_replaces_an_earlier_output_not_an_image(tmp_path, capsys):
+    """`train-builtin --out photo.png --overwrite` turned a photo into torch weights, and
+    `adapt --summary photo.png --overwrite` into JSON: an existing image (or sequence) under an
+    output that writes none is refused in one line, kept as it was."""
+    import cv2
+
+    photo = tmp_path / "photo.png"
+    cv2.imwrite(str(photo), np.full((8, 8, 3), 90, np.uint8))
+    jpeg = tmp_path / "photo.jpg"
+    cv2.imwrite(str(jpeg), np.full((8, 8, 3), 90, np.uint8))
+    before = photo.read_bytes(), jpeg.read_bytes()
+    for argv, victim in (
+            (["train-builtin", "--out", str(photo), "--frames", "2", "--epochs", "1",
+              "--size", "64x32"], photo),
+            (["adapt", str(tmp_path / "none.h5"), "--summary", str(jpeg)], jpeg)):
+        capsys.readouterr()
+        assert main([*argv, "--overwrite"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and str(victim) in err and "image, which this command does " \
+            "not write: even with --overwrite it is not replaced" in err, err
+    assert (photo.read_bytes(), jpeg.read_bytes()) == before
