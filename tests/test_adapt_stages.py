@@ -190,8 +190,12 @@ def test_a_late_setting_reruns_only_the_stages_after_it(tmp_path, clip, tiny, on
     base = {"model": f"builtin:{tiny}", "detector.name": "gt", "finetune.epochs": 1,
             "tracking.min_height_px": 3, "plane.bootstrap": 0, "align.mode": "ground",
             "align.min_ground_r2": 0.0}
-    s1 = adapt(seq, build_config(base), log=lambda m: None)
+    lines: list[str] = []
+    s1 = adapt(seq, build_config(base), log=lines.append)
     assert s1["skipped_stages"] == ["agents"]                 # gt: the sequence's own
+    # a first run said 'agents: up to date, skipped' of a stage it never ran
+    assert ("agents: the sequence's own instance maps are the agents (detector gt), skipped"
+            in lines) and not any("up to date" in ln for ln in lines), lines
     first = _predictions(seq)
     s2 = adapt(seq, build_config({**base, "scale.metric_scale": "anchor"}), log=lambda m: None)
     assert set(s2["skipped_stages"]) == {"base", "agents", "pseudo_labels", "finetune", "ft",

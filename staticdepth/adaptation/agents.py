@@ -39,8 +39,8 @@ def make(conf: AdaptConfig, ws: Workspace):
 
 
 def run(conf: AdaptConfig, ws: Workspace, detector, config_hash: str) -> None:
-    if detector is None:
-        return ws.skip("agents")
+    if detector is None:      # a first run said 'up to date' of a stage it never ran
+        return ws.skip("agents", "the sequence's own instance maps are the agents (detector gt)")
     w = ws.frame_writer("agents.h5", n=ws.n, shape=(ws.height, ws.width), dtype=np.uint16,
                         config_hash=config_hash, rows_dtype=AGENT_DTYPE, chunk=16,
                         attrs={"detector": conf.detector.name})

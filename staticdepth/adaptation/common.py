@@ -44,9 +44,9 @@ class Workspace:
     def count(self, stage: str, k: int = 1) -> None:
         self.frames[stage] = self.frames.get(stage, 0) + k
 
-    def skip(self, stage: str) -> None:
+    def skip(self, stage: str, why: str = "up to date") -> None:
         self.skipped.append(stage)
-        self.log(f"{stage}: up to date, skipped")
+        self.log(f"{stage}: {why}, skipped")
 
     def frame_writer(self, name: str, *, n: int, shape, dtype, config_hash: str, rows_dtype=None,
                      chunk: int = 1, attrs=None) -> FrameFileWriter:
