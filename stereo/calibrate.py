@@ -39,8 +39,9 @@ class Board:
             raise InputError(f"pattern must be one of {PATTERNS}, got {self.pattern!r}")
         if self.cols < 2 or self.rows < 2:
             raise InputError(f"board must be at least 2x2, got {self.cols}x{self.rows}")
-        if not self.square_m > 0:
-            raise InputError(f"square size must be positive, got {self.square_m}")
+        if not (np.isfinite(self.square_m) and self.square_m > 0):   # inf, nan, 0: refused
+            raise InputError(f"square size must be a finite positive number, got "
+                             f"{self.square_m}")
         if self.pattern == "charuco" and not hasattr(cv2.aruco, self.dictionary):
             raise InputError(f"unknown ArUco dictionary {self.dictionary!r}")
 

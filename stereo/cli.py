@@ -46,12 +46,14 @@ def register(sub) -> None:
     p.add_argument("--name", help="sequence name (default: the output's stem)")
     _overwrite(p)
     p.add_argument("--resume", action="store_true",
-                   help="continue an interrupted run (<out>.partial) with the same inputs")
+                   help="continue an interrupted run (<out>.partial, or with --sequence the "
+                        "prediction's .partial) with the same inputs and settings")
     p.add_argument("--restart", action="store_true",
-                   help="discard an interrupted run's <out>.partial and start over")
+                   help="discard an interrupted run's .partial and start over")
     p.add_argument("--rectified", action="store_true", help="one already rectified pair, no rig")
-    p.add_argument("--max-disparity", type=int, help="disparity range in px, rounded up to 16 "
-                                                     "(sequences: default from --min-depth)")
+    p.add_argument("--max-disparity", type=int, help="disparity range in px (positive), rounded "
+                                                     "up to 16 (sequences: default from "
+                                                     "--min-depth)")
     p.add_argument("--disparity-out", help="left disparity file (.pfm, .png x256 or .npy)")
     p.add_argument("--ply", help="point cloud of the first frame (PLY)")
     p.add_argument("--matcher", default="sgbm", help="sgbm (default) or onnx")
@@ -242,8 +244,9 @@ def _stereo_pair(args) -> int:
     from staticdepth.stereo.io import read_rgb, write_disparity, write_ply
     from staticdepth.stereo.pipeline import StereoPipeline
 
-    if not args.max_disparity or args.max_disparity <= 0:
+    if args.max_disparity is None:
         raise InputError("--rectified needs --max-disparity N (a positive number of pixels)")
+    _num_disparities(args.max_disparity)          # 0 or below: refused by name
     if not args.disparity_out:
         raise InputError("--rectified needs --disparity-out FILE (.pfm, .png or .npy)")
     if args.ply and not args.rig:
@@ -282,7 +285,7 @@ def _stereo_pair(args) -> int:
 def _stereo_on_sequence(args) -> int:
     """``--sequence SEQ.h5 --out-name NAME [--temporal] [--fill]``: see stereo/sequence.py."""
     from staticdepth.cli import parse_overrides
-    from staticdepth.stereo.sequence import stereo_sequence
+    from staticdepth.stereo.sequence import check_name, partial_paths, stereo_sequence
     from staticdepth.stereo.temporal import TemporalConfig
 
     if not (args.sequence and args.out_name):
@@ -291,16 +294,27 @@ def _stereo_on_sequence(args) -> int:
     if args.left or args.right or args.recording or args.rectified or args.out:
         raise InputError("--sequence reads the sequence's own left/right streams: drop --left, "
                          "--right, --recording, --rectified and --out")
+    try:
+        check_name(args.out_name)
+    except InputError as e:
+        raise InputError(f"--out-name: {e.problem}") from None
     overrides = parse_overrides(args.set)
     temporal = {k[len("temporal."):]: v for k, v in overrides.items() if k.startswith("temporal.")}
     if temporal and not args.temporal:
         raise InputError("temporal.* settings need --temporal")
     args.set = [f"{k}={v}" for k, v in overrides.items() if not k.startswith("temporal.")]
-    extra = {"num_disparities": _num_disparities(args.max_disparity)} if args.max_disparity \
-        else {}
-    res = stereo_sequence(args.sequence, args.out_name, _config(args, **extra),
-                          TemporalConfig.from_dict(temporal, "--set temporal.*")
-                          if args.temporal else None)
+    extra = {} if args.max_disparity is None \
+        else {"num_disparities": _num_disparities(args.max_disparity)}
+    try:
+        res = stereo_sequence(args.sequence, args.out_name, _config(args, **extra),
+                              TemporalConfig.from_dict(temporal, "--set temporal.*")
+                              if args.temporal else None, overwrite=args.overwrite,
+                              resume=args.resume, restart=args.restart)
+    except KeyboardInterrupt:
+        for partial in partial_paths(args.sequence, args.out_name):
+            print(f"note: {partial} keeps the frames written; the same command with --resume "
+                  f"continues it, --restart starts over", file=sys.stderr)
+        raise
     print(f"{res.frames} frames, {res.num_disparities} disparities, {100 * res.density:.1f}% "
           f"of pixels with depth{' (background model reused)' if res.background_reused else ''}"
           f" -> predictions {res.name!r} and {res.name + '-confidence'!r} in {args.sequence}")
@@ -400,7 +414,7 @@ def _stereo_sequence(args) -> int:
         raise InputError("the recording has no rig: pass --rig rig.json", args.recording)
     rig_name = args.rig or f"{args.recording} (its rig)"
     extra = {}
-    if args.max_disparity:
+    if args.max_disparity is not None:
         extra["num_disparities"] = _num_disparities(args.max_disparity)
     pipe = StereoPipeline(rig, _config(args, **extra), rig_source=rig_name)
     # Every check before any work: sizes and readability of every file's header, the first pair

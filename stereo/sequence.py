@@ -9,6 +9,10 @@ stereo ground truth against the sequence's own depth:
 - ``NAME-confidence``: the per-pixel confidence in [0, 1] (0 on holes), attribute
   ``kind = "confidence"``; ``evaluate`` reports NAME's accuracy per confidence band with it.
 
+An existing prediction of that name is replaced only with ``--overwrite``; a run stopped before
+finishing leaves ``NAME.h5.partial`` (and so on), which ``--resume`` continues (the same settings
+only) and ``--restart`` deletes; without either flag it is refused, never deleted unasked.
+
 The temporal background model is cached beside the sequence (``SEQ.h5.NAME.background.npz``,
 keyed by the settings and the sequence), so a killed run does not rebuild it.
 """
@@ -83,22 +87,92 @@ def _background(reader, path: str, name: str, match, match_scaled, temporal: Tem
     return model, False
 
 
+def check_name(name: str) -> str:
+    """A stereo prediction's name: a prediction name (``dataset.predictions.check_name``) that
+    leaves room for its ``NAME-confidence``."""
+    from staticdepth.dataset.predictions import check_name as check_prediction_name
+
+    if not name or name.endswith(CONFIDENCE_SUFFIX):
+        raise InputError(f"prediction name {name!r} must be non-empty and not end in "
+                         f"{CONFIDENCE_SUFFIX!r}")
+    check_prediction_name(name)
+    check_prediction_name(name + CONFIDENCE_SUFFIX)
+    return name
+
+
+def partial_paths(path: str | os.PathLike, name: str) -> list[str]:
+    """The ``.partial`` files an interrupted ``stereo --sequence`` of ``name`` left (if any)."""
+    from staticdepth.dataset.predictions import PARTIAL, prediction_path
+
+    return [p + PARTIAL for p in (prediction_path(path, name),
+                                  prediction_path(path, name + CONFIDENCE_SUFFIX))
+            if os.path.exists(p + PARTIAL)]
+
+
+def _check_outputs(path: str, name: str, identity: str, chash: str, *, overwrite: bool,
+                   resume: bool, restart: bool) -> None:
+    """The project's output rules for ``NAME`` and ``NAME-confidence``, before any work: an
+    existing prediction is replaced only with ``overwrite`` (a ``resume`` of this very run may
+    finish one it wrote with the same settings); a leftover ``.partial`` is never resumed or
+    deleted unasked: ``resume`` continues it (same settings and sequence only), ``restart``
+    deletes it."""
+    import h5py
+
+    from staticdepth.dataset import resume as rs
+    from staticdepth.dataset.framefile import PARTIAL, is_complete
+    from staticdepth.dataset.predictions import prediction_path
+    from staticdepth.fileio import exclusive_lock
+
+    if resume and restart:
+        raise InputError("give --resume or --restart, not both")
+    outs = [prediction_path(path, n) for n in (name, name + CONFIDENCE_SUFFIX)]
+    for out in outs:
+        if os.path.lexists(out) and not overwrite and not (resume and is_complete(out, identity,
+                                                                                  chash)):
+            raise InputError("exists already; pass --overwrite to replace it", out)
+    for out in outs:
+        partial = out + PARTIAL
+        if not os.path.exists(partial):
+            continue
+        if restart:
+            with exclusive_lock(out):
+                os.remove(partial)
+                rs.remove_journal(partial)
+        elif not resume:
+            raise InputError("an earlier run stopped before finishing (interrupted) and left "
+                             "this file: --resume continues it, --restart starts over", partial)
+        elif not rs.journal_pending(partial):   # killed in a flush: its writer puts it back
+            try:
+                with h5py.File(partial, "r") as f:
+                    same = (f.attrs.get("config_hash") == chash
+                            and f.attrs.get("sequence_id") == identity)
+            except OSError:
+                same = False
+            if not same:
+                raise InputError("cannot resume: the partial file was written with other "
+                                 "settings or of another sequence; --restart starts over",
+                                 partial)
+
+
 def stereo_sequence(path: str | os.PathLike, name: str, config: StereoConfig | None = None,
-                    temporal: TemporalConfig | None = None) -> SequenceStereoResult:
+                    temporal: TemporalConfig | None = None, *, overwrite: bool = False,
+                    resume: bool = False, restart: bool = False) -> SequenceStereoResult:
     """Match the left/right streams of ``path`` into predictions ``name`` and its confidence.
 
     ``temporal=None`` matches each frame alone; otherwise the frames are fused over time.
     ``config.fill`` fills every remaining hole (100% density; depth capped at ``max_depth_m``).
+    An existing prediction ``name`` (or its confidence) is refused unless ``overwrite``; a
+    ``.partial`` left by an interrupted run is refused unless ``resume`` (continue it: same
+    settings only) or ``restart`` (delete it): see :func:`_check_outputs`.
     """
+    from staticdepth.config import config_hash
     from staticdepth.dataset.h5 import SequenceReader, add_prediction
     from staticdepth.fileio import temporary_path
     from staticdepth.progress import progress
 
     path = os.fspath(path)
     c = config or StereoConfig()
-    if not name or name.endswith(CONFIDENCE_SUFFIX):
-        raise InputError(f"prediction name {name!r} must be non-empty and not end in "
-                         f"{CONFIDENCE_SUFFIX!r}")
+    check_name(name)
     with SequenceReader(path) as r:
         if not r.has("right"):
             raise InputError("sequence has no right stream to match (KITTI: import with --right; "
@@ -108,6 +182,16 @@ def stereo_sequence(path: str | os.PathLike, name: str, config: StereoConfig | N
         f_px, baseline = float(r.camera.fx), float(r.meta.rig.baseline_m)
         w, h, n_frames = r.width, r.height, len(r)
         n_disp = _num_disparities(c, f_px, baseline, w, r.meta.camera_height_m)
+        attrs: dict[str, Any] = {
+            "kind": "depth", "source": "stereo", "metric": 1, "matcher": c.matcher,
+            "num_disparities": n_disp, "fill": int(c.fill), "stereo": c.to_dict(),
+            "temporal": temporal.to_dict() if temporal else "", "confidence": name
+            + CONFIDENCE_SUFFIX, "focal_px": f_px, "baseline_m": baseline}
+        sid = r.sequence_id()
+        chash = config_hash(attrs, 16)       # what a --resume must find unchanged
+        attrs["config_hash"] = chash
+        _check_outputs(path, name, sid, chash, overwrite=overwrite, resume=resume,
+                       restart=restart)
         dense_match = c.fill and temporal is None
         matcher = create_matcher(c.matcher, num_disparities=n_disp, image_size=(w, h),
                                  dense=dense_match, options=c.options)
@@ -150,11 +234,6 @@ def stereo_sequence(path: str | os.PathLike, name: str, config: StereoConfig | N
                 counted[0] += int(np.isfinite(z).sum())
                 yield z
 
-        attrs: dict[str, Any] = {
-            "kind": "depth", "source": "stereo", "metric": 1, "matcher": c.matcher,
-            "num_disparities": n_disp, "fill": int(c.fill), "stereo": c.to_dict(),
-            "temporal": temporal.to_dict() if temporal else "", "confidence": name
-            + CONFIDENCE_SUFFIX, "focal_px": f_px, "baseline_m": baseline}
         try:
             add_prediction(path, name, depth_maps(), attrs)
         except BaseException:
@@ -165,7 +244,7 @@ def stereo_sequence(path: str | os.PathLike, name: str, config: StereoConfig | N
         confidence.flush()
         add_prediction(path, name + CONFIDENCE_SUFFIX,
                        (confidence[i] * np.float32(1 / 255) for i in range(n_frames)),
-                       {"kind": "confidence", "of": name})
+                       {"kind": "confidence", "of": name, "config_hash": chash})
     finally:
         del confidence
         if os.path.exists(conf_tmp):

@@ -93,13 +93,14 @@ def test_unwritable_output_is_refused_before_any_work(shared_data, tmp_path, cap
     monkeypatch.setattr(calibrate_module, "detect_corners", _no_detection)
     monkeypatch.setattr(mount, "detect_corners", _no_detection)
     out = str(tmp_path / "missing" / "c.json")
+    missing = f"{tmp_path / 'missing'}: output's parent does not exist"   # fileio's one line
     assert _calibrate(left[0], right[0], out) == 2
-    _error(capsys, "calibrate", out)
+    _error(capsys, "calibrate", missing)
     rig = tmp_path / "rig.json"
     StereoRig.rectified(CAM, 0.27).save(rig)
     assert main(["mount", "--rig", str(rig), "--images", left[0], "--board", "9x6",
                  "--square", "0.1", "--out", out]) == 2
-    _error(capsys, "mount", out)
+    _error(capsys, "mount", missing)
 
 
 def _ground_views(tmp_path, heights, pitch=30.0):

@@ -167,13 +167,13 @@ def test_stereo_sequence_temporal_fill_and_evaluate(synth_seq, tmp_path, capsys)
     out = capsys.readouterr().out
     assert "100.0% of pixels with depth" in out and "reused" not in out
     assert main(["stereo", "--sequence", str(synth_seq), "--out-name", "fused", "--temporal",
-                 "--fill", "--set", "temporal.samples=8"]) == 0
+                 "--fill", "--set", "temporal.samples=8", "--overwrite"]) == 0
     assert "background model reused" in capsys.readouterr().out
     assert main(["stereo", "--sequence", str(synth_seq), "--out-name", "fused", "--temporal",
-                 "--fill", "--set", "temporal.samples=6"]) == 0      # other settings: rebuilt
+                 "--fill", "--set", "temporal.samples=6", "--overwrite"]) == 0   # rebuilt
     assert "reused" not in capsys.readouterr().out
     assert main(["stereo", "--sequence", str(synth_seq), "--out-name", "fused", "--temporal",
-                 "--fill", "--set", "temporal.samples=8"]) == 0
+                 "--fill", "--set", "temporal.samples=8", "--overwrite"]) == 0
     capsys.readouterr()
     with SequenceReader(synth_seq) as r:
         assert {"sgbm", "sgbm-confidence", "fused", "fused-confidence"} <= set(r.predictions())
