@@ -196,6 +196,10 @@ def test_a_late_setting_reruns_only_the_stages_after_it(tmp_path, clip, tiny, on
     # a first run said 'agents: up to date, skipped' of a stage it never ran
     assert ("agents: the sequence's own instance maps are the agents (detector gt), skipped"
             in lines) and not any("up to date" in ln for ln in lines), lines
+    # plane.bootstrap 0 with enough tracks: said as such, not as 'fewer than 3 inlier tracks'
+    assert any("its uncertainty was not measured (plane.bootstrap=0)" in ln for ln in lines)
+    assert ("warning: metric depth unverified: the ground plane's uncertainty was not measured "
+            "(plane.bootstrap=0)") in lines and not any("fewer than 3" in ln for ln in lines)
     first = _predictions(seq)
     s2 = adapt(seq, build_config({**base, "scale.metric_scale": "anchor"}), log=lambda m: None)
     assert set(s2["skipped_stages"]) == {"base", "agents", "pseudo_labels", "finetune", "ft",

@@ -92,7 +92,11 @@ def run(conf: AdaptConfig, ws: Workspace, agents: Agents, config_hash: str
     feet = np.concatenate(feet) if feet else np.zeros((0, 2))
     n_in = int(np.count_nonzero(plane.inliers))
     gate = plane_gate(plane) if np.isfinite(plane.normal_std_deg) else None
-    if n_in < 5 or gate is None:
+    if gate is None and n_in >= 3 and conf.plane.bootstrap == 0:
+        ws.log(f"warning: the ground plane rests on {n_in} agent track(s); its uncertainty was "
+               "not measured (plane.bootstrap=0), so neither the plane nor the metric depth is "
+               "checked")
+    elif n_in < 5 or gate is None:
         ws.log(f"warning: the ground plane rests on {n_in} agent track(s) (uncertainty "
                f"{plane.normal_std_deg:.2f} deg): use more adaptation frames or a better detector")
     elif not gate.ok:       # flagged, not stopped: the scale stage gates the metric depth

@@ -69,7 +69,8 @@ def check(conf: AdaptConfig, ws: Workspace, plane: AgentPlane, feet: np.ndarray
     """(refuse the metric maps, why or a warning); see the module doc."""
     given = plane.camera_height_source in ("given", "sequence")
     return metric_check(ws.K, plane.normal, plane.normal_std_deg, feet, plane.camera_height_m,
-                        None if given else plane.camera_height_std_m, conf.scale.max_rel_error)
+                        None if given else plane.camera_height_std_m, conf.scale.max_rel_error,
+                        unmeasured=conf.plane.bootstrap == 0)
 
 
 def run(conf: AdaptConfig, ws: Workspace, agents: Agents, plane: AgentPlane, config_hash: str

@@ -136,7 +136,7 @@ def plane_depth_rel_std(K: np.ndarray, normal, normal_std_deg: float, u, v) -> f
 
 def metric_check(K: np.ndarray, normal, normal_std_deg: float, feet: np.ndarray,
                  camera_height_m: float, camera_height_std_m: float | None,
-                 max_rel_std: float) -> tuple[bool, str | None]:
+                 max_rel_std: float, unmeasured: bool = False) -> tuple[bool, str | None]:
     """(refuse, message): whether a metric depth from this plane must not be written, and why;
     (False, None) when it can be trusted.
 
@@ -144,8 +144,12 @@ def metric_check(K: np.ndarray, normal, normal_std_deg: float, feet: np.ndarray,
     (:func:`plane_depth_rel_std`, the ground the alignment is fitted on) combined with the camera
     height's relative std (None or NaN: a given height, 0); above ``max_rel_std`` it is refused.
     A plane without an uncertainty (fewer than 3 inlier tracks: no bootstrap) is not refused but
-    flagged (False, "metric depth unverified: ...")."""
+    flagged (False, "metric depth unverified: ..."); ``unmeasured``: the fit was asked for no
+    uncertainty (``plane.bootstrap`` 0), which the message says instead of too few tracks."""
     feet = np.asarray(feet, dtype=np.float64).reshape(-1, 2)
+    if unmeasured and not np.isfinite(normal_std_deg):
+        return False, ("metric depth unverified: the ground plane's uncertainty was not "
+                       "measured (plane.bootstrap=0)")
     if len(feet) == 0 or not np.isfinite(normal_std_deg):
         return False, ("metric depth unverified: the ground plane has no uncertainty (fewer than "
                        "3 inlier agent tracks); more adaptation frames or agents are needed")
