@@ -42,6 +42,9 @@ class Board:
         if not (np.isfinite(self.square_m) and self.square_m > 0):   # inf, nan, 0: refused
             raise InputError(f"square size must be a finite positive number, got "
                              f"{self.square_m}")
+        if not (np.isfinite(self.marker_m) and 0 <= self.marker_m < self.square_m):
+            raise InputError(f"marker size must be 0 (0.75 of the square) or a finite number "
+                             f"below the square size {self.square_m:g}, got {self.marker_m}")
         if self.pattern == "charuco" and not hasattr(cv2.aruco, self.dictionary):
             raise InputError(f"unknown ArUco dictionary {self.dictionary!r}")
 

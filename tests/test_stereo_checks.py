@@ -161,10 +161,29 @@ def test_max_disparity_must_be_positive(seq, tmp_path, capsys, value):
     _one_line_error(capsys, f"--max-disparity must be positive, got {value}")
 
 
+def _board_pairs(shared_data) -> tuple[str, str]:
+    d = shared_data / "opencv" / "stereo_calib"
+    return str(d / "left0[1-3].jpg"), str(d / "right0[1-3].jpg")
+
+
 @pytest.mark.parametrize("square", ["inf", "-inf", "nan", "0"])
-def test_calibrate_square_must_be_finite_and_positive(tmp_path, capsys, square):
-    assert main(["calibrate", "--board", "9x6", f"--square={square}", "--left", str(tmp_path),
-                 "--right", str(tmp_path), "--out", str(tmp_path / "c.json")]) == 2
+def test_calibrate_square_must_be_finite_and_positive(shared_data, tmp_path, capsys, square):
+    """inf gave RuntimeWarnings and an OpenCV assertion on real board images."""
+    left, right = _board_pairs(shared_data)
+    assert main(["calibrate", "--board", "9x6", f"--square={square}", "--left", left,
+                 "--right", right, "--min-pairs", "2", "--out", str(tmp_path / "c.json")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("staticdepth calibrate: error:") and "\n" not in err, err
     assert "square size must be a finite positive number" in err, err
+
+
+@pytest.mark.parametrize("marker", ["inf", "nan", "-0.01", "0.04", "0.05"])
+def test_charuco_marker_must_be_below_the_square(shared_data, tmp_path, capsys, marker):
+    """OpenCV's CharucoBoard raised a SystemError (a traceback) for these."""
+    left, right = _board_pairs(shared_data)
+    assert main(["calibrate", "--pattern", "charuco", "--board", "5x7", "--square", "0.04",
+                 f"--marker={marker}", "--left", left, "--right", right, "--min-pairs", "2",
+                 "--out", str(tmp_path / "c.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("staticdepth calibrate: error:") and "\n" not in err, err
+    assert "marker size must be 0 (0.75 of the square) or a finite number below" in err, err
