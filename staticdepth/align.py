@@ -31,7 +31,7 @@ import numpy as np
 from staticdepth.errors import InputError
 from staticdepth.fileio import read_npy
 from staticdepth.geometry import load_camera
-from staticdepth.geometry.camera import check_camera_height, read_json
+from staticdepth.geometry.camera import check_camera_height, not_text, read_json
 from staticdepth.geometry.scale import scale_from_anchor, temporal_scale
 from staticdepth.metrics import check_prediction
 from staticdepth.progress import progress
@@ -69,7 +69,9 @@ def parse_polygon(text: str) -> np.ndarray:
         try:
             with open(text) as f:
                 body = f.read()
-        except (OSError, UnicodeDecodeError) as e:
+        except UnicodeDecodeError:
+            raise InputError(not_text("a polygon (JSON or text)", text), text) from None
+        except OSError as e:
             raise InputError(f"cannot read: {e}", text) from None
         if text.lower().endswith(".json"):
             try:

@@ -110,7 +110,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "adapt": ("staticdepth.adapt", "adapt a depth network to a static camera's sequence",
               "staticdepth adapt c1.h5 --model builtin --detector motion"),
     "train-builtin": ("staticdepth.adapt", "train the built-in small depth network",
-                      "staticdepth train-builtin --frames 400 --epochs 15"),
+                      "staticdepth train-builtin --out builtin.pt --frames 400 --epochs 15"),
     "locate": ("staticdepth.locate", "agents' positions in metres, speeds, distances between people",
                "staticdepth locate site.h5 --summary site.adapt.json --out positions.csv"),
     "export-model": ("staticdepth.deploy",
@@ -237,9 +237,7 @@ NEITHER = ("checkpoint", "func", "command", "set", "var")   # resumed from and w
 HDF5_OUTPUTS = {("synth", "out"), ("pack", "out"), ("import-kitti", "out"),
                 ("import-carla", "out"), ("import-video", "out"), ("stereo", "out")}
 IMAGE_OUTPUTS = {("locate", "bev"), ("inspect", "sheet"), ("stereo", "disparity_out")}
-KINDS = ((b"\x89HDF\r\n\x1a\n", "an HDF5 file (a sequence or a prediction?)", HDF5_OUTPUTS),
-         (b"\x89PNG\r\n\x1a\n", "a PNG image", IMAGE_OUTPUTS),
-         (b"\xff\xd8\xff", "a JPEG image", IMAGE_OUTPUTS))
+KIND_WRITERS = {"hdf5": HDF5_OUTPUTS, "png": IMAGE_OUTPUTS, "jpeg": IMAGE_OUTPUTS}
 # a sequence's companions, read with it: its prediction store and adapt's stage files
 COMPANIONS = (".pred", ".adapt")
 
@@ -277,15 +275,13 @@ def refuse_foreign_kind(path: str, option: str, command: str, dest: str) -> None
     """An existing ``path`` that holds a file of a kind the output does not write (a sequence,
     a prediction, an image) is refused in one line, even with --overwrite: --overwrite replaces
     an earlier output, not the user's data."""
-    try:
-        with open(path, "rb") as f:
-            head = f.read(8)
-    except OSError:                     # a folder, or unreadable: the command says what is wrong
-        return
-    for magic, kind, writers in KINDS:
-        if head.startswith(magic) and (command, dest) not in writers:
-            raise InputError(f"{option} names {kind}, which this command does not write: even "
-                             "with --overwrite it is not replaced; choose another output", path)
+    from staticdepth.fileio import KIND_NAMES, file_kind
+
+    kind = file_kind(path)          # None: a folder or unreadable: the command says what's wrong
+    if kind in KIND_WRITERS and (command, dest) not in KIND_WRITERS[kind]:
+        raise InputError(f"{option} names {KIND_NAMES[kind]}, which this command does not "
+                         "write: even with --overwrite it is not replaced; choose another output",
+                         path)
 
 
 def refuse_output_over_input(args: argparse.Namespace) -> None:

@@ -295,7 +295,9 @@ def load_yaml(path: str | os.PathLike) -> dict[str, Any]:
     except yaml.YAMLError as e:
         raise InputError(f"not valid YAML ({e})", path) from None
     except UnicodeDecodeError:
-        raise InputError("not a text (UTF-8) YAML file", path) from None
+        from staticdepth.geometry.camera import not_text
+
+        raise InputError(not_text("a text (UTF-8) YAML file", path), path) from None
     if not isinstance(d, dict):
         raise InputError("expected a YAML mapping at the top level", path)
     return d

@@ -60,6 +60,23 @@ IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm", 
 VIDEO_EXTS = (".avi", ".mp4", ".mov", ".mkv", ".webm", ".m4v")
 
 _DIGITS_RE = re.compile(r"(\d+)")
+# binary files a user may give where a text or another file is expected: (signature, kind)
+FILE_KINDS = ((b"\x89HDF\r\n\x1a\n", "hdf5"), (b"\x89PNG\r\n\x1a\n", "png"),
+              (b"\xff\xd8\xff", "jpeg"), (b"PK\x03\x04", "zip"), (b"\x93NUMPY", "npy"))
+KIND_NAMES = {"hdf5": "an HDF5 file (a sequence or a prediction?)", "png": "a PNG image",
+              "jpeg": "a JPEG image", "zip": "a zip archive (a torch checkpoint?)",
+              "npy": "a numpy array (.npy)"}
+
+
+def file_kind(path: str | os.PathLike) -> str | None:
+    """The kind of a binary file by its signature (a key of KIND_NAMES), else None (a text file,
+    another binary, a folder or an unreadable path)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+    except OSError:
+        return None
+    return next((kind for magic, kind in FILE_KINDS if head.startswith(magic)), None)
 
 
 def frame_order_key(name: str) -> tuple:

@@ -193,9 +193,9 @@ CASES = [
     ("state-run", lambda d: ["run", d["state.yaml"]],
      "recipe_state.json: corrupt recipe state"),
     ("binary-recipe-run", lambda d: ["run", d["binary.yaml"]],
-     "binary.yaml: not a text (UTF-8) YAML file"),
+     "binary.yaml: expected a text (UTF-8) YAML file, got binary data"),
     ("binary-recipe-adapt", lambda d: ["adapt", d["seq.h5"], "--recipe", d["binary.yaml"]],
-     "binary.yaml: not a text (UTF-8) YAML file"),
+     "binary.yaml: expected a text (UTF-8) YAML file, got binary data"),
     ("nonsense-kitti-height-0", lambda d: ["import-kitti", "--root", d["root"], "--drives", "x",
                                            "--out", os.path.join(d["root"], "k.h5"),
                                            "--camera-height", "0"],
@@ -323,3 +323,28 @@ def test_a_cut_png_is_one_line_even_at_the_file_descriptor(d, tmp_path, capfd):
     tail.write_bytes(raw + b"appended by some tool")
     from staticdepth.fileio import read_image
     assert np.array_equal(read_image(tail), read_image(d["left.png"]))
+
+
+def test_a_binary_file_where_a_text_file_is_read_says_what_it_is(tmp_path, capsys):
+    """A PNG given as a rig, camera, plane or recipe said "cannot read: 'utf-8' codec can't
+    decode byte 0x89 in position 0: invalid start byte"; now it says what was expected and got."""
+    import cv2
+
+    from staticdepth.cli import main
+    from staticdepth.config import load_yaml
+    from staticdepth.errors import InputError
+    from staticdepth.geometry.camera import read_json
+
+    png = tmp_path / "g.png"
+    cv2.imwrite(str(png), np.zeros((4, 4, 3), np.uint8))
+    with pytest.raises(InputError) as e:
+        read_json(png)
+    assert str(e.value) == f"{png}: expected a JSON file, got a PNG image"
+    with pytest.raises(InputError, match="expected a text \\(UTF-8\\) YAML file, got a PNG image"):
+        load_yaml(png)
+    np.save(tmp_path / "p.npy", np.ones((4, 4), np.float32))
+    assert main(["align", "--pred", str(tmp_path / "p.npy"), "--intrinsics", str(png),
+                 "--plane", str(png), "--ground-polygon", "0,3 3,3 3,0", "--out",
+                 str(tmp_path / "o.npy")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "expected a JSON file, got a PNG image" in err, err
