@@ -15,7 +15,9 @@ def register(sub) -> None:
                        description="Render a synthetic sequence (known geometry) to a sequence "
                                    "file.")
     p.add_argument("--preset", default="demo", help="scene preset (demo, street, c1, c2, c3, r2)")
-    p.add_argument("--frames", type=int, default=60, help="number of frames to render")
+    p.add_argument("--frames", type=int, default=60,
+                   help="number of frames to render (at most 1,000,000; refused when the "
+                        "output cannot fit in its folder's free space)")
     p.add_argument("--adapt-frames", type=int, default=None,
                    help="first N frames form the adaptation split (default: 40%%)")
     p.add_argument("--seed", type=int, default=0, help="scene seed (agents, textures)")

@@ -22,6 +22,9 @@ from staticdepth.errors import InputError
 from staticdepth.geometry.camera import Camera, Mounting, StereoRig
 from staticdepth.geometry.projection import ray_grid
 
+# Bounds on the image size: a 100000x100000 request otherwise fails inside numpy (MemoryError).
+MAX_SIDE_PX = 8192
+MAX_PIXELS = 4096 * 4096
 
 @dataclass(frozen=True)
 class SceneConfig:
@@ -50,6 +53,12 @@ class SceneConfig:
         checks = [
             (self.width >= 16 and self.height >= 16, f"image size must be at least 16x16, got "
                                                      f"{self.width}x{self.height}"),
+            (self.width <= MAX_SIDE_PX, f"width must be at most {MAX_SIDE_PX}, got {self.width}"),
+            (self.height <= MAX_SIDE_PX,
+             f"height must be at most {MAX_SIDE_PX}, got {self.height}"),
+            (self.width * self.height <= MAX_PIXELS,
+             f"width x height must be at most {MAX_PIXELS:,} pixels (e.g. 4096x4096), got "
+             f"{self.width}x{self.height}"),
             (10.0 <= self.hfov_deg <= 160.0, f"hfov_deg must be in [10, 160], got {self.hfov_deg}"),
             (self.focal_px >= 0, f"focal_px must be >= 0 (0 = from hfov_deg), got {self.focal_px}"),
             (0.3 <= self.camera_height_m <= 100, "camera_height_m must be in [0.3, 100], got "
