@@ -297,7 +297,10 @@ def register(sub) -> None:
     p.add_argument("--detector", help="motion (default) | yolox | mask2former | gt "
                                       "(= --set detector.name=...)")
     p.add_argument("--camera-height", type=float, help="camera height in metres (default: the "
-                                                       "sequence's, else a 1.7 m agent prior)")
+                                                       "sequence's, else from the agents' "
+                                                       "per-class height distributions; "
+                                                       "--set scale.agent_height_m=H uses one "
+                                                       "fixed agent height instead)")
     p.add_argument("--epochs", type=int, help="fine-tuning epochs (default 30, cut at "
                    "finetune.max_steps optimiser steps, default 60; 0 = none)")
     p.add_argument("--seed", type=int, help="seed of fine-tuning and of the plane's RANSAC "

@@ -29,6 +29,7 @@ every pixel labelled; 0.128 with trusted labels and ``si`` at 60 steps; docs/gai
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import resource
 import time
@@ -84,6 +85,16 @@ class FinetuneConfig:
 PRESETS = {"paper": FinetuneConfig(), "builtin": FinetuneConfig(lr=3e-4, loss="si")}
 
 
+class DivergedError(InputError):
+    """The loss became NaN or inf (``loss``): the learning rate is too high for the data.
+    ``train-builtin`` says it with its own option (--lr)."""
+
+    def __init__(self, loss: float):
+        self.loss = loss
+        super().__init__(f"fine-tuning diverged (loss {loss}); lower the learning rate "
+                         "(finetune.lr)")
+
+
 def compute_loss(pred: torch.Tensor, batch: dict[str, torch.Tensor], conf: FinetuneConfig
                  ) -> torch.Tensor:
     if conf.loss == "l1":
@@ -97,11 +108,12 @@ def train_step(model: TorchDepthModel, batch: dict[str, torch.Tensor], conf: Fin
     optimizer.zero_grad(set_to_none=True)
     pred = model.forward(batch["image"])
     loss = compute_loss(pred, batch, conf)
-    if not torch.isfinite(loss):
-        raise InputError(f"fine-tuning diverged (loss {float(loss)}); lower the learning rate")
+    value = float(loss.detach())    # float(loss) itself warns: the loss requires grad
+    if not math.isfinite(value):
+        raise DivergedError(value)
     loss.backward()
     optimizer.step()
-    return float(loss.detach())
+    return value
 
 
 def make_batch(images: np.ndarray, targets: np.ndarray, masks: np.ndarray, idx: np.ndarray,

@@ -28,6 +28,8 @@ if TYPE_CHECKING:  # the fit imports scipy: loaded when a plane is fitted, not f
 # geometry.agent_plane.MODELS, named here so that `ground-plane --help` does not import scipy
 # (tests/test_cli_startup.py checks that the two agree).
 MODELS = ("joint", "exact", "affine", "paper")
+# --bootstrap's bound: each resample is a plane fit (20, the default, take most of a fit's time)
+MAX_BOOTSTRAP = 10_000
 
 REQUIRED_COLUMNS = ("frame", "track", "foot_u", "foot_v", "height_px")
 
@@ -200,7 +202,12 @@ def register(sub) -> None:
                    help="CSV with columns frame, track, foot_u, foot_v, height_px (pixels); "
                         "optional class_id, score, top_u (column of the highest pixel)")
     p.add_argument("--intrinsics", required=True, help="JSON with fx, fy, cx, cy (or a camera/rig)")
-    p.add_argument("--agent-height", type=float, help="agent height prior in metres (people 1.7)")
+    p.add_argument("--agent-height", type=float,
+                   help="one agent height in metres that gives the camera height (the median "
+                        "over person tracks; default: none, the camera height comes from the "
+                        "per-class height distributions, people's inlier tracks else every "
+                        "class's); it also sets the exact model's radius-to-height ratio "
+                        "(default 1.7 there); ignored for the height with --camera-height")
     p.add_argument("--camera-height", type=float, help="known camera height in metres")
     p.add_argument("--model", choices=MODELS, default="joint",
                    help="joint (default): plane, per-class extents and track heights together; "
@@ -215,7 +222,8 @@ def register(sub) -> None:
                    help="write the plane even when it fails the uncertainty gate")
     p.add_argument("--radius", type=float, help="agent body radius in metres (default 0.2, 0 = "
                                                 "thin axis)")
-    p.add_argument("--bootstrap", type=int, help="resamples for the uncertainty (default 20)")
+    p.add_argument("--bootstrap", type=int,
+                   help=f"resamples for the uncertainty (default 20, at most {MAX_BOOTSTRAP})")
     p.add_argument("--column-weight", type=float,
                    help="weight of the head-column residuals (0: rows only; default 1 for "
                         "joint, scaled down by the columns' noise, 0 for exact)")
@@ -239,6 +247,9 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
     # the options as given, before any file is read (the config checks its settings again)
     check_ranges(args, "", {"radius": ">=0", "agent_height": ">0", "column_weight": ">=0",
                             "bootstrap": ">=0", "max_normal_std": ">0|inf"}, options=True)
+    if args.bootstrap is not None and args.bootstrap > MAX_BOOTSTRAP:
+        raise InputError(f"--bootstrap must be at most {MAX_BOOTSTRAP}, got {args.bootstrap} (each "
+                         "resample is a plane fit; 20 give the uncertainty)")
     if args.camera_height is not None:
         check_camera_height(args.camera_height, "--camera-height")
     if args.agent_height is not None and args.camera_height is not None:

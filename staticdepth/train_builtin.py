@@ -22,6 +22,7 @@ from staticdepth.config import check_ranges, check_seed
 from staticdepth.errors import InputError
 
 FRAMES_PER_LAYOUT = 8      # frames rendered per scene seed (10 frames = 1 s apart)
+MAX_LR = 1.0               # Adam steps move every weight by about lr: above 1 nothing trains
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,9 @@ class TrainBuiltinConfig:
         check_ranges(self, "", {"frames": ">=1", "epochs": ">=1", "width": ">=1",
                                 "height": ">=1", "lr": ">0", "batch_size": ">=1",
                                 "max_steps": ">=0"}, options=True)
+        if self.lr > MAX_LR:
+            raise InputError(f"--lr must be in (0, {MAX_LR:g}], got {self.lr:g} (Adam's "
+                             f"default is 1e-3)")
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -88,7 +92,7 @@ def train_builtin(conf: TrainBuiltinConfig, *, out: str | os.PathLike, device=No
     """Render, train, save; returns (model, history)."""
     import torch
 
-    from staticdepth.finetune import FinetuneConfig, finetune
+    from staticdepth.finetune import DivergedError, FinetuneConfig, finetune
     from staticdepth.models.tiny import builtin_model, save_builtin
 
     from staticdepth.fileio import check_writable
@@ -114,9 +118,13 @@ def train_builtin(conf: TrainBuiltinConfig, *, out: str | os.PathLike, device=No
     ft = FinetuneConfig(epochs=conf.epochs, lr=conf.lr, batch_size=conf.batch_size,
                         seed=conf.seed, layers="all", flip=True, loss="ssi_mae",
                         max_steps=conf.max_steps)
-    history = finetune(model, images, targets, conf=ft, checkpoint=checkpoint,
-                       on_epoch=lambda r: log(f"epoch {r['epoch']}: loss {r['loss']:.4f} "
-                                              f"({r['seconds']:.1f} s)"))
+    try:
+        history = finetune(model, images, targets, conf=ft, checkpoint=checkpoint,
+                           on_epoch=lambda r: log(f"epoch {r['epoch']}: loss {r['loss']:.4f} "
+                                                  f"({r['seconds']:.1f} s)"))
+    except DivergedError as e:
+        raise InputError(f"training diverged (loss {e.loss}); lower --lr (it was "
+                         f"{conf.lr:g})") from None
     model.to("cpu")
     # the weights depend on torch's thread count too (its reductions' order), not on the seed
     # alone: written down so that a run can be reproduced (docs/gains.md, thirteenth round)

@@ -161,3 +161,27 @@ def test_budgeted_run_is_the_unbudgeted_run_cut_short():
     finetune(two, images, targets, conf=dataclasses.replace(CONF, epochs=2, max_steps=0))
     a, b, c = _flat(one), _flat(cut), _flat(two)
     assert not torch.equal(a, b) and not torch.equal(b, c)
+
+
+def test_divergence_is_one_error_without_a_torch_warning(monkeypatch):
+    """A NaN loss (it requires grad) is refused naming finetune.lr; reading its value must not
+    make torch warn 'Converting a tensor with requires_grad=True to a scalar'."""
+    import warnings
+
+    import staticdepth.finetune as ft
+
+    monkeypatch.setattr(ft, "compute_loss", lambda pred, batch, conf: pred.mean() * float("nan"))
+    # torch warns once per process ('Converting a tensor with requires_grad=True to a scalar'):
+    # the conversions themselves are recorded, so that an earlier test cannot hide one
+    converted, to_float = [], torch.Tensor.__float__
+    monkeypatch.setattr(torch.Tensor, "__float__",
+                        lambda t: converted.append(t.requires_grad) or to_float(t))
+    images, targets = _data()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(InputError) as e:
+            finetune(_model(), images, targets, conf=dataclasses.replace(CONF, epochs=1))
+    assert not [w for w in caught if "requires_grad" in str(w.message)]
+    assert converted and not any(converted)
+    assert str(e.value) == "fine-tuning diverged (loss nan); lower the learning rate (finetune.lr)"
+    assert isinstance(e.value, ft.DivergedError) and np.isnan(e.value.loss)
