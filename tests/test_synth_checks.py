@@ -125,3 +125,14 @@ def test_help_says_where_the_camera_height_comes_from():
     assert "scale.agent_height_m" in adapt
     agent = _option_help("ground-plane", "agent_height")
     assert "people 1.7" not in agent and "per-class height distributions" in agent
+
+
+def test_a_resumed_partial_counts_as_written(tmp_path, monkeypatch):
+    """--resume needs only what the .partial file does not hold yet."""
+    out = tmp_path / "s.h5"
+    need = int(10 * 64 * 32 * synth_io.RAW_BYTES_PER_PIXEL * synth_io.MIN_COMPRESSED_FRACTION)
+    (tmp_path / "s.h5.partial").write_bytes(b"\0" * 1000)
+    monkeypatch.setattr(shutil, "disk_usage", _free(need - 1000))
+    synth_io.check_disk_space(out, 10, 64, 32, resume=True)
+    with pytest.raises(InputError, match="not enough free disk space for 10 frames of 64x32"):
+        synth_io.check_disk_space(out, 10, 64, 32)
