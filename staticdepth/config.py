@@ -177,9 +177,10 @@ def from_dict(cls: type[C], values: Mapping[str, Any] | None = None, *,
 def check_ranges(conf: Any, prefix: str, rules: Mapping[str, str], *, options: bool = False
                  ) -> None:
     """Check ``conf``'s numeric fields against ``rules`` (field -> ``">=0"``, ``">0"``, ``">=1"``,
-    ``"0..1"``; every value finite unless the rule ends in ``"|inf"``; None passes): one
-    :class:`InputError` naming the first setting out of its range (``prefix`` + its name; with
-    ``options``, as the command-line option ``--max-steps`` for ``max_steps``)."""
+    or a closed range ``"LO..HI"`` such as ``"0..1"``; every value finite unless the rule ends
+    in ``"|inf"``; None passes): one :class:`InputError` naming the first setting out of its
+    range (``prefix`` + its name; with ``options``, as the command-line option ``--max-steps``
+    for ``max_steps``)."""
     import math
 
     for name, rule in rules.items():
@@ -189,10 +190,14 @@ def check_ranges(conf: Any, prefix: str, rules: Mapping[str, str], *, options: b
         rule, _, inf = rule.partition("|")
         ok = isinstance(v, (int, float)) and not isinstance(v, bool) and v == v and (
             math.isfinite(v) or (inf == "inf" and v > 0))
-        ok = ok and {">=0": lambda x: x >= 0, ">0": lambda x: x > 0, ">=1": lambda x: x >= 1,
-                     "0..1": lambda x: 0 <= x <= 1}[rule](v)
+        if ".." in rule:
+            lo, hi = (float(x) for x in rule.split(".."))
+            ok, want = ok and lo <= v <= hi, f"within {rule}"
+        else:
+            ok = ok and {">=0": lambda x: x >= 0, ">0": lambda x: x > 0,
+                         ">=1": lambda x: x >= 1}[rule](v)
+            want = {">=0": ">= 0", ">0": "> 0", ">=1": ">= 1"}[rule]
         if not ok:
-            want = {">=0": ">= 0", ">0": "> 0", ">=1": ">= 1", "0..1": "within 0..1"}[rule]
             label = "--" + name.replace("_", "-") if options else prefix + name
             raise InputError(f"{label} must be {'a finite number ' if not inf else ''}"
                              f"{want}, got {v}")

@@ -28,8 +28,9 @@ if TYPE_CHECKING:  # the fit imports scipy: loaded when a plane is fitted, not f
 # geometry.agent_plane.MODELS, named here so that `ground-plane --help` does not import scipy
 # (tests/test_cli_startup.py checks that the two agree).
 MODELS = ("joint", "exact", "affine", "paper")
-# --bootstrap's bound: each resample is a plane fit (20, the default, take most of a fit's time)
-MAX_BOOTSTRAP = 10_000
+# --bootstrap's range: each resample is a plane fit (20, the default, take most of a fit's time);
+# plane.bootstrap (AgentPlaneConfig) has the same
+BOOTSTRAP_RANGE = "0..10000"
 
 REQUIRED_COLUMNS = ("frame", "track", "foot_u", "foot_v", "height_px")
 
@@ -223,7 +224,7 @@ def register(sub) -> None:
     p.add_argument("--radius", type=float, help="agent body radius in metres (default 0.2, 0 = "
                                                 "thin axis)")
     p.add_argument("--bootstrap", type=int,
-                   help=f"resamples for the uncertainty (default 20, at most {MAX_BOOTSTRAP})")
+                   help="resamples for the uncertainty (default 20, at most 10000)")
     p.add_argument("--column-weight", type=float,
                    help="weight of the head-column residuals (0: rows only; default 1 for "
                         "joint, scaled down by the columns' noise, 0 for exact)")
@@ -246,10 +247,8 @@ def _ground_plane_cmd(args: argparse.Namespace) -> int:
 
     # the options as given, before any file is read (the config checks its settings again)
     check_ranges(args, "", {"radius": ">=0", "agent_height": ">0", "column_weight": ">=0",
-                            "bootstrap": ">=0", "max_normal_std": ">0|inf"}, options=True)
-    if args.bootstrap is not None and args.bootstrap > MAX_BOOTSTRAP:
-        raise InputError(f"--bootstrap must be at most {MAX_BOOTSTRAP}, got {args.bootstrap} (each "
-                         "resample is a plane fit; 20 give the uncertainty)")
+                            "bootstrap": BOOTSTRAP_RANGE, "max_normal_std": ">0|inf"},
+                 options=True)
     if args.camera_height is not None:
         check_camera_height(args.camera_height, "--camera-height")
     if args.agent_height is not None and args.camera_height is not None:

@@ -278,7 +278,7 @@ def test_config_and_prior_errors():
         AgentPlaneConfig(column_weight=float("inf"))
     with pytest.raises(InputError, match="less than the agent height"):
         AgentPlaneConfig(radius_m=2.0)
-    with pytest.raises(InputError, match="bootstrap must be a finite number >= 0"):
+    with pytest.raises(InputError, match="bootstrap must be a finite number within 0..10000"):
         AgentPlaneConfig(bootstrap=-1)
     with pytest.raises(InputError, match=r"camera height \(given\) must be a height in metres"):
         plane.with_camera_height(-2.0, "given")

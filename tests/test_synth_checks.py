@@ -106,8 +106,16 @@ def test_ground_plane_bootstrap_has_an_upper_bound(tmp_path, capsys):
                  str(tmp_path / "cam.json"), "--bootstrap", "1000000000000",
                  "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "--bootstrap must be at most 10000, got 1000000000000" in err
+    assert err.count("\n") == 1
+    assert "--bootstrap must be a finite number within 0..10000, got 1000000000000" in err
     assert not out.exists()
+    # adapt's plane.bootstrap: the same range, from the same rule
+    from staticdepth.adaptation.config import build_config
+    from staticdepth.errors import InputError
+
+    with pytest.raises(InputError, match=r"plane.bootstrap must be a finite number within "
+                                         r"0..10000, got 20000"):
+        build_config({"plane.bootstrap": 20000})
 
 
 def _option_help(command: str, dest: str) -> str:

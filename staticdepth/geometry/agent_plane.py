@@ -119,7 +119,8 @@ class AgentPlaneConfig:
             raise InputError(f"unknown ground-plane model {self.model!r} (use {', '.join(MODELS)})")
         check_seed(self.seed, "plane.seed")
         check_ranges(self, "plane.", {
-            "radius_m": ">=0", "head_radius_m": ">=0", "agent_height_m": ">0", "bootstrap": ">=0",
+            "radius_m": ">=0", "head_radius_m": ">=0", "agent_height_m": ">0",
+            "bootstrap": "0..10000",     # each resample is a plane fit (ground_plane's range)
             "inlier_px": ">0", "ransac_iters": ">=1", "f_scale_px": ">0", "max_roll_deg": ">0",
             "shape_prior_weight": ">=0", "height_prior_weight": ">=0", "relative_noise": ">=0",
             "max_class_misfit_deg": ">0|inf"})
