@@ -71,13 +71,16 @@ def _inspect(args: argparse.Namespace) -> int:
     from staticdepth.dataset.inspect import format_summary, summarize, thumbnail_sheet
 
     from staticdepth.cli import refuse_existing
-    from staticdepth.fileio import atomic_write_text, write_image
+    from staticdepth.fileio import atomic_write_text, check_writable, write_image
 
     if args.pred and not args.sheet:
         raise InputError("--pred adds rows to the sheet: pass --sheet FILE.png too")
     if args.frames < 1:
         raise InputError(f"--frames must be at least 1, got {args.frames}")
     refuse_existing(args.sheet, args.json, overwrite=args.overwrite)
+    for out in (args.sheet, args.json):     # before the summary is printed, not after it
+        if out:
+            check_writable(out)
     with SequenceReader(args.file) as r:
         info = summarize(r)
         print(format_summary(info))

@@ -48,3 +48,15 @@ def test_report_without_ground_truth_shows_predictions_without_metrics(tmp_path,
     assert "no ground truth: the predictions are shown without metrics" in html
     assert "base: depth (relative: its own colour range; no ground truth)" in html
     assert "Table 1" not in html and not (out / "tables_1.csv").exists()
+
+
+def test_an_unwritable_sheet_is_refused_before_the_summary(tmp_path, capsys):
+    """`inspect seq --sheet nodir/s.png` printed the whole summary, then refused the folder."""
+    seq = tmp_path / "site.h5"
+    _no_gt_sequence(seq)
+    for out in (["--sheet", str(tmp_path / "nodir" / "s.png")],
+                ["--json", str(tmp_path / "nodir" / "s.json")]):
+        assert main(["inspect", str(seq), *out]) == 2
+        got = capsys.readouterr()
+        assert got.out == "" and got.err.count("\n") == 1, got
+        assert "output's parent does not exist" in got.err
