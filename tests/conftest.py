@@ -80,3 +80,16 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+def disk_usage_with_free(free: int):
+    """A stand-in for ``shutil.disk_usage`` that reports ``free`` bytes free (the disk checks of
+    adapt and synth, tested at their edge)."""
+    import shutil
+
+    real = shutil.disk_usage
+
+    def fake(path):
+        u = real(path)
+        return type(u)(u.total, u.total - free, free)
+    return fake

@@ -20,6 +20,7 @@ from staticdepth.cli import main
 from staticdepth.dataset.h5 import SequenceMeta, SequenceReader, SequenceWriter
 from staticdepth.dataset.synth_io import render_to_file
 from staticdepth.models.tiny import TinyDepthNet, builtin_model, save_builtin
+from conftest import disk_usage_with_free
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -301,15 +302,6 @@ def test_dotted_settings_and_fail_fast(tmp_path, clip, tiny, capsys):
     assert "  min_height_px: 8.0\n" in capsys.readouterr().out
 
 
-def _disk_usage_with_free(free):
-    real = shutil.disk_usage
-
-    def fake(path):
-        u = real(path)
-        return type(u)(u.total, u.total - free, free)
-    return fake
-
-
 def _tree_bytes(*folders):
     return sum(os.path.getsize(os.path.join(d, f)) for folder in folders
                for d, _, fs in os.walk(folder) for f in fs)
@@ -340,13 +332,13 @@ def test_disk_space_is_checked_before_any_prediction(tmp_path, clip, tiny, capsy
     raw = maps * 128 * 64 * 4 + 3 * 4 * sum(p.numel() for p in model.net.parameters())
     assert raw <= total <= raw + maps * 4 + 9 * 2**20
     argv = ["adapt", seq, "--model", f"builtin:{tiny}", *FAST, "--epochs", "1"]
-    monkeypatch.setattr(shutil, "disk_usage", _disk_usage_with_free(total - 1))
+    monkeypatch.setattr(shutil, "disk_usage", disk_usage_with_free(total - 1))
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "not enough free disk space" in err and f"{maps} maps of 128x64" in err
     assert err.count("\n") == 1 and str(tmp_path) in err
     assert not os.path.exists(seq + ".pred") and not os.path.exists(seq + ".adapt")
-    monkeypatch.setattr(shutil, "disk_usage", _disk_usage_with_free(total))
+    monkeypatch.setattr(shutil, "disk_usage", disk_usage_with_free(total))
     assert main(argv) == 0
     capsys.readouterr()
     # the estimate bounds what was written (the maps are compressed), and nothing is left to do

@@ -230,9 +230,10 @@ def test_no_output_replaces_a_sequences_files_even_with_overwrite(tmp_path, caps
     (tmp_path / "s.h5.adapt").mkdir()
     np.save(tmp_path / "p.npy", np.ones((4, 4), np.float32))
     np.save(tmp_path / "g.npy", np.full((4, 4), 2.0, np.float32))
-    cases = [(["evaluate", str(seq), "--json", str(base)], base, "a folder of this command's input (sequence)"),
+    inside = "a folder of this command's input (sequence)"
+    cases = [(["evaluate", str(seq), "--json", str(base)], base, inside),
              (["evaluate", str(seq), "--json", str(tmp_path / "s.h5.adapt" / "e.json")],
-              tmp_path / "s.h5.adapt" / "e.json", "a folder of this command's input (sequence)"),
+              tmp_path / "s.h5.adapt" / "e.json", inside),
              (["metrics", "--pred", str(tmp_path / "p.npy"), "--gt", str(tmp_path / "g.npy"),
                "--json", str(other)], other, "names an HDF5 file")]
     for argv, victim, msg in cases:

@@ -14,16 +14,7 @@ from staticdepth.dataset.h5 import SequenceReader
 from staticdepth.dataset.synth import SceneConfig, preset
 from staticdepth.dataset import synth_io
 from staticdepth.errors import InputError
-
-
-def _free(free):
-    """shutil.disk_usage with ``free`` bytes free (as tests/test_adapt_stages.py)."""
-    real = shutil.disk_usage
-
-    def fake(path):
-        u = real(path)
-        return type(u)(u.total, u.total - free, free)
-    return fake
+from conftest import disk_usage_with_free
 
 
 @pytest.fixture
@@ -54,7 +45,7 @@ def test_synth_refuses_frames_beyond_the_bound(tmp_path, capsys, no_rendering):
 
 def test_synth_refuses_an_output_that_cannot_fit(tmp_path, capsys, monkeypatch, no_rendering):
     out = tmp_path / "z.h5"
-    monkeypatch.setattr(shutil, "disk_usage", _free(2**30))     # 1 GiB free
+    monkeypatch.setattr(shutil, "disk_usage", disk_usage_with_free(2**30))     # 1 GiB free
     assert main(["synth", "--preset", "c1", "--frames", "100000", "--out", str(out)]) == 2
     err = _one_line_error(capsys, "not enough free disk space for 100000 frames of 800x400",
                           "1.00 GiB free", "--frames", str(tmp_path))
@@ -76,10 +67,10 @@ def test_the_disk_estimate_is_below_the_real_file(tmp_path, monkeypatch, name, o
     need = int(n * cfg.width * cfg.height * synth_io.RAW_BYTES_PER_PIXEL
                * synth_io.MIN_COMPRESSED_FRACTION)
     out = tmp_path / "s.h5"
-    monkeypatch.setattr(shutil, "disk_usage", _free(need - 1))
+    monkeypatch.setattr(shutil, "disk_usage", disk_usage_with_free(need - 1))
     with pytest.raises(InputError, match="not enough free disk space"):
         synth_io.render_to_file(out, preset_name=name, n_frames=n, overrides=overrides)
-    monkeypatch.setattr(shutil, "disk_usage", _free(need))
+    monkeypatch.setattr(shutil, "disk_usage", disk_usage_with_free(need))
     synth_io.render_to_file(out, preset_name=name, n_frames=n, overrides=overrides)
     with SequenceReader(out) as r:
         assert len(r) == n
@@ -140,7 +131,7 @@ def test_a_resumed_partial_counts_as_written(tmp_path, monkeypatch):
     out = tmp_path / "s.h5"
     need = int(10 * 64 * 32 * synth_io.RAW_BYTES_PER_PIXEL * synth_io.MIN_COMPRESSED_FRACTION)
     (tmp_path / "s.h5.partial").write_bytes(b"\0" * 1000)
-    monkeypatch.setattr(shutil, "disk_usage", _free(need - 1000))
+    monkeypatch.setattr(shutil, "disk_usage", disk_usage_with_free(need - 1000))
     synth_io.check_disk_space(out, 10, 64, 32, resume=True)
     with pytest.raises(InputError, match="not enough free disk space for 10 frames of 64x32"):
         synth_io.check_disk_space(out, 10, 64, 32)
