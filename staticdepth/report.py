@@ -269,10 +269,10 @@ def report_outputs(out_dir: str | os.PathLike) -> list[str]:
     run's)."""
     import glob
 
-    out_dir = glob.escape(os.fspath(out_dir))
-    paths = [os.path.join(out_dir, "tables.md"),
-             *sorted(glob.glob(os.path.join(out_dir, "tables_*.csv"))),
-             *sorted(glob.glob(os.path.join(out_dir, "report_*.html")))]
+    out_dir = os.fspath(out_dir)
+    found = (sorted(glob.glob(os.path.join(glob.escape(out_dir), pattern)))
+             for pattern in ("tables_*.csv", "report_*.html"))
+    paths = [os.path.join(out_dir, "tables.md"), *(p for group in found for p in group)]
     return [p for p in paths if os.path.lexists(p)]
 
 

@@ -100,3 +100,16 @@ def test_a_bare_summary_path_goes_with_its_sequence(tmp_path, capsys):
     assert main(["report", str(s), "--summary", str(summ), "--out", str(tmp_path / "R")]) == 0
     table2 = (tmp_path / "R" / "tables_2.csv").read_text().splitlines()
     assert "5.0" in table2[1] and table2[1].startswith("site,"), table2
+
+
+def test_a_report_folder_named_with_glob_characters(tmp_path, capsys):
+    """The folder's name went into the paths escaped for glob ('R[[]1]/tables.md'), so its
+    tables.md was never found: an earlier report's tables were replaced without --overwrite."""
+    a = _sequence(tmp_path / "a.h5")
+    out = tmp_path / "R[1]{x}"
+    assert main(["report", f"D1={a}", "--out", str(out)]) == 0
+    before = (out / "tables.md").read_bytes()
+    capsys.readouterr()
+    assert main(["report", f"D1={a}", "--out", str(out)]) == 2
+    assert str(out / "tables.md") in capsys.readouterr().err
+    assert (out / "tables.md").read_bytes() == before
