@@ -150,35 +150,31 @@ def other_runs_predictions(seq_path: str, hashes: dict[str, str],
     """The complete adapt predictions of ``seq_path`` (among ``names``) that were written with
     other settings, another model or another sequence than the stage ``hashes`` say: their
     paths. An interrupted file is not one (it is resumed or redone)."""
-    from staticdepth.dataset.framefile import is_complete
-    from staticdepth.dataset.h5 import SequenceReader
-    from staticdepth.dataset.predictions import prediction_path, store_dir
+    from staticdepth.dataset.predictions import prediction_path, sequence_id_of
 
-    if not os.path.isdir(store_dir(seq_path)):
-        return []
     paths = {n: prediction_path(seq_path, n) for n in names}
-    if not any(os.path.isfile(p) for p in paths.values()):
+    paths = {n: p for n, p in paths.items() if os.path.isfile(p)}
+    if not paths:
         return []
-    with SequenceReader(seq_path) as r:
-        identity = r.sequence_id()
-    return [p for n, p in paths.items() if os.path.isfile(p)
-            and not is_complete(p, identity, hashes.get(PREDICTION_STAGES[n], ""))
-            and _finished(p)]
+    identity = sequence_id_of(seq_path)
+    out = []
+    for n, p in paths.items():
+        complete, sid, h = _attrs(p, "complete", "sequence_id", "config_hash")
+        if complete is True and (sid, h) != (identity, hashes.get(PREDICTION_STAGES[n])):
+            out.append(p)
+    return out
 
 
-def _finished(path: str) -> bool:
-    return _attr(path, "complete") is True
-
-
-def _attr(path: str, key: str):
+def _attrs(path: str, *keys: str) -> tuple:
+    """The attributes ``keys`` of the HDF5 file ``path`` (None where absent or unreadable)."""
     import h5py
 
     try:
         with h5py.File(path, "r") as f:
-            v = f.attrs.get(key)
-            return v.item() if hasattr(v, "item") else v
+            vals = [f.attrs.get(k) for k in keys]
     except OSError:
-        return None
+        return (None,) * len(keys)
+    return tuple(v.item() if hasattr(v, "item") else v for v in vals)
 
 
 def replaced_since(summary: dict[str, Any], seq_path: str) -> str | None:
@@ -193,7 +189,7 @@ def replaced_since(summary: dict[str, Any], seq_path: str) -> str | None:
     for name in summary.get("predictions") or []:
         stage = PREDICTION_STAGES.get(name)
         p = prediction_path(seq_path, name) if stage else None
-        if p and os.path.isfile(p) and _attr(p, "config_hash") != hashes.get(stage):
+        if p and os.path.isfile(p) and _attrs(p, "config_hash")[0] != hashes.get(stage):
             return p
     return None
 

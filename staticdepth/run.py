@@ -157,6 +157,8 @@ def _accepts(argv: list[str], flag: str) -> bool:
             break
         parser = sub.choices[word]
     return any(flag in a.option_strings for a in parser._actions)
+
+
 def _fingerprint(paths) -> list:
     """[path, size, mtime_ns] of every file at or under ``paths`` (folders walked in order, up
     to MAX_FINGERPRINT_FILES files; lock files, which readers create, left out)."""
