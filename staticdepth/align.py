@@ -29,9 +29,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from staticdepth.errors import InputError
-from staticdepth.fileio import read_npy
+from staticdepth.fileio import not_text, read_npy
 from staticdepth.geometry import load_camera
-from staticdepth.geometry.camera import check_camera_height, not_text, read_json
+from staticdepth.geometry.camera import check_camera_height, read_json
 from staticdepth.geometry.scale import scale_from_anchor, temporal_scale
 from staticdepth.metrics import check_prediction
 from staticdepth.progress import progress

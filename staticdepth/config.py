@@ -300,7 +300,7 @@ def load_yaml(path: str | os.PathLike) -> dict[str, Any]:
     except yaml.YAMLError as e:
         raise InputError(f"not valid YAML ({e})", path) from None
     except UnicodeDecodeError:
-        from staticdepth.geometry.camera import not_text
+        from staticdepth.fileio import not_text
 
         raise InputError(not_text("a text (UTF-8) YAML file", path), path) from None
     if not isinstance(d, dict):

@@ -79,6 +79,13 @@ def file_kind(path: str | os.PathLike) -> str | None:
     return next((kind for magic, kind in FILE_KINDS if head.startswith(magic)), None)
 
 
+def not_text(expected: str, path: str | os.PathLike) -> str:
+    """The problem of a binary file given where the text file ``expected`` is read: names its
+    kind when known ('expected a JSON file, got a PNG image'; was the codec's byte 0x89)."""
+    kind = file_kind(path)
+    return f"expected {expected}, got {KIND_NAMES[kind] if kind else 'binary data'}"
+
+
 def frame_order_key(name: str) -> tuple:
     """The sort key of frame files: numbers inside a name compare by value, the rest as text.
 

@@ -350,6 +350,8 @@ def read_json(path: str | os.PathLike) -> dict[str, Any]:
     except FileNotFoundError:
         raise InputError("file not found", path) from None
     except UnicodeDecodeError:
+        from staticdepth.fileio import not_text
+
         raise InputError(not_text("a JSON file", path), path) from None
     except OSError as e:
         raise InputError(f"cannot read: {e}", path) from None
@@ -358,15 +360,6 @@ def read_json(path: str | os.PathLike) -> dict[str, Any]:
     if not isinstance(d, dict):
         raise InputError("expected a JSON object", path)
     return d
-
-
-def not_text(expected: str, path: str | os.PathLike) -> str:
-    """The problem of a binary file given where the text file ``expected`` is read: names its
-    kind when known ('expected a JSON file, got a PNG image'; was the codec's byte 0x89)."""
-    from staticdepth.fileio import KIND_NAMES, file_kind
-
-    kind = file_kind(path)
-    return f"expected {expected}, got {KIND_NAMES[kind] if kind else 'binary data'}"
 
 
 def load_camera(path: str | os.PathLike) -> Camera:
