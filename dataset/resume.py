@@ -208,6 +208,13 @@ def last_complete(f: h5py.File, n: int, checksum: Callable[[np.ndarray], int],
     return 0
 
 
+def leftover(partial: str, resume_how: str = "--resume continues it") -> InputError:
+    """The one line for a ``.partial`` found with neither ``--resume`` nor ``--restart``: it is
+    never resumed or deleted unasked (``resume_how``: how this command continues it)."""
+    return InputError("an earlier run stopped before finishing (interrupted, or by a bad input) "
+                      f"and left this file: {resume_how}, --restart starts over", partial)
+
+
 def refuse(partial: str, diff: Sequence[str]) -> InputError:
     return InputError("cannot resume: the partial was written with other inputs or settings ("
                       + "; ".join(diff[:3]) + (f"; {len(diff) - 3} more" if len(diff) > 3 else "")

@@ -131,9 +131,7 @@ class SequenceWriter:
             self._install_sigterm()
             remove_stale_temporaries(self.path)
             if os.path.exists(self.partial) and not (resume or restart):
-                raise InputError("an earlier run stopped before finishing (interrupted, or by a "
-                                 f"bad input) and left this file: {resume_how}, --restart "
-                                 "starts over", self.partial)
+                raise rs.leftover(self.partial, resume_how)
             opened = rs.open_partial(self.partial, warn) if resume and os.path.exists(
                 self.partial) else None
             with self._writing():

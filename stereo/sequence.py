@@ -139,8 +139,7 @@ def _check_outputs(path: str, name: str, identity: str, chash: str, *, overwrite
                 os.remove(partial)
                 rs.remove_journal(partial)
         elif not resume:
-            raise InputError("an earlier run stopped before finishing (interrupted) and left "
-                             "this file: --resume continues it, --restart starts over", partial)
+            raise rs.leftover(partial)
         elif not rs.journal_pending(partial):   # killed in a flush: its writer puts it back
             try:
                 with h5py.File(partial, "r") as f:
