@@ -129,10 +129,9 @@ def _calib_txt(reader: SequenceReader) -> str:
 def export_kitti(seq: str | os.PathLike, out: str | os.PathLike, *, overwrite: bool = False
                  ) -> dict[str, Any]:
     """Write ``seq`` as KITTI-style folders under ``out``; returns a summary dict."""
-    from staticdepth.fileio import check_output_parent, exclusive_lock
+    from staticdepth.fileio import exclusive_lock
 
     out = os.fspath(out)
-    check_output_parent(out)
     check_replaceable(out, overwrite, is_export, "a staticdepth export")
     with exclusive_lock(out, what="writing"):
         return _export(seq, out, overwrite)

@@ -291,7 +291,7 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
     import cv2
 
     from staticdepth.dataset.h5 import SequenceMeta, SequenceWriter
-    from staticdepth.fileio import check_output_parent, exclusive_lock
+    from staticdepth.fileio import exclusive_lock
     from staticdepth.progress import progress
 
     from staticdepth.dataset.schema import check_adapt_frames, check_name
@@ -316,7 +316,6 @@ def import_video(source: str, out: str, *, camera_json: str | None = None,
                         provenance={"input": source, "intrinsics": how, "every": every,
                                     "max_frames": max_frames, "resized_from": [w0, h0]})
     settings, inputs, labels = _identity(source, every, max_frames, width, fps)
-    check_output_parent(out)             # before its lock (a missing folder is the output's)
     with exclusive_lock(out):
         w = SequenceWriter(out, meta, streams=("left",), overwrite=overwrite, resume=resume,
                            restart=restart, settings=settings, inputs=inputs, labels=labels)

@@ -97,8 +97,7 @@ class SequenceWriter:
         per input frame (:func:`staticdepth.dataset.resume.task_identity`), ``labels`` their names;
         both are stored and a ``resume`` with others is refused (see :mod:`.resume`).
         ``resume_how``: how this command continues a leftover partial (said when it is found)."""
-        from staticdepth.fileio import (check_output_parent, exclusive_lock,
-                                        remove_stale_temporaries)
+        from staticdepth.fileio import exclusive_lock, remove_stale_temporaries
 
         self.path = os.fspath(path)
         self.partial = self.path + PARTIAL_SUFFIX
@@ -116,7 +115,6 @@ class SequenceWriter:
         self._replaced = os.path.lexists(self.path)
         if self._replaced:
             check_replaceable_sequence(self.path)
-        check_output_parent(self.path)
         self._f: h5py.File | None = None
         self._io = None  # the partial's UndoableFile (see resume.py)
         self.n = 0
